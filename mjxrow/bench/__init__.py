@@ -1,0 +1,61 @@
+"""Benchmarks: `python -m mjxrow.bench STAGE [...]`. Each stage module has `add_args(parser)` and
+`run(args) -> list[dict]`; every row lands in `benchmarks.jsonl` (machine) and is printed as a
+table to paste into BENCHMARKS.md (human)."""
+
+from __future__ import annotations
+
+import datetime
+import json
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import jax
+
+STAGES = ("fields", "physics", "render", "segmenter", "closed_loop", "dataset", "train")
+
+
+def device_name() -> str:
+    """The accelerator's name as nvidia-smi prints it, or 'cpu'."""
+    if jax.default_backend() == "cpu":
+        return "cpu"
+    try:
+        out = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"],
+                             capture_output=True, text=True, timeout=10).stdout.strip()
+        return out.splitlines()[0] if out else jax.devices()[0].device_kind
+    except (OSError, subprocess.SubprocessError):
+        return jax.devices()[0].device_kind
+
+
+def time_call(fn: Callable[..., Any], *args: Any, repeats: int = 5) -> dict[str, float]:
+    """Compile time (first call) apart from run time: median and all of `repeats` further calls.
+    Seconds; every call is waited for with block_until_ready."""
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn(*args))
+    compile_s = time.perf_counter() - t0
+    runs = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        runs.append(time.perf_counter() - t0)
+    return {"compile_s": compile_s, "median_s": statistics.median(runs), "runs_s": runs}
+
+
+def record(rows: list[dict], path: str | Path = "benchmarks.jsonl") -> None:
+    """Append rows ({stage, config, batch, value, unit, ...}) with date, device and command."""
+    base = {"date": datetime.date.today().isoformat(), "device": device_name(),
+            "command": "python -m mjxrow.bench " + " ".join(sys.argv[1:])}
+    with open(path, "a") as f:
+        for row in rows:
+            f.write(json.dumps({**base, **row}) + "\n")
+
+
+def print_table(rows: list[dict]) -> None:
+    print(f"\n| device | stage | config | batch | value | unit |\n|---|---|---|---|---|---|")
+    dev = device_name()
+    for r in rows:
+        print(f"| {dev} | {r['stage']} | {r['config']} | {r['batch']} | {r['value']:.4g} | "
+              f"{r['unit']} |")

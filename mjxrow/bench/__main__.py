@@ -1,0 +1,34 @@
+"""python -m mjxrow.bench STAGE [options]: measure one stage and append to benchmarks.jsonl."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+from mjxrow.bench import STAGES, print_table, record
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m mjxrow.bench", description=__doc__)
+    sub = parser.add_subparsers(dest="stage", required=True)
+    modules = {}
+    for stage in STAGES:
+        try:
+            modules[stage] = importlib.import_module(f"mjxrow.bench.{stage}")
+        except ModuleNotFoundError as e:
+            if e.name != f"mjxrow.bench.{stage}":
+                raise
+            continue
+        p = sub.add_parser(stage, help=modules[stage].__doc__.splitlines()[0])
+        modules[stage].add_args(p)
+        p.add_argument("--out", default="benchmarks.jsonl", help="JSON-lines file to append to")
+        p.add_argument("--no-record", action="store_true", help="print only")
+    args = parser.parse_args(argv)
+    rows = modules[args.stage].run(args)
+    if not args.no_record:
+        record(rows, args.out)
+    print_table(rows)
+
+
+if __name__ == "__main__":
+    main()

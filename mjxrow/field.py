@@ -1,0 +1,433 @@
+"""Parametric row-crop fields: `FieldParams` (traced), `FieldShape` (static), `generate`.
+
+Conventions: metres, z up, rows run along +x, the lateral axis is y, the field is centred at
+the origin. Rows are laid in groups: inside a group rows are `d_rr` apart, consecutive groups
+`d_RR` apart (from the last row of one group to the first row of the next); the number of
+groups follows from the terrain width. Rows are indexed 0..R-1 by increasing y; lane `i` is the
+strip between rows `i` and `i + 1`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+CROPS = ("zucchini", "lettuce", "chard", "pear", "vineyard")
+
+ROBOT_WIDTH = 0.430  # m, lateral footprint of the UGV (robot.py holds the rest)
+LANE_CLEARANCE = 0.10  # m, free width a lane needs beyond the robot's width
+HEADLAND = 1.0  # m, minimum border between the outermost rows and the terrain edge
+N_TERRAIN_MODES = 48  # sinusoids summed for the terrain roughness
+
+
+@struct.dataclass
+class FieldParams:
+    """Numbers that describe one field. Every one is a `jax.Array` (scalar per field, or [B]
+    when batched), so sweeping any of them never recompiles."""
+
+    d_rr: jax.Array  # row-to-row distance inside a group [m]
+    d_RR: jax.Array  # distance between the facing rows of two consecutive groups [m]
+    d_pp: jax.Array  # plant-to-plant distance along a row [m]
+    rows_per_group: jax.Array  # rows in one group [count, integral value]
+    row_length: jax.Array  # length of every row along x [m]
+    terrain_length: jax.Array  # terrain extent along x [m]
+    terrain_width: jax.Array  # terrain extent along y [m]
+    plant_length: jax.Array  # nominal plant extent along the row (x) [m]
+    plant_width: jax.Array  # nominal plant extent across the row (y) [m]
+    plant_height: jax.Array  # nominal plant height [m]
+    plant_size_var: jax.Array  # relative std of each plant's size [-]
+    plant_jitter: jax.Array  # std of each plant's position around its nominal place [m]
+    p_missing: jax.Array  # probability that a plant is missing [-]
+    terrain_dh: jax.Array  # terrain irregularity |ΔH|: peak-to-peak height of the roughness [m]
+    terrain_scale: jax.Array  # horizontal scale (wavelength) of the roughness [m]
+    slope_x: jax.Array  # longitudinal slope dz/dx [-]
+    slope_y: jax.Array  # lateral slope dz/dy [-]
+    stone_density: jax.Array  # stones per 100 m² of lane [count / 100 m²]
+    branch_density: jax.Array  # fallen branches per 100 m² of lane [count / 100 m²]
+    scale: jax.Array  # global factor on every length of the field [-]
+
+
+PARAM_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(FieldParams))
+
+
+@dataclasses.dataclass(frozen=True)
+class FieldShape:
+    """Static description that fixes array shapes: one compile per distinct value."""
+
+    crop: str = "zucchini"
+    max_rows: int = 16
+    max_plants_per_row: int = 80
+    terrain_cells: tuple[int, int] = (160, 256)  # (ny, nx) height samples
+    obstacle_slots: int = 32
+
+    def __post_init__(self):
+        if self.crop not in CROPS:
+            raise ValueError(f"crop: unknown crop {self.crop!r}; expected one of {CROPS}")
+        for name in ("max_rows", "max_plants_per_row", "obstacle_slots"):
+            if int(getattr(self, name)) < (2 if name == "max_rows" else 1):
+                raise ValueError(f"{name}: must be a positive count, got {getattr(self, name)}")
+        ny, nx = self.terrain_cells
+        if ny < 2 or nx < 2:
+            raise ValueError(f"terrain_cells: need at least 2×2 samples, got {self.terrain_cells}")
+
+
+@struct.dataclass
+class Field:
+    """One generated field (add a leading [B] axis to every array for a batch).
+
+    R = shape.max_rows, P = shape.max_plants_per_row, S = shape.obstacle_slots,
+    (NY, NX) = shape.terrain_cells.
+    """
+
+    params: FieldParams
+    plant_pos: jax.Array  # float32 [R, P, 3], plant base centre on the terrain surface [m]
+    plant_size: jax.Array  # float32 [R, P, 3], (length, width, height) of each plant [m]
+    plant_yaw: jax.Array  # float32 [R, P], plant orientation about z [rad]
+    plant_phase: jax.Array  # float32 [R, P], per-plant random number in [0, 1) for its shape
+    plant_active: jax.Array  # bool [R, P]
+    plant_row: jax.Array  # int32 [R, P], row index of each plant
+    row_y: jax.Array  # float32 [R], lateral position of each row [m]
+    row_active: jax.Array  # bool [R]
+    row_x: jax.Array  # float32 [2], (start, end) of every row along x [m]
+    lane_y: jax.Array  # float32 [R-1], lateral position of the centre line of lane i [m]
+    lane_width: jax.Array  # float32 [R-1], distance between the rows bounding lane i [m]
+    lane_active: jax.Array  # bool [R-1]
+    terrain: jax.Array  # float32 [NY, NX], heights [m]; sample (j, i) lies at terrain_xy(j, i)
+    terrain_size: jax.Array  # float32 [2], (length along x, width along y) [m]
+    obst_pos: jax.Array  # float32 [S, 3], obstacle centre [m]
+    obst_size: jax.Array  # float32 [S, 2], stone: (radius, 0); branch: (radius, half length) [m]
+    obst_yaw: jax.Array  # float32 [S], branch direction about z [rad]
+    obst_kind: jax.Array  # int32 [S], 0 stone, 1 fallen branch
+    obst_active: jax.Array  # bool [S]
+    n_rows: jax.Array  # int32 [], rows actually laid
+    valid: jax.Array  # bool [], False when the params describe an impossible field
+
+
+STONE, BRANCH = 0, 1
+
+_COMMON: dict[str, float] = dict(
+    plant_size_var=0.08,
+    plant_jitter=0.03,
+    p_missing=0.03,
+    terrain_scale=4.0,
+    slope_x=0.0,
+    slope_y=0.0,
+    stone_density=1.0,
+    branch_density=0.3,
+    scale=1.0,
+)
+
+# The paper's Table 1 (terrain L×W, |ΔH|; plant L×W×H; d_rr, d_RR, d_pp; rows per group);
+# vineyard with typical values. Rows stop HEADLAND·5 m short of the terrain ends.
+PRESETS: dict[str, dict[str, float]] = {
+    "zucchini": dict(terrain_length=60.0, terrain_width=38.0, terrain_dh=0.2, plant_length=0.82,
+                     plant_width=0.9, plant_height=0.6, d_rr=1.8, d_RR=3.6, d_pp=0.7,
+                     rows_per_group=7, row_length=50.0),
+    "lettuce": dict(terrain_length=60.0, terrain_width=25.0, terrain_dh=0.25, plant_length=0.38,
+                    plant_width=0.34, plant_height=0.22, d_rr=0.7, d_RR=1.4, d_pp=0.4,
+                    rows_per_group=3, row_length=50.0),
+    "chard": dict(terrain_length=60.0, terrain_width=12.0, terrain_dh=0.25, plant_length=0.25,
+                  plant_width=0.4, plant_height=0.25, d_rr=0.7, d_RR=1.4, d_pp=0.3,
+                  rows_per_group=3, row_length=50.0),
+    "pear": dict(terrain_length=80.0, terrain_width=45.0, terrain_dh=0.3, plant_length=1.4,
+                 plant_width=2.2, plant_height=3.2, d_rr=5.0, d_RR=5.0, d_pp=2.2,
+                 rows_per_group=1, row_length=70.0),
+    "vineyard": dict(terrain_length=60.0, terrain_width=30.0, terrain_dh=0.15, plant_length=1.2,
+                     plant_width=0.5, plant_height=1.9, d_rr=2.7, d_RR=2.7, d_pp=1.0,
+                     rows_per_group=1, row_length=50.0),
+}
+for _p in PRESETS.values():
+    for _k, _v in _COMMON.items():
+        _p.setdefault(_k, _v)
+assert all(set(p) == set(PARAM_NAMES) for p in PRESETS.values())
+
+
+def make_params(preset: str = "zucchini", **overrides: Any) -> FieldParams:
+    """FieldParams of a preset with `overrides` (name → number, or array for a batch)."""
+    if preset not in PRESETS:
+        raise ValueError(f"preset: unknown preset {preset!r}; expected one of {tuple(PRESETS)}")
+    unknown = sorted(set(overrides) - set(PARAM_NAMES))
+    if unknown:
+        raise ValueError(f"{unknown[0]}: unknown field parameter; known: {', '.join(PARAM_NAMES)}")
+    values = {**PRESETS[preset], **overrides}
+    return FieldParams(**{k: jnp.asarray(values[k], jnp.float32) for k in PARAM_NAMES})
+
+
+def stack_params(params: list[FieldParams]) -> FieldParams:
+    """[FieldParams] → one FieldParams with a leading [B] axis."""
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *params)
+
+
+# ---------------------------------------------------------------------------------------------
+# Layout (pure jnp; shared by generate, validate and the static shape fitter)
+
+
+def _scaled(p: FieldParams) -> dict[str, jax.Array]:
+    s = p.scale
+    lengths = ("d_rr", "d_RR", "d_pp", "row_length", "terrain_length", "terrain_width",
+               "plant_length", "plant_width", "plant_height", "terrain_dh", "terrain_scale",
+               "plant_jitter")
+    out = {k: getattr(p, k) for k in PARAM_NAMES}
+    out.update({k: getattr(p, k) * s for k in lengths})
+    out["rows_per_group"] = jnp.maximum(jnp.round(p.rows_per_group), 1.0)
+    return out
+
+
+def _layout(q: dict[str, jax.Array]) -> dict[str, jax.Array]:
+    """Counts implied by scaled params: groups, rows, plants per row, obstacles."""
+    rpg = q["rows_per_group"]
+    group_w = (rpg - 1.0) * q["d_rr"]
+    pitch = group_w + q["d_RR"]
+    usable = q["terrain_width"] - 2.0 * HEADLAND - group_w
+    n_groups = jnp.where(usable >= 0, jnp.floor(usable / pitch + 1e-6) + 1.0, 0.0)
+    n_rows = n_groups * rpg
+    n_plants = jnp.floor(q["row_length"] / q["d_pp"] + 1e-6) + 1.0
+    lane_area = q["row_length"] * jnp.maximum(n_rows - 1.0, 0.0) * (pitch / rpg) / 100.0
+    n_stones = jnp.round(q["stone_density"] * lane_area)
+    n_branches = jnp.round(q["branch_density"] * lane_area)
+    return dict(n_groups=n_groups, n_rows=n_rows, n_plants=n_plants, pitch=pitch,
+                group_w=group_w, n_stones=n_stones, n_branches=n_branches)
+
+
+def checks(params: FieldParams, shape: FieldShape) -> dict[str, tuple[jax.Array, str]]:
+    """Each impossible-field condition: name → (ok: bool array, reason). Traced-friendly."""
+    q = _scaled(params)
+    lay = _layout(q)
+    lengths = ("d_rr", "d_RR", "d_pp", "row_length", "terrain_length", "terrain_width",
+               "plant_length", "plant_width", "plant_height", "terrain_scale", "scale")
+    out: dict[str, tuple[jax.Array, str]] = {}
+    for k in lengths:
+        out[k] = (getattr(params, k) > 0, "must be positive")
+    for k in ("plant_size_var", "plant_jitter", "terrain_dh", "stone_density", "branch_density"):
+        out[k] = (getattr(params, k) >= 0, "must be non-negative")
+    out["p_missing"] = ((params.p_missing >= 0) & (params.p_missing < 1), "must lie in [0, 1)")
+    out["rows_per_group"] = (params.rows_per_group >= 1, "must be at least 1")
+    multi_row = q["rows_per_group"] > 1
+    out["plant_width"] = (
+        (q["plant_width"] > 0)
+        & (jnp.where(multi_row, q["plant_width"] < q["d_rr"], True))
+        & (q["plant_width"] < q["d_RR"]),
+        "plants are wider than their row spacing (d_rr or d_RR)",
+    )
+    out["row_length"] = (
+        (q["row_length"] > 0) & (q["row_length"] <= q["terrain_length"] - 2 * HEADLAND),
+        f"rows must fit the terrain length with {HEADLAND} m headlands",
+    )
+    out["terrain_width"] = (
+        (q["terrain_width"] > 0) & (lay["n_rows"] >= 2),
+        "fewer than two rows fit the terrain width with these spacings",
+    )
+    out["max_rows"] = (lay["n_rows"] <= shape.max_rows,
+                       f"more rows than the shape allows (max_rows={shape.max_rows})")
+    out["max_plants_per_row"] = (
+        lay["n_plants"] <= shape.max_plants_per_row,
+        f"more plants per row than the shape allows (max_plants_per_row="
+        f"{shape.max_plants_per_row}); raise d_pp or the shape",
+    )
+    out["obstacle_slots"] = (
+        lay["n_stones"] + lay["n_branches"] <= shape.obstacle_slots,
+        f"more obstacles than the shape allows (obstacle_slots={shape.obstacle_slots})",
+    )
+    free_in = jnp.where(multi_row, q["d_rr"] - q["plant_width"], -1.0)
+    free_between = q["d_RR"] - q["plant_width"]
+    out["robot_lane"] = (
+        jnp.maximum(free_in, free_between) >= ROBOT_WIDTH + LANE_CLEARANCE,
+        f"no lane is wide enough for the robot ({ROBOT_WIDTH} m + {LANE_CLEARANCE} m clearance)",
+    )
+    return out
+
+
+def validate(params: FieldParams, shape: FieldShape) -> None:
+    """Raise ValueError naming the first parameter that makes the field impossible.
+
+    Works on single or batched params (the message names the first failing index)."""
+    for name, (ok, reason) in checks(params, shape).items():
+        ok = np.asarray(ok)
+        if not ok.all():
+            where = "" if ok.ndim == 0 else f" (batch index {int(np.argmin(ok.reshape(-1)))})"
+            raise ValueError(f"{name}: {reason}{where}")
+
+
+def fit_shape(params: FieldParams, crop: str, cell: float = 0.25, round_to: int = 8,
+              obstacle_slots: int | None = None) -> FieldShape:
+    """Smallest static FieldShape (rounded up) that holds every field of `params` (host)."""
+    q = jax.tree.map(np.asarray, _scaled(params))
+    lay = jax.tree.map(np.asarray, _layout(q))
+
+    def up(n):
+        return int(max(round_to, math.ceil(float(np.max(n)) / round_to) * round_to))
+
+    nx = up(np.max(q["terrain_length"]) / cell + 1)
+    ny = up(np.max(q["terrain_width"]) / cell + 1)
+    slots = obstacle_slots or up(np.max(lay["n_stones"] + lay["n_branches"]) + 1)
+    return FieldShape(crop=crop, max_rows=up(np.max(lay["n_rows"])),
+                      max_plants_per_row=up(np.max(lay["n_plants"])), terrain_cells=(ny, nx),
+                      obstacle_slots=slots)
+
+
+def preset_shape(preset: str) -> FieldShape:
+    return fit_shape(make_params(preset), preset)
+
+
+# ---------------------------------------------------------------------------------------------
+# Terrain
+
+
+def terrain_axes(terrain_size: jax.Array, cells: tuple[int, int]) -> tuple[jax.Array, jax.Array]:
+    """Sample coordinates: x [NX] and y [NY] in metres (MuJoCo hfield layout: row j ↔ y)."""
+    ny, nx = cells
+    x = (jnp.linspace(0.0, 1.0, nx) - 0.5) * terrain_size[0]
+    y = (jnp.linspace(0.0, 1.0, ny) - 0.5) * terrain_size[1]
+    return x, y
+
+
+def terrain_height(terrain: jax.Array, terrain_size: jax.Array, x: jax.Array,
+                   y: jax.Array) -> jax.Array:
+    """Height [m] of the terrain surface at (x, y) (any matching shapes), matching MuJoCo's
+    heightfield triangulation: each cell is split along the diagonal from (i, j) to
+    (i + 1, j + 1). Points outside the grid take the nearest edge height."""
+    ny, nx = terrain.shape
+    u = jnp.clip((x / terrain_size[0] + 0.5) * (nx - 1), 0.0, nx - 1 - 1e-4)
+    v = jnp.clip((y / terrain_size[1] + 0.5) * (ny - 1), 0.0, ny - 1 - 1e-4)
+    i = jnp.floor(u).astype(jnp.int32)
+    j = jnp.floor(v).astype(jnp.int32)
+    fu, fv = u - i, v - j
+    h00 = terrain[j, i]
+    h10 = terrain[j, i + 1]
+    h01 = terrain[j + 1, i]
+    h11 = terrain[j + 1, i + 1]
+    lower = h00 + fu * (h10 - h00) + fv * (h11 - h10)  # triangle (00, 10, 11): fu >= fv
+    upper = h00 + fv * (h01 - h00) + fu * (h11 - h01)  # triangle (00, 01, 11): fv > fu
+    return jnp.where(fu >= fv, lower, upper)
+
+
+def _terrain(q, cells, key) -> tuple[jax.Array, jax.Array]:
+    size = jnp.stack([q["terrain_length"], q["terrain_width"]])
+    x, y = terrain_axes(size, cells)
+    kd, kp, ka = jax.random.split(key, 3)
+    # isotropic band-limited noise: wavelengths spread around terrain_scale
+    ang = jax.random.uniform(kd, (N_TERRAIN_MODES,), maxval=2 * jnp.pi)
+    lam = q["terrain_scale"] * jnp.exp(jax.random.uniform(ka, (N_TERRAIN_MODES,), minval=-0.7,
+                                                          maxval=0.7))
+    k = 2 * jnp.pi / lam
+    phase = jax.random.uniform(kp, (N_TERRAIN_MODES,), maxval=2 * jnp.pi)
+    amp = lam / q["terrain_scale"]  # longer waves a little stronger
+    # Σ_m amp·cos(kx·x + ky·y + φ), separated into two [NY, M] × [M, NX] products
+    ax = x[None, :] * (k * jnp.cos(ang))[:, None] + phase[:, None]  # [M, NX]
+    by = y[:, None] * (k * jnp.sin(ang))[None, :]  # [NY, M]
+    rough = (jnp.cos(by) * amp) @ jnp.cos(ax) - (jnp.sin(by) * amp) @ jnp.sin(ax)
+    rough = rough - 0.5 * (rough.max() + rough.min())
+    rough = rough / jnp.maximum(rough.max() - rough.min(), 1e-6) * q["terrain_dh"]
+    heights = rough + q["slope_x"] * x[None, :] + q["slope_y"] * y[:, None]
+    return heights.astype(jnp.float32), size
+
+
+# ---------------------------------------------------------------------------------------------
+# Generation
+
+
+def generate(params: FieldParams, shape: FieldShape, key: jax.Array) -> Field:
+    """One field from scalar `params` (pure, jittable; vmap over params and key for a batch)."""
+    R, P, S = shape.max_rows, shape.max_plants_per_row, shape.obstacle_slots
+    q = _scaled(params)
+    lay = _layout(q)
+    k_ter, k_pos, k_size, k_yaw, k_phase, k_miss, k_obs = jax.random.split(key, 7)
+
+    terrain, tsize = _terrain(q, shape.terrain_cells, k_ter)
+
+    # rows: groups of rows_per_group, centred on y = 0
+    r = jnp.arange(R, dtype=jnp.float32)
+    rpg = q["rows_per_group"]
+    g, jr = jnp.floor(r / rpg), jnp.mod(r, rpg)
+    span = (lay["n_groups"] - 1.0) * lay["pitch"] + lay["group_w"]
+    row_y = -0.5 * span + g * lay["pitch"] + jr * q["d_rr"]
+    row_active = r < lay["n_rows"]
+    row_y = jnp.where(row_active, row_y, 0.0)
+
+    # plants on each row
+    x0 = -0.5 * q["row_length"]
+    i = jnp.arange(P, dtype=jnp.float32)
+    jit_xy = jax.random.normal(k_pos, (R, P, 2)) * q["plant_jitter"]
+    px = x0 + i[None, :] * q["d_pp"] + jit_xy[..., 0]
+    py = row_y[:, None] + jit_xy[..., 1]
+    pz = terrain_height(terrain, tsize, px, py)
+    size_nom = jnp.stack([q["plant_length"], q["plant_width"], q["plant_height"]])
+    size_f = jnp.clip(1.0 + q["plant_size_var"] * jax.random.normal(k_size, (R, P, 1)), 0.5, 1.5)
+    plant_active = (
+        row_active[:, None]
+        & (i[None, :] < lay["n_plants"])
+        & (jax.random.uniform(k_miss, (R, P)) >= q["p_missing"])
+    )
+    plant_yaw = jax.random.uniform(k_yaw, (R, P), minval=-jnp.pi, maxval=jnp.pi)
+
+    # lanes between consecutive rows
+    lane_y = 0.5 * (row_y[1:] + row_y[:-1])
+    lane_width = row_y[1:] - row_y[:-1]
+    lane_active = row_active[1:] & row_active[:-1]
+
+    # obstacles in the lanes: first the stones, then the branches
+    ko = jax.random.split(k_obs, 6)
+    s = jnp.arange(S, dtype=jnp.float32)
+    is_stone = s < lay["n_stones"]
+    obst_active = s < lay["n_stones"] + lay["n_branches"]
+    n_lanes = jnp.maximum(lay["n_rows"] - 1.0, 1.0)
+    lane_idx = jnp.floor(jax.random.uniform(ko[0], (S,)) * n_lanes).astype(jnp.int32)
+    lane_idx = jnp.clip(lane_idx, 0, R - 2)
+    free = jnp.maximum(lane_width[lane_idx] - q["plant_width"], 0.2)
+    oy = lane_y[lane_idx] + (jax.random.uniform(ko[1], (S,)) - 0.5) * 0.8 * free
+    ox = (jax.random.uniform(ko[2], (S,)) - 0.5) * q["row_length"]
+    stone_r = q["scale"] * jax.random.uniform(ko[3], (S,), minval=0.03, maxval=0.08)
+    branch_r = q["scale"] * jax.random.uniform(ko[3], (S,), minval=0.015, maxval=0.035)
+    branch_half = q["scale"] * jax.random.uniform(ko[4], (S,), minval=0.25, maxval=0.7)
+    radius = jnp.where(is_stone, stone_r, branch_r)
+    obst_size = jnp.stack([radius, jnp.where(is_stone, 0.0, branch_half)], -1)
+    # stones sunk to half their radius; branches lie on the ground
+    oz = terrain_height(terrain, tsize, ox, oy) + jnp.where(is_stone, 0.5, 1.0) * radius
+    obst_pos = jnp.stack([ox, oy, oz], -1)
+    obst_yaw = jax.random.uniform(ko[5], (S,), minval=-jnp.pi, maxval=jnp.pi)
+
+    valid = jnp.all(jnp.stack([jnp.all(ok) for ok, _ in checks(params, shape).values()]))
+    return Field(
+        params=params,
+        plant_pos=jnp.stack([px, py, pz], -1).astype(jnp.float32),
+        plant_size=(size_nom * size_f).astype(jnp.float32),
+        plant_yaw=plant_yaw.astype(jnp.float32),
+        plant_phase=jax.random.uniform(k_phase, (R, P)),
+        plant_active=plant_active,
+        plant_row=jnp.broadcast_to(jnp.arange(R, dtype=jnp.int32)[:, None], (R, P)),
+        row_y=row_y.astype(jnp.float32),
+        row_active=row_active,
+        row_x=jnp.stack([x0, -x0]).astype(jnp.float32),
+        lane_y=lane_y.astype(jnp.float32),
+        lane_width=lane_width.astype(jnp.float32),
+        lane_active=lane_active,
+        terrain=terrain,
+        terrain_size=tsize.astype(jnp.float32),
+        obst_pos=obst_pos.astype(jnp.float32),
+        obst_size=obst_size.astype(jnp.float32),
+        obst_yaw=obst_yaw.astype(jnp.float32),
+        obst_kind=jnp.where(is_stone, STONE, BRANCH).astype(jnp.int32),
+        obst_active=obst_active,
+        n_rows=lay["n_rows"].astype(jnp.int32),
+        valid=valid,
+    )
+
+
+def robot_lane(field: Field, robot_width: float = ROBOT_WIDTH) -> jax.Array:
+    """Index of the lane the robot drives by default (traced int32 []): the lane nearest the
+    field centre whose free width (lane width − plant width) fits the robot; in-group lanes are
+    preferred, so lettuce and chard fall back to the wider lane between groups."""
+    q = _scaled(field.params)
+    free = field.lane_width - q["plant_width"]
+    fits = field.lane_active & (free >= robot_width + LANE_CLEARANCE)
+    lane = jnp.arange(field.lane_y.shape[-1], dtype=jnp.float32)
+    in_group = jnp.mod(lane + 1.0, q["rows_per_group"]) != 0
+    prefer_group = jnp.any(fits & in_group)
+    penalty = jnp.where(fits, 0.0, 1e6) + jnp.where(prefer_group & ~in_group, 1e3, 0.0)
+    return jnp.argmin(jnp.abs(field.lane_y) + penalty).astype(jnp.int32)
