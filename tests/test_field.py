@@ -1,0 +1,171 @@
+"""Facts of the field generator: spacings, determinism, terrain bounds, validation, tracing."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjxrow import field as F
+
+SMALL = dict(terrain_length=14.0, row_length=10.0, terrain_width=14.0, p_missing=0.0)
+
+
+def _gen(preset="zucchini", key=0, **kw):
+    p = F.make_params(preset, **{**SMALL, **kw})
+    shape = F.fit_shape(p, preset)
+    return F.generate(p, shape, jax.random.key(key)), p, shape
+
+
+def _measured_rows(f):
+    y = np.asarray(f.row_y)[np.asarray(f.row_active)]
+    return y, np.diff(y)
+
+
+def test_zucchini_spacings_and_groups():
+    f, p, _ = _gen(plant_jitter=0.0)
+    y, gaps = _measured_rows(f)
+    # 14 m wide, 7 rows per group at 1.8 m, 3.6 m between groups: (14 - 2 - 10.8) < 14.4 ⇒ 1 group
+    assert len(y) == 7 and np.allclose(gaps, 1.8, atol=0.02)
+    f2, *_ = _gen(terrain_width=38.0)
+    y2, gaps2 = _measured_rows(f2)
+    assert len(y2) == 14  # two groups fit 38 m
+    assert np.allclose(gaps2[:6], 1.8, atol=0.02) and abs(gaps2[6] - 3.6) < 0.02
+    assert abs(y2.mean()) < 1e-4  # centred
+    # rows per group read back from the gaps
+    assert np.sum(np.isclose(gaps2, 3.6, atol=0.02)) + 1 == 2
+
+
+def test_plant_spacing_without_jitter():
+    f, p, _ = _gen(plant_jitter=0.0, d_pp=0.7)
+    x = np.asarray(f.plant_pos[0, :, 0])[np.asarray(f.plant_active[0])]
+    assert np.allclose(np.diff(x), 0.7, atol=0.02)
+    assert len(x) == int(10.0 / 0.7) + 1
+    assert x[0] == pytest.approx(-5.0, abs=1e-5)
+
+
+def test_pear_single_rows():
+    f, p, _ = _gen("pear", terrain_length=20.0, row_length=16.0, terrain_width=22.0)
+    y, gaps = _measured_rows(f)
+    assert np.allclose(gaps, 5.0, atol=0.02) and len(y) == 5
+
+
+def test_plants_sit_on_terrain():
+    f, *_ = _gen(terrain_dh=0.3, slope_x=0.05)
+    z = F.terrain_height(f.terrain, f.terrain_size, f.plant_pos[..., 0], f.plant_pos[..., 1])
+    assert np.allclose(np.asarray(f.plant_pos[..., 2]), np.asarray(z), atol=1e-5)
+
+
+def test_terrain_height_interpolates_grid_nodes():
+    f, *_ = _gen(terrain_dh=0.3)
+    x, y = F.terrain_axes(f.terrain_size, f.terrain.shape)
+    X, Y = jnp.meshgrid(x[3:9], y[2:7])
+    h = F.terrain_height(f.terrain, f.terrain_size, X, Y)
+    assert np.allclose(np.asarray(h), np.asarray(f.terrain[2:7, 3:9]), atol=1e-5)
+
+
+def test_same_key_same_field_different_key_different_jitter():
+    a, *_ = _gen(key=3)
+    b, *_ = _gen(key=3)
+    c, *_ = _gen(key=4)
+    for la, lb in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+        assert np.array_equal(np.asarray(la), np.asarray(lb))
+    assert not np.allclose(np.asarray(a.plant_pos), np.asarray(c.plant_pos))
+    assert not np.allclose(np.asarray(a.terrain), np.asarray(c.terrain))
+
+
+@pytest.mark.parametrize("dh", [0.05, 0.2, 0.3])
+def test_terrain_roughness_bound(dh):
+    f, *_ = _gen(terrain_dh=dh)
+    t = np.asarray(f.terrain)
+    ptp = t.max() - t.min()
+    assert ptp <= dh + 1e-5
+    assert ptp > 0.9 * dh  # not trivially flat
+    assert np.std(t) > 0.1 * dh
+
+
+def test_slope_plane():
+    f, *_ = _gen(terrain_dh=0.0, slope_x=0.1, slope_y=-0.05)
+    x, y = F.terrain_axes(f.terrain_size, f.terrain.shape)
+    expect = 0.1 * x[None, :] - 0.05 * y[:, None]
+    assert np.allclose(np.asarray(f.terrain), np.asarray(expect), atol=1e-4)
+
+
+def test_default_lane_prefers_group_lane_unless_too_narrow():
+    f, p, _ = _gen(terrain_width=38.0)
+    lane = int(F.robot_lane(f))
+    assert float(f.lane_width[lane]) == pytest.approx(1.8, abs=1e-4)  # zucchini: in-group lane
+    f, p, _ = _gen("lettuce", terrain_width=12.0)
+    lane = int(F.robot_lane(f))
+    assert float(f.lane_width[lane]) == pytest.approx(1.4, abs=1e-4)  # lettuce: between groups
+    assert bool(f.lane_active[lane])
+
+
+def test_presets_generate_valid_fields():
+    for crop in F.CROPS:
+        p = F.make_params(crop)
+        shape = F.preset_shape(crop)
+        F.validate(p, shape)
+        f = jax.eval_shape(lambda p, k, shape=shape: F.generate(p, shape, k), p, jax.random.key(0))
+        assert f.plant_pos.shape == (shape.max_rows, shape.max_plants_per_row, 3)
+
+
+@pytest.mark.parametrize(
+    "override, name",
+    [
+        (dict(d_rr=-1.0), "d_rr"),
+        (dict(d_pp=0.0), "d_pp"),
+        (dict(plant_width=2.0), "plant_width"),
+        (dict(row_length=100.0), "row_length"),
+        (dict(terrain_width=4.0), "terrain_width"),
+        (dict(p_missing=1.0), "p_missing"),
+        (dict(d_RR=0.95, d_rr=0.95), "robot_lane"),
+    ],
+)
+def test_validate_names_the_parameter(override, name):
+    p = F.make_params("zucchini", **{**SMALL, **override})
+    shape = F.FieldShape(crop="zucchini", max_rows=16, max_plants_per_row=80,
+                         terrain_cells=(32, 32), obstacle_slots=64)
+    with pytest.raises(ValueError, match=rf"^{name}:"):
+        F.validate(p, shape)
+    assert not bool(F.generate(p, shape, jax.random.key(0)).valid)
+
+
+def test_validate_shape_limits():
+    p = F.make_params("zucchini", **SMALL)
+    shape = F.fit_shape(p, "zucchini")
+    small = F.FieldShape(crop="zucchini", max_rows=shape.max_rows, max_plants_per_row=5,
+                         terrain_cells=shape.terrain_cells, obstacle_slots=shape.obstacle_slots)
+    with pytest.raises(ValueError, match="^max_plants_per_row:"):
+        F.validate(p, small)
+    with pytest.raises(ValueError, match="unknown field parameter"):
+        F.make_params("zucchini", d_rrr=1.0)
+
+
+def test_batched_validity_flag_does_not_crash():
+    base = F.make_params("zucchini", **SMALL)
+    shape = F.FieldShape(crop="zucchini", max_rows=16, max_plants_per_row=80,
+                         terrain_cells=(32, 32), obstacle_slots=64)
+    params = jax.tree.map(lambda x: jnp.stack([x, x]), base)
+    params = params.replace(d_rr=jnp.array([1.8, -1.0]))
+    keys = jax.random.split(jax.random.key(0), 2)
+    f = jax.vmap(F.generate, in_axes=(0, None, 0))(params, shape, keys)
+    assert np.asarray(f.valid).tolist() == [True, False]
+    with pytest.raises(ValueError, match=r"^d_rr: .*batch index 1"):
+        F.validate(params, shape)
+
+
+def test_traced_parameter_change_does_not_retrace():
+    traces = []
+
+    def gen(p, k):
+        traces.append(1)
+        return F.generate(p, shape, k).plant_pos
+
+    p = F.make_params("zucchini", **SMALL)
+    shape = F.fit_shape(F.make_params("zucchini", **{**SMALL, "d_rr": 1.2}), "zucchini")
+    g = jax.jit(gen)
+    a = g(p, jax.random.key(0))
+    b = g(p.replace(d_rr=jnp.asarray(1.2, jnp.float32), terrain_dh=jnp.asarray(0.1, jnp.float32)),
+          jax.random.key(0))
+    assert len(traces) == 1
+    assert not np.allclose(np.asarray(a), np.asarray(b))
