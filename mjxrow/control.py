@@ -1,0 +1,353 @@
+"""Controllers: ground-truth pure pursuit (`oracle`), SegZeros and SegMin on a plant mask.
+
+A controller is a pair of pure, jittable functions over pytrees:
+
+    init(params) -> state
+    act(params, state, obs) -> (state, cmd)        cmd = float32 [2] = (v [m/s], ω [rad/s])
+
+`params` are pytrees whose numbers are `jax.Array`s (gains are sweepable without recompiling);
+the few fields that fix the structure (law, mask buffer size, image size) are static. A
+`Policy` adds a PRNG key to `act` so that perception (render → segment) plugs in in front of a
+mask controller: see `with_perception`.
+
+Signs: ω > 0 turns left (counter-clockwise, yaw increasing). Image column 0 is the LEFT edge of
+the image, so a free lane left of the image centre (x_c < w/2, d < 0) gives ω > 0.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from mjxrow.field import Field
+
+LAWS = ("linear", "quadratic")
+METHODS = ("zeros", "min")
+ON_END = ("straight", "stop", "hold")
+
+
+@struct.dataclass
+class Obs:
+    """What a controller sees at one control step (one world; add [B] axes for a batch)."""
+
+    pose: jax.Array  # float32 [3], (x [m], y [m], yaw [rad]), world frame
+    lane_y: jax.Array  # float32 [], lateral position of the lane centre line [m]
+    lane_end_x: jax.Array  # float32 [], x of the lane's end (the goal's x) [m]
+    goal: jax.Array  # float32 [2], goal (x, y) [m]
+    cam_pos: jax.Array  # float32 [3], camera position, world frame [m]
+    cam_rot: jax.Array  # float32 [3, 3], columns: camera right, up, backward (MuJoCo)
+    field: Field | None = None  # the world (no batch axis)
+    mask: jax.Array | None = None  # bool [H, W], plant pixels; column 0 = image left
+    depth: jax.Array | None = None  # float32 [H, W], metres along the optical axis
+
+
+class Policy(NamedTuple):
+    """A policy for `episode.rollout`: `init(params) -> state` and
+    `act(params, state, obs, key) -> (state, cmd [2])`; calling the policy calls `act`."""
+
+    init: Callable[[Any], Any]
+    act: Callable[[Any, Any, Obs, jax.Array], tuple[Any, jax.Array]]
+
+    def __call__(self, params, state, obs, key):
+        return self.act(params, state, obs, key)
+
+
+# ---------------------------------------------------------------------------------------------
+# Oracle: pure pursuit on the ground-truth lane centre line
+
+
+@struct.dataclass
+class OracleParams:
+    lookahead: jax.Array  # pure-pursuit lookahead distance [m]
+    v_max: jax.Array  # forward speed [m/s]
+    omega_max: jax.Array  # |ω| limit [rad/s]
+
+
+def oracle_params(lookahead: float = 1.0, v_max: float = 0.5, omega_max: float = 1.0
+                  ) -> OracleParams:
+    if lookahead <= 0:
+        raise ValueError(f"lookahead: must be positive, got {lookahead}")
+    f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    return OracleParams(lookahead=f(lookahead), v_max=f(v_max), omega_max=f(omega_max))
+
+
+def oracle_init(params: OracleParams) -> tuple:
+    return ()
+
+
+def pursuit_command(params: OracleParams, pose: jax.Array, lane_y: jax.Array) -> jax.Array:
+    """(v, ω) [2] of pure pursuit on the line y = lane_y driven towards +x.
+
+    The target is the point of the line at `lookahead` from the robot (or, when the robot is
+    farther than that from the line, a point 0.1·lookahead ahead of its projection);
+    curvature κ = 2·y_r / (x_r² + y_r²) with the target at (x_r, y_r) in the robot frame;
+    ω = v_max·κ clipped to ±omega_max, v = v_max."""
+    x, y, yaw = pose[0], pose[1], pose[2]
+    e = y - lane_y
+    L = params.lookahead
+    ahead = jnp.sqrt(jnp.maximum(L * L - e * e, (0.1 * L) ** 2))
+    dx, dy = ahead, lane_y - y
+    c, s = jnp.cos(yaw), jnp.sin(yaw)
+    xr, yr = c * dx + s * dy, -s * dx + c * dy
+    kappa = 2.0 * yr / jnp.maximum(xr * xr + yr * yr, 1e-9)
+    omega = jnp.clip(params.v_max * kappa, -params.omega_max, params.omega_max)
+    return jnp.stack([params.v_max, omega]).astype(jnp.float32)
+
+
+def oracle_act(params: OracleParams, state: tuple, obs: Obs) -> tuple[tuple, jax.Array]:
+    return state, pursuit_command(params, obs.pose, obs.lane_y)
+
+
+# ---------------------------------------------------------------------------------------------
+# SegZeros / SegMin on a plant mask
+
+
+@struct.dataclass
+class SegParams:
+    """Parameters of SegZeros (method "zeros") and SegMin (method "min")."""
+
+    v_max: jax.Array  # v at d = 0 before clipping [m/s]
+    omega_gain: jax.Array  # ω gain [rad/s]
+    v_limit: jax.Array  # clip of |v| [m/s]
+    omega_limit: jax.Array  # clip of |ω| [rad/s]
+    min_run: jax.Array  # zero-column runs of ≤ min_run columns are dropped [columns]
+    end_frac: jax.Array  # a run wider than end_frac·w means end of row [-]
+    min_count: jax.Array  # a column with ≤ min_count plant pixels counts as free [pixels]
+    ema_alpha: jax.Array  # EMA on commands: cmd = α·new + (1 − α)·previous (1 = off) [-]
+    depth_max: jax.Array  # plant pixels farther than this (or depth 0) are ignored [m]
+    method: str = struct.field(pytree_node=False, default="zeros")  # "zeros" | "min"
+    law: str = struct.field(pytree_node=False, default="linear")  # "linear" | "quadratic"
+    n_frames: int = struct.field(pytree_node=False, default=1)  # masks OR'd (sliding window)
+    smooth: int = struct.field(pytree_node=False, default=11)  # SegMin moving-average width
+    on_end: str = struct.field(pytree_node=False, default="straight")  # see seg_params
+    image_hw: tuple[int, int] | None = struct.field(pytree_node=False, default=None)
+
+
+def seg_params(method: str = "zeros", variant: str = "paper", *, v_max: float = 1.0,
+               omega_gain: float = 3.0, v_limit: float = 0.5, omega_limit: float = 1.0,
+               min_run: int = 3, end_frac: float = 0.8, min_count: int = 0,
+               ema_alpha: float | None = None, depth_max: float | None = None,
+               n_frames: int | None = None, law: str | None = None, smooth: int = 11,
+               on_end: str = "straight", image_hw: tuple[int, int] | None = None) -> SegParams:
+    """SegParams for `method` ("zeros": SegZeros, "min": SegMin) and `variant`:
+
+    - "paper": ω = −ω_gain·d/(w/2), no EMA, one mask, no depth cut;
+    - "public" (the authors' public code): ω = −sign(d)·ω_gain·K with K = d²/(w/2)², EMA
+      α = 0.5 on the commands, OR of the last 3 masks (a sliding window; `image_hw` needed),
+      plant pixels with depth > 5 m ignored.
+
+    Both: v = v_max·(1 − d²/(w/2)²), v_max = 1, ω_gain = 3, then clipped to v_limit = 0.5 m/s
+    and ω_limit = 1.0 rad/s. Explicit keyword values override the variant's.
+
+    on_end, at the end of a row (SegZeros: no zero-column run left after dropping runs of
+    ≤ min_run columns, or the longest wider than end_frac·w; SegMin: no plant pixel at all):
+    "straight" drives on at v_limit with ω = 0 (so that an episode can reach a goal at the
+    row's end), "stop" commands (0, 0) as the public code does, "hold" keeps the last command."""
+    if method not in METHODS:
+        raise ValueError(f"method: unknown {method!r}; expected one of {METHODS}")
+    presets = {"paper": dict(law="linear", ema_alpha=1.0, n_frames=1, depth_max=float("inf")),
+               "public": dict(law="quadratic", ema_alpha=0.5, n_frames=3, depth_max=5.0)}
+    if variant not in presets:
+        raise ValueError(f"variant: unknown {variant!r}; expected one of {tuple(presets)}")
+    base = presets[variant]
+    law = base["law"] if law is None else law
+    ema_alpha = base["ema_alpha"] if ema_alpha is None else ema_alpha
+    n_frames = base["n_frames"] if n_frames is None else n_frames
+    depth_max = base["depth_max"] if depth_max is None else depth_max
+    if law not in LAWS:
+        raise ValueError(f"law: unknown {law!r}; expected one of {LAWS}")
+    if on_end not in ON_END:
+        raise ValueError(f"on_end: unknown {on_end!r}; expected one of {ON_END}")
+    if not 0 < ema_alpha <= 1:
+        raise ValueError(f"ema_alpha: must lie in (0, 1], got {ema_alpha}")
+    if int(n_frames) < 1:
+        raise ValueError(f"n_frames: must be at least 1, got {n_frames}")
+    if n_frames > 1 and image_hw is None:
+        raise ValueError("image_hw: needed (height, width) to buffer masks when n_frames > 1")
+    if smooth < 1 or smooth % 2 == 0:
+        raise ValueError(f"smooth: must be a positive odd width, got {smooth}")
+    f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    return SegParams(v_max=f(v_max), omega_gain=f(omega_gain), v_limit=f(v_limit),
+                     omega_limit=f(omega_limit), min_run=f(min_run), end_frac=f(end_frac),
+                     min_count=f(min_count), ema_alpha=f(ema_alpha), depth_max=f(depth_max),
+                     method=method, law=law, n_frames=int(n_frames), smooth=int(smooth),
+                     on_end=on_end, image_hw=None if image_hw is None else tuple(image_hw))
+
+
+@struct.dataclass
+class SegState:
+    cmd: jax.Array  # float32 [2], last command (v, ω)
+    masks: jax.Array  # bool [n_frames − 1, H, W], previous masks, newest first
+    end_of_row: jax.Array  # bool [], the last step saw the end of the row
+
+
+def seg_init(params: SegParams) -> SegState:
+    h, w = params.image_hw or (0, 0)
+    return SegState(cmd=jnp.zeros(2, jnp.float32),
+                    masks=jnp.zeros((params.n_frames - 1, h, w), bool),
+                    end_of_row=jnp.zeros((), bool))
+
+
+def free_runs(free: jax.Array) -> jax.Array:
+    """Lengths of runs of True in `free` (bool [W]): at the last column of each run its
+    length, 0 elsewhere. int32 [W]; no Python loop over columns (a cumulative max)."""
+    idx = jnp.arange(free.shape[-1])
+    last_blocked = jax.lax.cummax(jnp.where(free, -1, idx), axis=0)
+    ends = free & ~jnp.concatenate([free[1:], jnp.zeros(1, bool)])
+    return jnp.where(ends, idx - last_blocked, 0).astype(jnp.int32)
+
+
+def segzeros_target(hist: jax.Array, params: SegParams) -> tuple[jax.Array, jax.Array]:
+    """SegZeros on a column histogram hist [W] (plant pixels per column): the centre x_c of
+    the longest run of free columns, in pixels from the image's left edge (column c spans
+    [c, c + 1)), and the end-of-row flag. Runs of ≤ min_run columns are dropped; no run, or
+    the longest wider than end_frac·W, is the end of the row."""
+    W = hist.shape[-1]
+    length = free_runs(hist <= params.min_count)
+    length = jnp.where(length > params.min_run, length, 0)
+    last = jnp.argmax(length)  # first of the longest runs
+    L = length[last]
+    x_c = last + 1.0 - 0.5 * L
+    end = (L == 0) | (L > params.end_frac * W)
+    return x_c.astype(jnp.float32), end
+
+
+def segmin_target(hist: jax.Array, params: SegParams) -> tuple[jax.Array, jax.Array]:
+    """SegMin on a column histogram hist [W]: normalise to its maximum, smooth with a moving
+    average of `smooth` columns (edges padded with the first/last fully averaged value), take
+    the mean position of the columns at the minimum; end of row when no plant pixel is seen.
+    Returns (x_c [pixels from the left edge], end_of_row)."""
+    W, k = hist.shape[-1], params.smooth
+    h = hist.astype(jnp.float32)
+    top = jnp.max(h)
+    h = h / jnp.maximum(top, 1e-9)
+    if k > 1:
+        if W < k + 4:
+            raise ValueError(f"smooth: window {k} too wide for an image {W} columns wide")
+        h = jnp.convolve(h, jnp.ones(k, jnp.float32) / k, mode="same")
+        idx = jnp.arange(W)
+        h = jnp.where(idx <= k // 2, h[k // 2 + 1], h)
+        h = jnp.where(idx >= W - k // 2 - 1, h[W - k // 2 - 2], h)
+    at_min = h <= jnp.min(h) + 1e-6
+    x_c = jnp.sum(jnp.where(at_min, jnp.arange(W) + 0.5, 0.0)) / jnp.sum(at_min)
+    return x_c.astype(jnp.float32), top <= 0
+
+
+def steering_law(x_c: jax.Array, width: int, params: SegParams) -> jax.Array:
+    """(v, ω) [2] from the target column x_c [pixels] of an image `width` columns wide.
+
+    d = x_c − w/2, K = d²/(w/2)², v = v_max·(1 − K); "linear": ω = −ω_gain·d/(w/2),
+    "quadratic": ω = −sign(d)·ω_gain·K; then |v| ≤ v_limit, |ω| ≤ omega_limit."""
+    half = 0.5 * width
+    dn = (x_c - half) / half
+    K = dn * dn
+    if params.law == "linear":
+        omega = -params.omega_gain * dn
+    else:
+        omega = -jnp.sign(dn) * params.omega_gain * K
+    v = params.v_max * (1.0 - K)
+    return jnp.stack([jnp.clip(v, -params.v_limit, params.v_limit),
+                      jnp.clip(omega, -params.omega_limit, params.omega_limit)])
+
+
+def seg_command(params: SegParams, mask: jax.Array, depth: jax.Array | None = None,
+                prev_cmd: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
+    """One SegZeros/SegMin decision, no memory: mask bool (or probability, > 0.5) [H, W],
+    depth float32 [H, W] or None, prev_cmd [2] (used by on_end "hold"). Returns (cmd [2],
+    end_of_row bool [])."""
+    m = mask if mask.dtype == bool else mask > 0.5
+    if depth is not None:
+        m = m & (depth > 0) & (depth <= params.depth_max)
+    hist = jnp.sum(m, axis=0)
+    target = segzeros_target if params.method == "zeros" else segmin_target
+    x_c, end = target(hist, params)
+    cmd = steering_law(x_c, mask.shape[-1], params)
+    if params.on_end == "straight":
+        end_cmd = jnp.stack([params.v_limit, jnp.zeros_like(params.v_limit)])
+    elif params.on_end == "stop":
+        end_cmd = jnp.zeros(2, jnp.float32)
+    else:
+        end_cmd = jnp.zeros(2, jnp.float32) if prev_cmd is None else prev_cmd
+    return jnp.where(end, end_cmd, cmd).astype(jnp.float32), end
+
+
+def seg_act(params: SegParams, state: SegState, obs: Obs) -> tuple[SegState, jax.Array]:
+    """SegZeros / SegMin step: OR the mask with the buffered ones, decide, smooth with the EMA.
+    Needs obs.mask (bool [H, W]); obs.depth is used when present."""
+    if obs.mask is None:
+        raise ValueError("mask: the seg controllers need obs.mask (use with_perception)")
+    mask = obs.mask if obs.mask.dtype == bool else obs.mask > 0.5
+    if params.n_frames > 1:
+        if state.masks.shape[1:] != mask.shape:
+            raise ValueError(f"image_hw: params say {state.masks.shape[1:]}, the mask is "
+                             f"{mask.shape}")
+        used = mask | jnp.any(state.masks, axis=0)
+        masks = jnp.concatenate([mask[None], state.masks[:-1]], 0)
+    else:
+        used, masks = mask, state.masks
+    new, end = seg_command(params, used, obs.depth, state.cmd)
+    cmd = params.ema_alpha * new + (1.0 - params.ema_alpha) * state.cmd
+    return SegState(cmd=cmd, masks=masks, end_of_row=end), cmd
+
+
+# ---------------------------------------------------------------------------------------------
+# Registry and policies
+
+
+class Controller(NamedTuple):
+    init: Callable[[Any], Any]
+    act: Callable[[Any, Any, Obs], tuple[Any, jax.Array]]
+    make_params: Callable[..., Any]
+    needs_mask: bool
+
+
+CONTROLLERS: dict[str, Controller] = {
+    "oracle": Controller(oracle_init, oracle_act, oracle_params, False),
+    "segzeros": Controller(seg_init, seg_act, lambda **kw: seg_params("zeros", **kw), True),
+    "segmin": Controller(seg_init, seg_act, lambda **kw: seg_params("min", **kw), True),
+}
+
+
+def get(name: str) -> Controller:
+    if name not in CONTROLLERS:
+        raise ValueError(f"controller: unknown {name!r}; expected one of {tuple(CONTROLLERS)}")
+    return CONTROLLERS[name]
+
+
+def _act_without_key(act):
+    def policy_act(params, state, obs, key):
+        del key
+        return act(params, state, obs)
+
+    return policy_act
+
+
+def as_policy(controller: Controller | str) -> Policy:
+    """A controller as a Policy (the PRNG key is unused). Same controller → equal Policy, so
+    `episode.rollout` reuses its compiled function."""
+    c = get(controller) if isinstance(controller, str) else controller
+    return _POLICIES.setdefault(c, Policy(c.init, _act_without_key(c.act)))
+
+
+_POLICIES: dict[Controller, Policy] = {}
+
+
+def with_perception(controller: Controller | str,
+                    perceive: Callable[[Any, Obs, jax.Array], tuple[jax.Array, Any]]) -> Policy:
+    """Closed loop through perception: `perceive(perc_params, obs, key) -> (mask bool [H, W],
+    depth float32 [H, W] or None)` (e.g. render → segment) feeds a mask controller.
+    The policy's params are the pair (perc_params, controller_params)."""
+    c = get(controller) if isinstance(controller, str) else controller
+
+    def init(params):
+        return c.init(params[1])
+
+    def act(params, state, obs, key):
+        mask, depth = perceive(params[0], obs, key)
+        return c.act(params[1], state, obs.replace(mask=mask, depth=depth))
+
+    return Policy(init, act)
