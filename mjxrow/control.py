@@ -86,7 +86,7 @@ def pursuit_command(params: OracleParams, pose: jax.Array, lane_y: jax.Array) ->
     farther than that from the line, a point 0.1·lookahead ahead of its projection);
     curvature κ = 2·y_r / (x_r² + y_r²) with the target at (x_r, y_r) in the robot frame;
     ω = v_max·κ clipped to ±omega_max, v = v_max."""
-    x, y, yaw = pose[0], pose[1], pose[2]
+    y, yaw = pose[1], pose[2]
     e = y - lane_y
     L = params.lookahead
     ahead = jnp.sqrt(jnp.maximum(L * L - e * e, (0.1 * L) ** 2))
