@@ -1,0 +1,234 @@
+"""Figures and the markdown report of a sweep (host only, matplotlib Agg).
+
+A summary table has one row per cell: the swept axes (dotted names, e.g. `field.d_rr`), `n`
+(episodes), and per metric `m` its mean with the 95 % interval `m_lo`, `m_hi`.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+# metric → (title, unit, format, better: "high" | "low" | None)
+METRICS: dict[str, tuple[str, str, str, str | None]] = {
+    "success": ("success rate", "fraction", "{:.2f}", "high"),
+    "collision": ("collision rate", "fraction", "{:.2f}", "low"),
+    "cha": ("cumulative heading average (CHA)", "rad", "{:.3f}", None),
+    "mae": ("mean absolute lateral error (MAE)", "m", "{:.3f}", "low"),
+    "mse": ("mean squared lateral error (MSE)", "m²", "{:.4f}", "low"),
+    "omega_std": ("std of ω commands", "rad/s", "{:.3f}", "low"),
+    "v_mean": ("mean forward speed", "m/s", "{:.2f}", "high"),
+    "time": ("episode time", "s", "{:.1f}", "low"),
+    "path_ratio": ("path length / straight length", "-", "{:.3f}", "low"),
+    "max_offset": ("max lateral offset", "m", "{:.2f}", "low"),
+}
+
+AXIS_LABELS = {"field.d_rr": "row spacing d_rr [m]", "field.d_RR": "group spacing d_RR [m]",
+               "field.d_pp": "plant spacing d_pp [m]", "field.terrain_dh": "terrain |ΔH| [m]",
+               "field.row_length": "row length [m]", "field.slope_x": "slope dz/dx [-]",
+               "field.slope_y": "lateral slope dz/dy [-]", "preset": "crop preset",
+               "field.terrain_scale": "terrain roughness scale [m]"}
+
+
+def metric_info(m: str) -> tuple[str, str, str, str | None]:
+    return METRICS.get(m, (m, "", "{:.3g}", None))
+
+
+def axis_label(a: str) -> str:
+    return AXIS_LABELS.get(a, a)
+
+
+def _fmt_tick(v: Any) -> str:
+    return f"{v:g}" if isinstance(v, (int, float, np.number)) else str(v)
+
+
+def _numeric(vals) -> bool:
+    return all(isinstance(v, (int, float, np.number)) and not isinstance(v, bool) for v in vals)
+
+
+def _save(fig, path: Path) -> Path:
+    """Atomic PNG write: temp file in the same folder, then os.replace."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path
+
+
+def _cmap(better):
+    return "viridis_r" if better == "low" else "viridis"
+
+
+def _panel(ax, grid: np.ndarray, xs, ys, fmt, cmap, vmin, vmax, xlabel, ylabel):
+    im = ax.imshow(grid, origin="lower", aspect="auto", cmap=cmap, vmin=vmin, vmax=vmax)
+    ax.set_xticks(range(len(xs)), [_fmt_tick(v) for v in xs], rotation=45 if len(xs) > 8 else 0)
+    ax.set_yticks(range(len(ys)), [_fmt_tick(v) for v in ys])
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    norm = im.norm
+    for (j, i), v in np.ndenumerate(grid):
+        if np.isfinite(v):
+            light = np.asarray(im.cmap(norm(v)))[:3] @ [0.299, 0.587, 0.114] > 0.55
+            ax.text(i, j, fmt.format(v), ha="center", va="center", fontsize=8,
+                    color="black" if light else "white")
+        else:
+            ax.text(i, j, "–", ha="center", va="center", fontsize=8, color="grey")
+    return im
+
+
+def heatmap(summary: pd.DataFrame, metric: str, x: str, y: str, path: str | Path,
+            title: str = "", facet: str | None = None) -> Path:
+    """One PNG: `metric`'s cell means over axes `x` (columns) and `y` (rows), values written in
+    the cells; one panel per value of `facet` if given. Cells are averaged over other columns."""
+    name, unit, fmt, better = metric_info(metric)
+    xs = list(dict.fromkeys(summary[x]))
+    ys = list(dict.fromkeys(summary[y]))
+    fs = list(dict.fromkeys(summary[facet])) if facet else [None]
+    grids = []
+    for f in fs:
+        sub = summary if facet is None else summary[summary[facet] == f]
+        g = np.full((len(ys), len(xs)), np.nan)
+        for (xv, yv), val in sub.groupby([x, y], sort=False)[metric].mean().items():
+            g[ys.index(yv), xs.index(xv)] = val
+        grids.append(g)
+    finite = np.concatenate([g[np.isfinite(g)] for g in grids] + [np.zeros(0)])
+    vmin, vmax = (finite.min(), finite.max()) if finite.size else (0.0, 1.0)
+    if metric in ("success", "collision"):
+        vmin, vmax = 0.0, 1.0
+    ncol = min(len(fs), 3)
+    nrow = -(-len(fs) // ncol)
+    w = max(4.5, 0.75 * len(xs) + 2.5)
+    h = max(3.5, 0.5 * len(ys) + 2.0)
+    fig, axs = plt.subplots(nrow, ncol, figsize=(w * ncol, h * nrow), squeeze=False)
+    im = None
+    for k, (f, g) in enumerate(zip(fs, grids, strict=True)):
+        ax = axs[k // ncol][k % ncol]
+        im = _panel(ax, g, xs, ys, fmt, _cmap(better), vmin, vmax, axis_label(x), axis_label(y))
+        if facet:
+            ax.set_title(f"{axis_label(facet)} = {_fmt_tick(f)}", fontsize=9)
+    for k in range(len(fs), nrow * ncol):
+        axs[k // ncol][k % ncol].axis("off")
+    hint = {"high": " (higher is better)", "low": " (lower is better)"}.get(better, "")
+    cb = fig.colorbar(im, ax=axs.ravel().tolist(), shrink=0.9)
+    cb.set_label(f"{name} [{unit}]{hint}" if unit else name + hint)
+    fig.suptitle(f"{title}: {name}" if title else name)
+    return _save(fig, Path(path))
+
+
+def line(summary: pd.DataFrame, metric: str, x: str, path: str | Path, title: str = "",
+         hue: str | None = None) -> Path:
+    """One PNG: `metric`'s mean over axis `x` with its 95 % interval as a band (numeric x) or
+    error bars (categorical x); one line per value of `hue` if given."""
+    name, unit, _, better = metric_info(metric)
+    fig, ax = plt.subplots(figsize=(6.0, 4.0))
+    hues = list(dict.fromkeys(summary[hue])) if hue else [None]
+    for hv in hues:
+        sub = summary if hue is None else summary[summary[hue] == hv]
+        agg = sub.groupby(x, sort=False)[[metric, f"{metric}_lo", f"{metric}_hi"]].mean()
+        xs = list(agg.index)
+        label = None if hue is None else f"{axis_label(hue)} = {_fmt_tick(hv)}"
+        m, lo, hi = (agg[c].to_numpy(float) for c in (metric, f"{metric}_lo", f"{metric}_hi"))
+        if _numeric(xs):
+            xv = np.asarray(xs, float)
+            order = np.argsort(xv)
+            ax.plot(xv[order], m[order], "o-", label=label)
+            ax.fill_between(xv[order], lo[order], hi[order], alpha=0.25)
+        else:
+            pos = np.arange(len(xs))
+            ax.errorbar(pos, m, yerr=[m - lo, hi - m], fmt="o", capsize=4, label=label)
+            ax.set_xticks(pos, [str(v) for v in xs])
+    ax.set_xlabel(axis_label(x))
+    hint = {"high": " (↑ better)", "low": " (↓ better)"}.get(better, "")
+    ax.set_ylabel(f"{name} [{unit}]{hint}" if unit else name + hint)
+    if metric in ("success", "collision"):
+        ax.set_ylim(-0.03, 1.03)
+    ax.grid(alpha=0.3)
+    if hue:
+        ax.legend(fontsize=8)
+    ax.set_title(f"{title}: {name} (mean, 95 % CI)" if title else f"{name} (mean, 95 % CI)")
+    return _save(fig, Path(path))
+
+
+def surfaces(summary: pd.DataFrame, axes: list[str], metrics: list[str], out_dir: str | Path,
+             title: str = "") -> dict[str, Path]:
+    """metric → PNG path: heatmaps over the first two axes (panels over the third; further axes
+    averaged), or line plots with CI bands when one axis is swept. Nothing without axes."""
+    out_dir = Path(out_dir)
+    files: dict[str, Path] = {}
+    for m in metrics:
+        p = out_dir / f"{m}.png"
+        if len(axes) >= 2:
+            files[m] = heatmap(summary, m, axes[0], axes[1], p, title,
+                               facet=axes[2] if len(axes) > 2 else None)
+        elif len(axes) == 1:
+            files[m] = line(summary, m, axes[0], p, title)
+    return files
+
+
+# ---------------------------------------------------------------------------------------------
+# Report
+
+
+def _md_table(df: pd.DataFrame) -> str:
+    cols = list(df.columns)
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for row in df.itertuples(index=False):
+        lines.append("| " + " | ".join(_fmt_tick(v) if not isinstance(v, str) else v
+                                       for v in row) + " |")
+    return "\n".join(lines)
+
+
+def summary_markdown(summary: pd.DataFrame, axes: list[str], metrics: list[str]) -> str:
+    """Markdown table: axis values, n, and `mean [lo, hi]` per metric."""
+    out = summary[axes + ["n"]].copy() if axes else summary[["n"]].copy()
+    for m in metrics:
+        fmt = metric_info(m)[2]
+        out[m] = [f"{fmt.format(a)} [{fmt.format(b)}, {fmt.format(c)}]" for a, b, c in
+                  zip(summary[m], summary[f"{m}_lo"], summary[f"{m}_hi"], strict=True)]
+    return _md_table(out)
+
+
+def failures_markdown(summary: pd.DataFrame, axes: list[str], reasons: list[str],
+                      threshold: float = 0.95) -> str:
+    """Cells whose success rate is below `threshold`, with the share of each ending reason."""
+    if "success" not in summary:
+        return "No success metric in this sweep."
+    bad = summary[summary["success"] < threshold]
+    if bad.empty:
+        return f"Every cell succeeds in at least {threshold:.0%} of its episodes."
+    cols = axes + ["n", "success"] + [f"reason_{r}" for r in reasons if f"reason_{r}" in bad]
+    table = bad[cols].copy()
+    table["success"] = [f"{v:.2f}" for v in table["success"]]
+    for c in cols[len(axes) + 2:]:
+        table[c] = [f"{v:.0%}" for v in table[c]]
+    return (f"{len(bad)} of {len(summary)} cells succeed in fewer than {threshold:.0%} of "
+            f"their episodes (share of episodes by how they ended):\n\n" + _md_table(table))
+
+
+def report(path: str | Path, title: str, info: dict[str, Any], config_yaml: str,
+           summary: pd.DataFrame, axes: list[str], metrics: list[str], images: dict[str, Path],
+           reasons: list[str]) -> Path:
+    """Write `report.md` (atomically): run facts, failures, plots, summary, resolved config."""
+    path = Path(path)
+    parts = [f"# Sweep report: {title}", ""]
+    parts += [f"- **{k}**: {v}" for k, v in info.items()]
+    parts += ["", "## Where it fails", "", failures_markdown(summary, axes, reasons), ""]
+    if images:
+        parts += ["## Surfaces", ""]
+        for m, p in images.items():
+            parts += [f"### {metric_info(m)[0]}", "", f"![{m}]({Path(p).name})", ""]
+    parts += ["## Summary (mean [95 % CI] per cell)", "",
+              summary_markdown(summary, axes, metrics), "",
+              "## Resolved configuration", "", "```yaml", config_yaml.rstrip(), "```", ""]
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text("\n".join(parts))
+    os.replace(tmp, path)
+    return path
