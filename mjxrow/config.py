@@ -50,7 +50,7 @@ def _k(default, doc, unit="", check=None, static=False, choices=None, kind=float
 @dataclasses.dataclass(frozen=True)
 class EpisodeSection:
     path_length: float = _k(20.0, "path driven inside the row; the goal is the row's end "
-                            "point this far from the start", "m", "positive")
+                            "point this far from the start", "m", "positive", static=True)
     max_time: float = _k(60.0, "timeout; the episode has ceil(max_time·control_hz) control "
                          "steps", "s", "positive", static=True)
     control_hz: float = _k(15.0, "control (and camera) rate", "Hz", "positive", static=True)

@@ -57,7 +57,7 @@ def _numeric(vals) -> bool:
 def _save(fig, path: Path) -> Path:
     """Atomic PNG write: temp file in the same folder, then os.replace."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
+    fig.savefig(tmp, format="png", dpi=110)
     plt.close(fig)
     os.replace(tmp, path)
     return path
@@ -107,11 +107,13 @@ def heatmap(summary: pd.DataFrame, metric: str, x: str, y: str, path: str | Path
     nrow = -(-len(fs) // ncol)
     w = max(4.5, 0.75 * len(xs) + 2.5)
     h = max(3.5, 0.5 * len(ys) + 2.0)
-    fig, axs = plt.subplots(nrow, ncol, figsize=(w * ncol, h * nrow), squeeze=False)
+    fig, axs = plt.subplots(nrow, ncol, figsize=(w * ncol, h * nrow), squeeze=False,
+                            layout="constrained")
     im = None
     for k, (f, g) in enumerate(zip(fs, grids, strict=True)):
         ax = axs[k // ncol][k % ncol]
-        im = _panel(ax, g, xs, ys, fmt, _cmap(better), vmin, vmax, axis_label(x), axis_label(y))
+        im = _panel(ax, g, xs, ys, fmt, _cmap(better), vmin, vmax, axis_label(x),
+                    axis_label(y) if k % ncol == 0 else "")
         if facet:
             ax.set_title(f"{axis_label(facet)} = {_fmt_tick(f)}", fontsize=9)
     for k in range(len(fs), nrow * ncol):
@@ -128,7 +130,7 @@ def line(summary: pd.DataFrame, metric: str, x: str, path: str | Path, title: st
     """One PNG: `metric`'s mean over axis `x` with its 95 % interval as a band (numeric x) or
     error bars (categorical x); one line per value of `hue` if given."""
     name, unit, _, better = metric_info(metric)
-    fig, ax = plt.subplots(figsize=(6.0, 4.0))
+    fig, ax = plt.subplots(figsize=(6.0, 4.0), layout="constrained")
     hues = list(dict.fromkeys(summary[hue])) if hue else [None]
     for hv in hues:
         sub = summary if hue is None else summary[summary[hue] == hv]
@@ -204,7 +206,8 @@ def failures_markdown(summary: pd.DataFrame, axes: list[str], reasons: list[str]
     bad = summary[summary["success"] < threshold]
     if bad.empty:
         return f"Every cell succeeds in at least {threshold:.0%} of its episodes."
-    cols = axes + ["n", "success"] + [f"reason_{r}" for r in reasons if f"reason_{r}" in bad]
+    cols = axes + ["n", "success"] + [f"reason_{r}" for r in reasons if r != "goal" and
+                                      f"reason_{r}" in bad and bad[f"reason_{r}"].gt(0).any()]
     table = bad[cols].copy()
     table["success"] = [f"{v:.2f}" for v in table["success"]]
     for c in cols[len(axes) + 2:]:

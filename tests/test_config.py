@@ -1,0 +1,157 @@
+"""Sweep config: YAML parsing, one-line errors with dotted keys, grid expansion, hashes."""
+
+from pathlib import Path
+
+import pytest
+
+from mjxrow import config as C
+
+GT = {"perception": {"source": "ground_truth"}}
+
+
+def cfg_of(raw, **kw):
+    return C.from_dict({**GT, **raw}, **kw)
+
+
+def error_of(raw, **kw) -> str:
+    with pytest.raises(C.ConfigError) as e:
+        C.from_dict(raw, **kw)
+    msg = str(e.value)
+    assert "\n" not in msg
+    return msg
+
+
+def test_defaults_are_the_papers():
+    cfg = cfg_of({})
+    assert cfg.preset == "zucchini" and cfg.controller.name == "segzeros"
+    assert cfg.controller.variant == "paper" and cfg.controller.omega_gain == 3.0
+    assert cfg.episode.v_max == 0.5 and cfg.episode.omega_max == 1.0
+    assert cfg.episode.control_hz == 15.0 and cfg.episode.path_length == 20.0
+    assert C.field_values(cfg)["d_rr"] == 1.8 and C.expand(cfg)[0].point == ()
+
+
+def test_unknown_keys_name_their_dotted_path():
+    assert error_of({"field": {"d_rrr": 1.5}}) == "field.d_rrr: unknown key; did you mean d_rr?"
+    assert error_of({"controler": {}}) == "controler: unknown key; did you mean controller?"
+    assert error_of({"camera": {"fov": 40}}).startswith("camera.fov: unknown key")
+    assert error_of({"field": {"d_rr": {"start": 1, "stop": 2, "nm": 3}}}).startswith(
+        "field.d_rr.nm: unknown key; did you mean num?")
+
+
+def test_wrong_types():
+    assert error_of({"seeds": "many"}) == "seeds: expected an integer, got str 'many'"
+    assert error_of({"camera": {"width": 1.5}}).startswith("camera.width: expected an integer")
+    assert error_of({**GT, "field": {"d_rr": [1.8, "wide"]}}).startswith(
+        "field.d_rr[1]: expected a number")
+    assert error_of({"episode": {"v_max": True}}).startswith("episode.v_max: expected")
+    assert error_of({"controller": {"name": "pid"}}).startswith(
+        "controller.name: 'pid' is not one of segzeros")
+    assert error_of({"seeds": [1, 2]}) == "seeds: cannot be a grid axis; give one value"
+    assert error_of({"field": [1]}).startswith("field: expected a mapping")
+
+
+def test_impossible_values():
+    assert error_of({"episode": {"v_max": -0.5}}) == "episode.v_max: must be > 0, got -0.5"
+    assert error_of({"camera": {"pitch": -95}}).startswith("camera.pitch: must be in (-90, 90)")
+    # negative spacing is caught by field.checks, naming the cell
+    msg = error_of({**GT, "field": {"d_pp": [0.7, -0.1]}})
+    assert msg == "field.d_pp: must be positive (cell field.d_pp=-0.1)"
+    # plants wider than the row spacing of one cell of a 2-axis grid
+    msg = error_of({**GT, "field": {"d_rr": [1.8, 0.5], "terrain_dh": [0.1, 0.2]}})
+    assert msg.startswith("field.plant_width: plants are wider than their row spacing")
+    assert "field.d_rr=0.5, field.terrain_dh=0.1" in msg
+    assert error_of({**GT, "episode": {"path_length": 60}}).startswith(
+        "episode.path_length: 60.0 m is longer than the rows (50 m)")
+    assert error_of({**GT, "controller": {"name": "segmin", "smooth": 4}}).startswith(
+        "controller.smooth: must be odd")
+
+
+def test_missing_checkpoint(tmp_path):
+    msg = error_of({"perception": {"source": "learned", "checkpoint": str(tmp_path / "nope")}})
+    assert msg.startswith("perception.checkpoint: checkpoint ") and "nope not found" in msg
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert "not found" in error_of({"perception": {"checkpoint": str(empty)}})
+    (empty / "params").write_text("x")
+    cfg = C.from_dict({"perception": {"checkpoint": "empty"}}, base_dir=tmp_path)
+    assert C.checkpoint_path(C.expand(cfg)[0].cfg) == str(empty.resolve())
+    # the oracle needs no checkpoint; ground truth neither
+    C.from_dict({"controller": {"name": "oracle"}, "perception": {"checkpoint": "nope"}})
+
+
+def test_ranges_lists_and_grid_order():
+    cfg = cfg_of({"field": {"terrain_dh": {"start": 0.0, "stop": 0.3, "num": 4},
+                            "d_rr": [1.6, 2.0, 2.4]}})
+    assert cfg.field.terrain_dh == (0.0, 0.1, 0.2, 0.3)
+    assert cfg.axis_order == ("field.terrain_dh", "field.d_rr")
+    cells = C.expand(cfg)
+    assert len(cells) == 12
+    # first axis slowest
+    assert [c.point for c in cells[:4]] == [
+        (("field.terrain_dh", 0.0), ("field.d_rr", d)) for d in (1.6, 2.0, 2.4)
+    ] + [(("field.terrain_dh", 0.1), ("field.d_rr", 1.6))]
+    assert cells[4].cfg.field.d_rr == 2.0 and cells[4].cfg.field.terrain_dh == 0.1
+    assert C.resolved(cells[4].cfg)["field.d_rr"] == 2.0
+    assert C.resolved(cells[4].cfg)["field.d_pp"] == 0.7  # zucchini's preset value
+
+
+def test_axes_on_any_section_and_preset():
+    cfg = cfg_of({"preset": ["zucchini", "vineyard"], "controller": {"omega_gain": [2, 3, 4]},
+                  "camera": {"width": [32, 64]}})
+    assert len(C.expand(cfg)) == 12
+    vine = [c for c in C.expand(cfg) if c.cfg.preset == "vineyard"][0]
+    assert C.field_values(vine.cfg)["d_rr"] == 2.7
+
+
+def test_set_overrides():
+    cfg = cfg_of({"field": {"terrain_dh": [0.1, 0.2]}},
+                 sets=["field.d_rr=[1.2, 1.8]", "seeds=3", "controller.variant=public"])
+    assert cfg.field.d_rr == (1.2, 1.8) and cfg.seeds == 3
+    assert cfg.controller.variant == "public"
+    assert cfg.axis_order == ("field.terrain_dh", "field.d_rr")  # --set axes come last
+    assert len(C.expand(cfg)) == 4
+    assert error_of({}, sets=["field.d_rr2=1"]).startswith("field.d_rr2: unknown key")
+    assert error_of({}, sets=["seeds"]).startswith("--set 'seeds': expected key=value")
+
+
+def test_load_file_errors(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\nfield:\n  d_rr: [1.2, 1.8\n")
+    with pytest.raises(C.ConfigError, match=r"bad\.yaml:\d+: invalid YAML"):
+        C.load(bad)
+    unsafe = tmp_path / "unsafe.yaml"
+    unsafe.write_text("name: !!python/object/apply:os.system ['true']\n")
+    with pytest.raises(C.ConfigError, match="invalid YAML"):
+        C.load(unsafe)
+    with pytest.raises(C.ConfigError, match="cannot read"):
+        C.load(tmp_path / "missing.yaml")
+
+
+def test_smoke_shrinks_to_two_by_two():
+    cfg = cfg_of({"field": {"d_rr": [1.6, 1.8, 2.0, 2.4], "terrain_dh": [0.0, 0.1, 0.3],
+                            "d_pp": [0.6, 0.7]}, "seeds": 10}, smoke=True)
+    cells = C.expand(cfg)
+    assert [c.point for c in cells] == [
+        (("field.d_rr", a), ("field.terrain_dh", b)) for a in (1.6, 2.4) for b in (0.0, 0.3)]
+    assert cfg.field.d_pp == 0.6 and cfg.seeds == 2 and cfg.camera.width == 16
+    assert cfg.episode.path_length <= C.field_values(cfg)["row_length"]
+
+
+def test_hashes_and_static_keys():
+    a = C.expand(cfg_of({"field": {"d_rr": [1.6, 2.0]}}))
+    b = C.expand(cfg_of({"field": {"d_rr": [1.6, 2.0]}, "name": "other", "batch_size": 3}))
+    assert [C.cell_hash(c) for c in a] == [C.cell_hash(c) for c in b]  # name/batch don't count
+    assert C.cell_hash(a[0]) != C.cell_hash(a[1])
+    assert C.cell_hash(a[0], "shape A") != C.cell_hash(a[0], "shape B")
+    c = C.expand(cfg_of({"field": {"d_rr": 1.6}, "seed": 1}))
+    assert C.cell_hash(c[0]) != C.cell_hash(a[0])  # another base seed, other numbers
+    # traced axes share the static key; an image-size axis does not
+    assert C.static_key(a[0].cfg) == C.static_key(a[1].cfg)
+    w = C.expand(cfg_of({"camera": {"width": [16, 32]}}))
+    assert C.static_key(w[0].cfg) != C.static_key(w[1].cfg)
+
+
+def test_docs_list_every_key():
+    doc = (Path(__file__).parents[1] / "docs" / "sweep.md").read_text()
+    for key, _ in C.leaf_keys():
+        assert f"`{key}`" in doc, key
