@@ -1,0 +1,461 @@
+"""MJX physics of the robot driving one lane of a field (impl "jax").
+
+One MuJoCo model per static configuration, every world's data written into model arrays:
+
+- `make_model(shape, sim_cfg, robot_cfg) -> (mujoco.MjModel, mjx.Model)`: the robot, a
+  heightfield PATCH and `min(sim_cfg.obstacle_slots, shape.obstacle_slots)` obstacle slots.
+- `world_model(mx, field, lane, sim_cfg) -> mjx.Model`: this world's patch heights
+  (`hfield_data`), the patch's placement and the obstacles near the lane (`geom_pos`,
+  `geom_quat`, `geom_size`) written into the model (pure; vmap it with a batched `field`).
+- `model_axes(mx)`: `in_axes` for a model batched by `world_model` under vmap.
+- `reset(mx, field, lane, key, sim_cfg, noise) -> SimState`, `step(mx, state, cmd, sim_cfg)`,
+  `pose`, `velocity`, `camera_pose`, `is_bad`, `is_flipped`, `off_patch`.
+
+Terrain patch. `hfield_size` is static in MJX while a field's terrain extent is traced, and a
+whole field's grid would be mostly unused: the physics terrain is a patch of static size around
+the driven lane, `path_length + patch_back + patch_front` long (x) and `patch_width` wide (y),
+sampled every ≈`patch_cell` metres with `field.terrain_height` (which follows MuJoCo's own
+triangulation) and placed by the terrain geom's position. Heights are stored as
+(h − h_min) / `patch_z` in [0, 1] and the geom sits at z = h_min, so `patch_z` (static) must
+exceed the height range over the patch: |ΔH| ≤ 0.3 m plus a 10 % slope over 24 m × 6 m is 3.3 m,
+below the default 4 m (float32 keeps 0.5 mm resolution at that range). A robot leaving the patch
+falls off its edge: `off_patch` tells when. With cells ≥ 0.196 m a wheel of radius 0.098 m
+touches a 2×2-cell sub-grid (8 prisms) per step instead of 3×3 (18 prisms).
+
+Obstacles. Stones and fallen branches are capsules (a stone is a capsule of half length
+`_STONE_HALF` ≈ 0: a sphere), so one slot holds either kind and slot types stay static. Per world
+the slots take the field's active obstacles that lie on the patch, nearest the lane's centre line
+first; further obstacles on the patch (more than the slots) are left out (`obstacles_dropped`
+counts them). Unused slots are parked 100 m below the patch. Contacts are only wheel↔terrain and
+wheel↔obstacle (plus chassis↔both with `chassis_contacts`); plants take no part in physics.
+
+Time. The physics step is `sim_cfg.dt` rounded DOWN so that a control period holds a whole number
+of steps: substeps = ceil(1 / (control_hz · dt)), physics_dt = 1 / (control_hz · substeps). With
+the defaults (dt 0.01 s, 15 Hz) that is 7 substeps of 9.52 ms per 66.7 ms control period.
+
+Speed and stability choices (measured in mjxrow.bench.physics, MJX-NOTES): `implicitfast` with
+wheel armature 0.05 (stable on |ΔH| 0.3 m and 10 % slopes), Newton solver with few iterations
+(`iterations`, `ls_iterations`), pyramidal friction cones, condim 3, no broadphase needed (few
+pairs), Euler damping disabled (unused by implicitfast); wheel-joint damping is zero and the
+velocity actuators' gain is integrated implicitly.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+from mujoco import mjx
+
+from mjxrow import field as F
+from mjxrow import robot as R
+
+TERRAIN = "terrain"  # name of the heightfield geom
+_PARK_DEPTH = 100.0  # m below the patch where unused obstacle slots wait
+_STONE_HALF = 1e-4  # m, capsule half length that makes a stone
+_MAX_OBST = (0.1, 1.0)  # m, (radius, half length) bound compiled into the obstacle geoms
+
+
+@dataclasses.dataclass(frozen=True)
+class SimConfig:
+    """Static simulation settings (hashable: one compile per distinct value)."""
+
+    dt: float = 0.01  # s, largest physics step; shortened to fit the control period exactly
+    control_hz: float = 15.0  # Hz, commands per second
+    iterations: int = 4  # Newton solver iterations
+    ls_iterations: int = 8  # line-search iterations
+    path_length: float = 20.0  # m, start → row end along x
+    patch_back: float = 2.0  # m of terrain patch behind the start
+    patch_front: float = 2.0  # m of terrain patch beyond the row end
+    patch_width: float = 6.0  # m, patch extent across the lane (y), centred on the lane
+    patch_cell: float = 0.2  # m, largest heightfield cell
+    patch_z: float = 4.0  # m, heightfield height range (static), must hold the patch's relief
+    obstacle_slots: int = 6  # obstacle geoms near the lane (at most shape.obstacle_slots)
+    chassis_contacts: bool = False  # chassis box collides with terrain and obstacles
+    max_speed: float = 20.0  # m/s or rad/s: any faster velocity counts as exploded (is_bad)
+    max_tilt_deg: float = 75.0  # degrees: chassis tilt beyond this counts as flipped
+
+    def __post_init__(self):
+        for name in ("dt", "control_hz", "path_length", "patch_width", "patch_cell", "patch_z",
+                     "max_speed", "max_tilt_deg"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"sim.{name}: must be positive, got {getattr(self, name)}")
+        for name in ("patch_back", "patch_front"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"sim.{name}: must be non-negative, got {getattr(self, name)}")
+        for name in ("iterations", "ls_iterations", "obstacle_slots"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"sim.{name}: must be at least 1, got {getattr(self, name)}")
+
+    @property
+    def substeps(self) -> int:
+        """Physics steps per control period."""
+        return max(1, math.ceil(1.0 / (self.control_hz * self.dt) - 1e-9))
+
+    @property
+    def physics_dt(self) -> float:
+        """s, the physics step actually used: 1 / (control_hz · substeps)."""
+        return 1.0 / (self.control_hz * self.substeps)
+
+    @property
+    def patch_size(self) -> tuple[float, float]:
+        """(length along x, width along y) of the terrain patch [m]."""
+        return (self.path_length + self.patch_back + self.patch_front, self.patch_width)
+
+    @property
+    def patch_cells(self) -> tuple[int, int]:
+        """(ny, nx) heightfield samples (MuJoCo nrow, ncol)."""
+        lx, ly = self.patch_size
+        def n(length):
+            return math.ceil(length / self.patch_cell - 1e-9) + 1
+
+        return (n(ly), n(lx))
+
+
+@struct.dataclass
+class PoseNoise:
+    """Start-pose noise (traced: sweepable). Scalars, or [B] when batched."""
+
+    lateral_std: jax.Array  # m, std of the start's offset from the lane centre line
+    heading_std: jax.Array  # rad, std of the start heading around +x
+
+
+def pose_noise(lateral_std: float = 0.0, heading_std: float = 0.0) -> PoseNoise:
+    return PoseNoise(jnp.float32(lateral_std), jnp.float32(heading_std))
+
+
+@struct.dataclass
+class SimState:
+    """One world's simulation state."""
+
+    data: mjx.Data  # MJX data; kinematics (xpos, cam_xpos, ...) match qpos after reset/step
+    steps: jax.Array  # int32 [], control periods simulated since reset
+
+
+# ---------------------------------------------------------------------------------------------
+# Model
+
+
+def model_xml(shape: F.FieldShape, sim_cfg: SimConfig, robot_cfg: R.RobotConfig) -> str:
+    """MJCF text of the physics model for `shape` (no assets: the heightfield starts flat)."""
+    ny, nx = sim_cfg.patch_cells
+    lx, ly = sim_cfg.patch_size
+    n_obst = min(sim_cfg.obstacle_slots, shape.obstacle_slots)
+    obst = "\n".join(
+        f'    <geom name="obst_{i}" type="capsule" size="{_MAX_OBST[0]} {_MAX_OBST[1]}" '
+        f'pos="0 0 {-_PARK_DEPTH - 3 * i}" contype="0" conaffinity="1" condim="3" group="2" '
+        f'rgba="0.5 0.45 0.4 1"/>'
+        for i in range(n_obst)
+    )
+    robot = R.mjcf_body(robot_cfg, pos=(0.0, 0.0, robot_cfg.wheel_radius + 0.01),
+                        chassis_contacts=sim_cfg.chassis_contacts)
+    robot = "\n".join("    " + line for line in robot.splitlines())
+    return f"""<mujoco model="mjxrow_{shape.crop}">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="{sim_cfg.physics_dt:.9g}" integrator="implicitfast" solver="Newton"
+          iterations="{sim_cfg.iterations}" ls_iterations="{sim_cfg.ls_iterations}"
+          cone="pyramidal" jacobian="dense">
+    <flag eulerdamp="disable"/>
+  </option>
+  <custom>
+    {R.mjcf_numeric(robot_cfg)}
+  </custom>
+  <asset>
+    <hfield name="patch" nrow="{ny}" ncol="{nx}"
+            size="{lx / 2:.6g} {ly / 2:.6g} {sim_cfg.patch_z:.6g} 0.5"/>
+  </asset>
+  <worldbody>
+    <light name="sun" pos="0 0 20" dir="0.3 0.2 -1" directional="true"/>
+    <geom name="{TERRAIN}" type="hfield" hfield="patch" contype="0" conaffinity="1"
+          condim="3" group="0" rgba="0.45 0.35 0.25 1"/>
+{obst}
+{robot}
+  </worldbody>
+  <actuator>
+{R.mjcf_actuators(robot_cfg)}
+  </actuator>
+</mujoco>
+"""
+
+
+def make_model(shape: F.FieldShape, sim_cfg: SimConfig | None = None,
+               robot_cfg: R.RobotConfig | None = None) -> tuple[mujoco.MjModel, mjx.Model]:
+    """Compile the physics model for a static shape (host; once per shape and configs).
+
+    Returns the MuJoCo C model (flat patch, obstacles parked) and its MJX model (impl "jax").
+    The robot's limits and geometry travel inside the model (a `<numeric>`), so `step` and
+    `reset` need only the model."""
+    sim_cfg = sim_cfg or SimConfig()
+    robot_cfg = robot_cfg or R.RobotConfig()
+    m = mujoco.MjModel.from_xml_string(model_xml(shape, sim_cfg, robot_cfg))
+    mx = mjx.put_model(m, impl="jax")
+    return m, mx
+
+
+def robot_numbers(mx: mjx.Model | mujoco.MjModel) -> dict[str, float]:
+    """The robot's numbers baked into a model (robot.NUMERIC_KEYS → float; static)."""
+    i = mjx.name2id(mx, mujoco.mjtObj.mjOBJ_NUMERIC, R.NUMERIC)
+    if i < 0:
+        raise ValueError(f"model: no <numeric name={R.NUMERIC!r}>; build it with sim.make_model")
+    adr = int(mx.numeric_adr[i])
+    vals = np.asarray(mx.numeric_data)[adr: adr + len(R.NUMERIC_KEYS)]
+    return {k: float(v) for k, v in zip(R.NUMERIC_KEYS, vals, strict=True)}
+
+
+def _geom_ids(mx: mjx.Model | mujoco.MjModel) -> tuple[int, np.ndarray]:
+    terrain = mjx.name2id(mx, mujoco.mjtObj.mjOBJ_GEOM, TERRAIN)
+    obst, i = [], 0
+    while (g := mjx.name2id(mx, mujoco.mjtObj.mjOBJ_GEOM, f"obst_{i}")) >= 0:
+        obst.append(g)
+        i += 1
+    return terrain, np.asarray(obst, np.int32)
+
+
+# arrays world_model writes: batched along axis 0 by model_axes
+WORLD_FIELDS = ("hfield_data", "geom_pos", "geom_quat", "geom_size")
+
+
+def model_axes(mx: mjx.Model) -> mjx.Model:
+    """vmap `in_axes` for models made by vmapping `world_model`: 0 on WORLD_FIELDS, None on
+    everything else."""
+    axes = jax.tree.map(lambda _: None, mx)
+    return axes.tree_replace({k: 0 for k in WORLD_FIELDS})
+
+
+def _quat_mul(a: jax.Array, b: jax.Array) -> jax.Array:
+    aw, ax, ay, az = jnp.moveaxis(a, -1, 0)
+    bw, bx, by, bz = jnp.moveaxis(b, -1, 0)
+    return jnp.stack([aw * bw - ax * bx - ay * by - az * bz,
+                      aw * bx + ax * bw + ay * bz - az * by,
+                      aw * by - ax * bz + ay * bw + az * bx,
+                      aw * bz + ax * by - ay * bx + az * bw], -1)
+
+
+def _axis_quat(angle: jax.Array, axis: int) -> jax.Array:
+    """Quaternion(s) [..., 4] (w, x, y, z) of a rotation by `angle` [rad] about x, y or z."""
+    h = 0.5 * jnp.asarray(angle, jnp.float32)
+    parts = [jnp.cos(h)] + [jnp.sin(h) if k == axis else jnp.zeros_like(h) for k in range(3)]
+    return jnp.stack(parts, -1)
+
+
+def patch_frame(field: F.Field, lane: jax.Array, sim_cfg: SimConfig) -> jax.Array:
+    """float32 [2]: the patch centre (x, y) [m] for `lane`: along x it spans
+    [row end − path_length − patch_back, row end + patch_front], across it is centred on the
+    lane's centre line."""
+    x_end = field.row_x[1]
+    cx = x_end + 0.5 * (sim_cfg.patch_front - sim_cfg.path_length - sim_cfg.patch_back)
+    return jnp.stack([cx, field.lane_y[lane]]).astype(jnp.float32)
+
+
+def patch_heights(field: F.Field, lane: jax.Array, sim_cfg: SimConfig) -> jax.Array:
+    """float32 [NY, NX] terrain heights [m] at the patch samples (NY, NX = sim_cfg.patch_cells;
+    row j ↔ y, column i ↔ x, as MuJoCo lays a heightfield)."""
+    ny, nx = sim_cfg.patch_cells
+    lx, ly = sim_cfg.patch_size
+    c = patch_frame(field, lane, sim_cfg)
+    x = c[0] + (jnp.linspace(0.0, 1.0, nx) - 0.5) * lx
+    y = c[1] + (jnp.linspace(0.0, 1.0, ny) - 0.5) * ly
+    return F.terrain_height(field.terrain, field.terrain_size, x[None, :], y[:, None])
+
+
+def _select_obstacles(field: F.Field, centre: jax.Array, sim_cfg: SimConfig, k: int):
+    """Indices [k] of the obstacles that get a physics slot, whether each is used, and how many
+    obstacles on the patch got none."""
+    lx, ly = sim_cfg.patch_size
+    d = field.obst_pos[:, :2] - centre
+    on_patch = field.obst_active & (jnp.abs(d[:, 0]) < 0.5 * lx) & (jnp.abs(d[:, 1]) < 0.5 * ly)
+    score = jnp.where(on_patch, jnp.abs(d[:, 1]), jnp.inf)
+    neg, idx = jax.lax.top_k(-score, min(k, score.shape[0]))
+    if idx.shape[0] < k:  # fewer field obstacles than slots
+        pad = k - idx.shape[0]
+        idx = jnp.concatenate([idx, jnp.zeros(pad, idx.dtype)])
+        neg = jnp.concatenate([neg, jnp.full(pad, -jnp.inf)])
+    used = jnp.isfinite(neg)
+    dropped = jnp.sum(on_patch) - jnp.sum(used)
+    return idx, used, dropped
+
+
+def obstacles_dropped(field: F.Field, lane: jax.Array, sim_cfg: SimConfig,
+                      shape: F.FieldShape) -> jax.Array:
+    """int32 []: active obstacles on the patch that found no physics slot (0 when all fit)."""
+    k = min(sim_cfg.obstacle_slots, shape.obstacle_slots)
+    return _select_obstacles(field, patch_frame(field, lane, sim_cfg), sim_cfg, k)[2]
+
+
+def world_model(mx: mjx.Model, field: F.Field, lane: jax.Array, sim_cfg: SimConfig) -> mjx.Model:
+    """`mx` with one world written in (pure, jittable; vmap over `field`/`lane` with
+    `model_axes(mx)` as the out axes):
+
+    - `hfield_data` float32 [NY·NX]: patch heights normalised by `patch_z` (see module doc);
+    - `geom_pos` / `geom_quat` / `geom_size` [ngeom, 3|4|3]: terrain geom at (patch centre,
+      h_min); obstacle slots with this field's stones (capsule of ~0 length) and branches
+      (capsule lying along its yaw) nearest the lane; unused slots parked below the patch.
+
+    field: one Field (no batch axis); lane: int32 [] lane index (e.g. `field.robot_lane`)."""
+    terrain_id, obst_ids = _geom_ids(mx)
+    centre = patch_frame(field, lane, sim_cfg)
+    h = patch_heights(field, lane, sim_cfg)
+    h_min = jnp.min(h)
+    data = jnp.clip((h - h_min) / sim_cfg.patch_z, 0.0, 1.0).reshape(-1)
+    geom_pos = mx.geom_pos.at[terrain_id].set(jnp.stack([centre[0], centre[1], h_min]))
+    geom_quat, geom_size = mx.geom_quat, mx.geom_size
+
+    k = obst_ids.shape[0]
+    if k:
+        idx, used, _ = _select_obstacles(field, centre, sim_cfg, k)
+        pos = field.obst_pos[idx]
+        parked = jnp.stack([jnp.full(k, centre[0]), jnp.full(k, centre[1]),
+                            h_min - _PARK_DEPTH - 3.0 * jnp.arange(k)], -1)
+        pos = jnp.where(used[:, None], pos, parked)
+        stone = field.obst_kind[idx] == F.STONE
+        radius = jnp.where(used, field.obst_size[idx, 0], 0.01)
+        half = jnp.where(stone | ~used, _STONE_HALF, field.obst_size[idx, 1])
+        size = jnp.stack([radius, half, jnp.zeros_like(half)], -1)
+        # capsule axis (local z) laid horizontally along yaw: Rz(yaw) · Ry(π/2)
+        quat = _quat_mul(_axis_quat(field.obst_yaw[idx], 2),
+                         _axis_quat(jnp.full(k, 0.5 * jnp.pi), 1))
+        geom_pos = geom_pos.at[obst_ids].set(pos.astype(geom_pos.dtype))
+        geom_quat = geom_quat.at[obst_ids].set(quat.astype(geom_quat.dtype))
+        geom_size = geom_size.at[obst_ids].set(size.astype(geom_size.dtype))
+    return mx.tree_replace({"hfield_data": data.astype(mx.hfield_data.dtype),
+                            "geom_pos": geom_pos, "geom_quat": geom_quat,
+                            "geom_size": geom_size})
+
+
+def world_mjmodel(m: mujoco.MjModel, mx_world: mjx.Model) -> mujoco.MjModel:
+    """A copy of the C model with one world's arrays (from `world_model`, unbatched) written
+    back: for MuJoCo C comparisons, its viewer and its renderer (host)."""
+    out = copy.deepcopy(m)
+    for name in WORLD_FIELDS:
+        getattr(out, name)[...] = np.asarray(getattr(mx_world, name)).reshape(
+            getattr(out, name).shape)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# State
+
+
+def _patch_surface(mx: mjx.Model, sim_cfg: SimConfig, x: jax.Array, y: jax.Array) -> jax.Array:
+    """Height [m] of the world's patch surface (as MuJoCo triangulates it) at world (x, y)."""
+    terrain_id, _ = _geom_ids(mx)
+    ny, nx = sim_cfg.patch_cells
+    c = mx.geom_pos[terrain_id]
+    grid = mx.hfield_data.reshape(ny, nx) * sim_cfg.patch_z
+    size = jnp.asarray(sim_cfg.patch_size, jnp.float32)
+    return c[2] + F.terrain_height(grid, size, x - c[0], y - c[1])
+
+
+def reset(mx: mjx.Model, field: F.Field, lane: jax.Array | None, key: jax.Array,
+          sim_cfg: SimConfig, noise: PoseNoise | None = None) -> SimState:
+    """Robot at rest at the start of `lane`, wheels on the terrain (pure, jittable).
+
+    mx: the world's model (`world_model(mx, field, lane, sim_cfg)`); field: the same Field;
+    lane: int32 [] lane index, or None for `field.robot_lane(field)`; key: PRNG key for the pose
+    noise; noise: start-pose noise (None: none).
+
+    The start is x = row end − `sim_cfg.path_length`, y = lane centre + N(0, lateral_std),
+    heading N(0, heading_std) around +x; the chassis is tilted to rest on the terrain under its
+    four wheels and placed 2 mm above it."""
+    rn = robot_numbers(mx)
+    if lane is None:
+        lane = F.robot_lane(field)
+    kl, kh = jax.random.split(key)
+    lat = jnp.float32(0.0) if noise is None else noise.lateral_std * jax.random.normal(kl)
+    yaw = jnp.float32(0.0) if noise is None else noise.heading_std * jax.random.normal(kh)
+    x0 = field.row_x[1] - sim_cfg.path_length
+    y0 = field.lane_y[lane] + lat
+    wxy = jnp.asarray(np.stack([R.WHEEL_FRONT * rn["wheelbase"] / 2,
+                                R.WHEEL_SIDE * rn["track"] / 2], -1), jnp.float32)
+    c, s = jnp.cos(yaw), jnp.sin(yaw)
+    wx = x0 + c * wxy[:, 0] - s * wxy[:, 1]
+    wy = y0 + s * wxy[:, 0] + c * wxy[:, 1]
+    hw = _patch_surface(mx, sim_cfg, wx, wy)  # [4] fl, fr, rl, rr
+    pitch = -jnp.arctan2(0.5 * (hw[0] + hw[1] - hw[2] - hw[3]), rn["wheelbase"])
+    roll = jnp.arctan2(0.5 * (hw[0] + hw[2] - hw[1] - hw[3]), rn["track"])
+    quat = _quat_mul(_quat_mul(_axis_quat(yaw, 2), _axis_quat(pitch, 1)), _axis_quat(roll, 0))
+    z0 = jnp.mean(hw) + rn["wheel_radius"] + 0.002
+    d = mjx.make_data(mx)
+    qpos = d.qpos.at[:3].set(jnp.stack([x0, y0, z0])).at[3:7].set(quat).at[7:].set(0.0)
+    d = d.replace(qpos=qpos.astype(d.qpos.dtype), qvel=jnp.zeros_like(d.qvel))
+    d = mjx.forward(mx, d)
+    return SimState(data=d, steps=jnp.int32(0))
+
+
+def step(mx: mjx.Model, state: SimState, cmd: jax.Array, sim_cfg: SimConfig) -> SimState:
+    """Advance one control period (sim_cfg.substeps physics steps) under cmd float [2] =
+    (v [m/s], ω [rad/s]), clipped to the robot's limits and mapped to wheel speeds
+    (robot.wheel_speeds). Kinematics (xpos, xmat, cam_xpos, ...) are refreshed to the final
+    qpos, so `camera_pose` and `pose` describe the same instant."""
+    ctrl = R.wheel_speeds(cmd, robot_numbers(mx))
+    d = state.data.replace(ctrl=ctrl.astype(state.data.ctrl.dtype))
+
+    def body(d, _):
+        return mjx.step(mx, d), None
+
+    d, _ = jax.lax.scan(body, d, None, length=sim_cfg.substeps)
+    d = mjx.camlight(mx, mjx.kinematics(mx, d))
+    return SimState(data=d, steps=state.steps + 1)
+
+
+# ---------------------------------------------------------------------------------------------
+# Read-outs
+
+
+def pose(state: SimState) -> jax.Array:
+    """float32 [3]: (x [m], y [m], yaw [rad]) of the chassis origin; yaw of its x axis
+    projected on the ground, in (−π, π]."""
+    q = state.data.qpos
+    w, x, y, z = q[3], q[4], q[5], q[6]
+    yaw = jnp.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return jnp.stack([q[0], q[1], yaw])
+
+
+def velocity(state: SimState) -> jax.Array:
+    """float32 [2]: (forward speed [m/s] along the chassis x axis, yaw rate [rad/s] about
+    world z)."""
+    d = state.data
+    xmat = d.xmat[1]  # chassis body
+    return jnp.stack([jnp.dot(xmat[:, 0], d.qvel[:3]), jnp.dot(xmat[2], d.qvel[3:6])])
+
+
+def camera_pose(state: SimState) -> tuple[jax.Array, jax.Array]:
+    """The robot camera: (cam_pos float32 [3] world [m], cam_rot float32 [3, 3] whose columns
+    are the camera's x right, y up, z backwards axes in the world), i.e. MuJoCo's
+    `data.cam_xpos[0]`, `data.cam_xmat[0].reshape(3, 3)`; fovy is robot_cfg.cam_fovy."""
+    d = state.data
+    return d.cam_xpos[0], d.cam_xmat[0].reshape(3, 3)
+
+
+def tilt(state: SimState) -> jax.Array:
+    """float32 []: angle [rad] between the chassis z axis and world z."""
+    return jnp.arccos(jnp.clip(state.data.xmat[1, 2, 2], -1.0, 1.0))
+
+
+def is_flipped(state: SimState, sim_cfg: SimConfig) -> jax.Array:
+    """bool []: chassis tilted beyond `sim_cfg.max_tilt_deg`."""
+    return tilt(state) > math.radians(sim_cfg.max_tilt_deg)
+
+
+def is_bad(state: SimState, sim_cfg: SimConfig | None = None) -> jax.Array:
+    """bool []: the simulation failed: a non-finite qpos / qvel, or any velocity above
+    `sim_cfg.max_speed` (m/s or rad/s: exploded). An episode ends as `sim_error` on it."""
+    max_speed = (sim_cfg or SimConfig()).max_speed
+    d = state.data
+    finite = jnp.all(jnp.isfinite(d.qpos)) & jnp.all(jnp.isfinite(d.qvel))
+    return ~finite | (jnp.max(jnp.abs(d.qvel)) > max_speed)
+
+
+def off_patch(mx: mjx.Model, state: SimState, sim_cfg: SimConfig, margin: float = 0.3) -> jax.Array:
+    """bool []: the chassis origin is within `margin` [m] of the terrain patch's edge or beyond
+    (where the robot would fall off the physics terrain). mx: the world's model."""
+    terrain_id, _ = _geom_ids(mx)
+    c = mx.geom_pos[terrain_id, :2]
+    half = 0.5 * jnp.asarray(sim_cfg.patch_size) - margin
+    return jnp.any(jnp.abs(state.data.qpos[:2] - c) > half)
