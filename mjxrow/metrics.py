@@ -22,9 +22,11 @@ from flax import struct
 from mjxrow import plants
 from mjxrow.field import Field
 
-# Termination reasons; code 0 marks a step at which the episode is still running.
-REASONS = ("running", "goal", "collision", "timeout", "flipped", "stuck", "sim_error")
-RUNNING, GOAL, COLLISION, TIMEOUT, FLIPPED, STUCK, SIM_ERROR = range(len(REASONS))
+# Termination reasons; code 0 marks a step at which the episode is still running. `off_patch`:
+# the robot left the simulated terrain (drove past the row's end or strayed far from its lane).
+REASONS = ("running", "goal", "collision", "timeout", "flipped", "stuck", "sim_error",
+           "off_patch")
+RUNNING, GOAL, COLLISION, TIMEOUT, FLIPPED, STUCK, SIM_ERROR, OFF_PATCH = range(len(REASONS))
 
 METRICS = ("success", "collision", "reason", "cha", "mae", "mse", "omega_std", "v_mean", "time",
            "path_ratio", "max_offset")
@@ -49,6 +51,7 @@ class Log:
     lane_y: jax.Array  # float32 [], lateral position of the lane centre line [m]
     reason: jax.Array  # int32 [], REASONS code of the episode's end
     steps: jax.Array  # int32 [], number of control steps that ran
+    vel: jax.Array | None = None  # float32 [T, 2], measured (forward speed, yaw rate) per step
 
 
 # ---------------------------------------------------------------------------------------------

@@ -1,0 +1,364 @@
+"""Batched closed-loop episodes: the one place where jit(vmap(scan)) is composed for evaluation.
+
+`episode(...)` runs ONE world for `cfg.n_steps` control steps in a `lax.scan` (pure, not
+jitted); `rollout(...)` vmaps it over B fields and keys and jits it, once per (policy, static
+config): fields, lanes, keys, pose noise and the policy's params are traced arrays, so new
+FieldParams never retrace. `TRACES` counts the traces.
+
+An episode starts at rest `sim_cfg.path_length` before the end of its lane (sim.reset), the goal
+is the lane's end point (row end x, lane centre y). Each step: observation → policy → one
+control period of physics → events. It ends at the first event, in this order of precedence:
+sim_error (NaN or exploded state), flipped, collision (robot footprint touching a plant's
+collision footprint, metrics.collides), goal (within `goal_radius`), off_patch (the robot left
+the simulated terrain), stuck (moved less than `stuck_dist` over `stuck_window` steps), timeout
+(after `n_steps`). Once ended, the state stays frozen and the remaining steps are masked.
+
+CLI: `python -m mjxrow.episode --preset vineyard --controller oracle --n 8 --seed 0 --out DIR
+[--set key=value ...]` (see `main`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import functools
+import math
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+from tqdm.auto import tqdm
+
+from mjxrow import control, sim
+from mjxrow import field as F
+from mjxrow import metrics as M
+from mjxrow.metrics import Log
+from mjxrow.overrides import parse_sets
+
+TRACES = 0  # times the episode function was traced (each one is a compile)
+
+
+@dataclasses.dataclass(frozen=True)
+class EpisodeConfig:
+    """Static episode settings (hashable). `crop` picks the plants' collision footprint."""
+
+    crop: str
+    n_steps: int = 600  # control steps before timeout (600 at 15 Hz = 40 s)
+    goal_radius: float = 0.40  # m, goal reached within this distance
+    stuck_window: int = 45  # control steps between stuck checks (3 s at 15 Hz)
+    stuck_dist: float = 0.05  # m, moving less than this over a window is stuck
+    lateral_std: float = 0.0  # m, std of the start's lateral offset (traced, not a compile key)
+    heading_std: float = 0.0  # rad, std of the start heading (traced, not a compile key)
+    collision_window: int = 4  # plants checked each side along a row (metrics.collides)
+    end_off_patch: bool = True  # end an episode that leaves the terrain patch as off_patch
+    sim: sim.SimConfig = sim.SimConfig()
+
+    def __post_init__(self):
+        if self.crop not in F.CROPS:
+            raise ValueError(f"crop: unknown crop {self.crop!r}; expected one of {F.CROPS}")
+        for name in ("n_steps", "stuck_window", "collision_window"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name}: must be at least 1, got {getattr(self, name)}")
+        for name in ("goal_radius", "stuck_dist"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name}: must be positive, got {getattr(self, name)}")
+        for name in ("lateral_std", "heading_std"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name}: must be non-negative, got {getattr(self, name)}")
+
+    @property
+    def control_dt(self) -> float:
+        """s, one control period."""
+        return 1.0 / self.sim.control_hz
+
+    @property
+    def path_length(self) -> float:
+        """m, start → goal along the lane (sim.path_length)."""
+        return self.sim.path_length
+
+
+def _select(c, a, b):
+    """Per leaf: a where c else b."""
+    return jax.tree.map(lambda x, y: jnp.where(c, x, y), a, b)
+
+
+def episode(mx, field: F.Field, lane: jax.Array, key: jax.Array, noise: sim.PoseNoise,
+            policy: control.Policy, policy_params: Any, cfg: EpisodeConfig) -> Log:
+    """One world's episode (pure; not jitted: `rollout` composes jit and vmap).
+
+    mx: the shape's MJX model (sim.make_model); field: one Field; lane: int32 [] lane index;
+    key: PRNG key (start-pose noise and the policy's per-step keys); noise: start-pose noise;
+    policy: `control.Policy` (or any callable `(params, state, obs, key) -> (state, cmd)`,
+    stateless: its state is None); cfg: static settings. Returns the Log ([T] per step)."""
+    global TRACES
+    TRACES += 1
+    scfg = cfg.sim
+    rn = sim.robot_numbers(mx)
+    half = (0.5 * rn["length"], 0.5 * rn["width"])
+    m = sim.world_model(mx, field, lane, scfg)
+    k_reset, k_policy = jax.random.split(key)
+    s0 = sim.reset(m, field, lane, k_reset, scfg, noise)
+    lane_y = field.lane_y[lane]
+    goal = jnp.stack([field.row_x[1], lane_y])
+    p0 = sim.pose(s0)
+    init = getattr(policy, "init", None)
+    ps0 = init(policy_params) if init is not None else None
+
+    def body(carry, t):
+        s, ps, done, anchor = carry
+        cam_pos, cam_rot = sim.camera_pose(s)
+        obs = control.Obs(pose=sim.pose(s), lane_y=lane_y, lane_end_x=goal[0], goal=goal,
+                          cam_pos=cam_pos, cam_rot=cam_rot, field=field)
+        ps_new, cmd = policy(policy_params, ps, obs, jax.random.fold_in(k_policy, t))
+        cmd = jnp.asarray(cmd, jnp.float32)
+        s_new = sim.step(m, s, cmd, scfg)
+        bad = sim.is_bad(s_new, scfg) | ~jnp.all(jnp.isfinite(cmd))
+        p = sim.pose(s_new)
+        check = (t + 1) % cfg.stuck_window == 0
+        events = [  # lowest precedence first: later entries win
+            (t == cfg.n_steps - 1, M.TIMEOUT),
+            (check & (jnp.linalg.norm(p[:2] - anchor) < cfg.stuck_dist), M.STUCK),
+            (sim.off_patch(m, s_new, scfg) if cfg.end_off_patch else False, M.OFF_PATCH),
+            (jnp.linalg.norm(p[:2] - goal) <= cfg.goal_radius, M.GOAL),
+            (M.collides(p, field, cfg.crop, half, cfg.collision_window), M.COLLISION),
+            (sim.is_flipped(s_new, scfg), M.FLIPPED),
+            (bad, M.SIM_ERROR),
+        ]
+        reason = jnp.int32(M.RUNNING)
+        for happened, code in events:
+            reason = jnp.where(happened, code, reason)
+        event = jnp.where(done, M.RUNNING, reason).astype(jnp.int32)
+        keep_old = done | bad
+        s_next = _select(keep_old, s, s_new)
+        ps_next = _select(done, ps, ps_new)
+        anchor = jnp.where(check, p[:2], anchor)
+        out = dict(pose=jnp.where(done, jnp.nan, p), cmd=cmd, alive=~done, event=event,
+                   vel=jnp.where(done | bad, jnp.nan, sim.velocity(s_new)))
+        return (s_next, ps_next, done | (reason != M.RUNNING), anchor), out
+
+    carry = (s0, ps0, jnp.zeros((), bool), p0[:2])
+    _, out = jax.lax.scan(body, carry, jnp.arange(cfg.n_steps))
+    return Log(pose=out["pose"], cmd=out["cmd"], alive=out["alive"], event=out["event"],
+               start=p0, goal=goal, lane_y=lane_y, reason=jnp.max(out["event"]),
+               steps=jnp.sum(out["alive"]).astype(jnp.int32), vel=out["vel"])
+
+
+@functools.lru_cache(maxsize=64)
+def compiled(policy, cfg: EpisodeConfig, params_batched: bool = False):
+    """jit(vmap(episode)) for one policy and static config: a function
+    `(mx, fields [B], lanes [B], keys [B], noise, policy_params) -> Log [B]`. Cached, so equal
+    (policy, cfg) reuse one compiled function; noise stds are not part of the key."""
+
+    def one(mx, field, lane, key, noise, params):
+        return episode(mx, field, lane, key, noise, policy, params, cfg)
+
+    axes = (None, 0, 0, 0, None, 0 if params_batched else None)
+    return jax.jit(jax.vmap(one, in_axes=axes))
+
+
+def _static(cfg: EpisodeConfig) -> EpisodeConfig:
+    return dataclasses.replace(cfg, lateral_std=0.0, heading_std=0.0)
+
+
+def rollout_args(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array,
+                 cfg: EpisodeConfig) -> tuple:
+    """Checked arguments of the compiled function (host): (mx, fields, lanes, keys, noise)."""
+    valid = np.asarray(fields.valid)
+    if valid.ndim != 1:
+        raise ValueError(f"fields: expected a batch (leading [B] axis), valid has shape "
+                         f"{valid.shape}")
+    if not valid.all():
+        raise ValueError(f"fields: field {int(np.argmin(valid))} is not a valid field "
+                         "(field.validate names the parameter)")
+    B = valid.shape[0]
+    if keys.shape[0] != B:
+        raise ValueError(f"keys: {keys.shape[0]} keys for {B} fields")
+    if lanes is None:
+        lanes = jax.vmap(F.robot_lane)(fields)
+    lanes = jnp.asarray(lanes, jnp.int32)
+    if lanes.shape != (B,):
+        raise ValueError(f"lanes: expected shape ({B},), got {lanes.shape}")
+    noise = sim.pose_noise(cfg.lateral_std, cfg.heading_std)
+    return mx, fields, lanes, keys, noise
+
+
+def rollout(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array, policy,
+            policy_params: Any, ep_cfg: EpisodeConfig, params_batched: bool = False) -> Log:
+    """B episodes in one compiled call: jit(vmap(scan)).
+
+    mx: MJX model of the fields' static shape (sim.make_model); fields: Field with a leading
+    [B] axis (all valid); lanes: int32 [B] lane per field, or None for each field's
+    `field.robot_lane`; keys: PRNG keys [B]; policy: a `control.Policy` (e.g.
+    `control.as_policy("oracle")`, `control.with_perception(...)`), hashable: the same object
+    reuses the compiled function; policy_params: its params, shared by all episodes, or with a
+    leading [B] axis when `params_batched`. Returns a Log with a leading [B] axis."""
+    args = rollout_args(mx, fields, lanes, keys, ep_cfg)
+    return compiled(policy, _static(ep_cfg), params_batched)(*args, policy_params)
+
+
+def summarise(log: Log, ep_cfg: EpisodeConfig) -> dict[str, jax.Array]:
+    """metrics.summarise with this config's control period."""
+    return M.summarise(log, ep_cfg.control_dt)
+
+
+# ---------------------------------------------------------------------------------------------
+# CLI
+
+CSV_METRICS = ("success", "collision", "reason", "cha", "mae", "mse", "omega_std", "v_mean",
+               "time", "path_ratio", "max_offset")
+
+
+@contextlib.contextmanager
+def _ticker(desc: str, enabled: bool = True):
+    """Progress while a blocking call runs: on a terminal a line with the elapsed time,
+    refreshed every second; otherwise one line at the start and one at the end."""
+    if not enabled:
+        yield
+        return
+    t0 = time.perf_counter()
+    if not sys.stderr.isatty():
+        print(f"{desc} ...", file=sys.stderr, flush=True)
+        yield
+        print(f"{desc}: done in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+        return
+    bar = tqdm(total=None, desc=desc, bar_format="{desc}: {elapsed}")
+    stop = threading.Event()
+
+    def tick():
+        while not stop.wait(1.0):
+            bar.refresh()
+
+    thread = threading.Thread(target=tick, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+        bar.close()
+
+
+def make_policy(controller: str, shape: F.FieldShape, args: argparse.Namespace):
+    """(policy, params) for the CLI's controller choice."""
+    if controller == "oracle":
+        return control.as_policy("oracle"), control.oracle_params(lookahead=args.lookahead)
+    raise ValueError(f"--controller {controller}: mask controllers need a perception source "
+                     "(render → segment), which is not available to this command yet; use "
+                     "--controller oracle")
+
+
+def results_table(params: F.FieldParams, seeds: np.ndarray, lanes: np.ndarray,
+                  summary: dict[str, Any]) -> pd.DataFrame:
+    """One row per episode: seed, lane, field parameters, metrics (reason as its name)."""
+    cols: dict[str, Any] = {"seed": seeds, "lane": lanes}
+    cols.update({k: np.asarray(getattr(params, k)) for k in F.PARAM_NAMES})
+    for k in CSV_METRICS:
+        v = np.asarray(summary[k])
+        cols[k] = np.asarray(M.REASONS)[v] if k == "reason" else v
+    return pd.DataFrame(cols)
+
+
+def format_aggregate(summary: dict[str, Any]) -> str:
+    """The aggregate table (mean and 95 % CI per metric; CHA also in degrees) as text."""
+    agg = M.aggregate({k: np.asarray(summary[k]) for k in CSV_METRICS})
+    lines = [f"{'metric':<12} {'mean':>10}  {'95 % CI':>24}  {'n':>4}  method",
+             "-" * 64]
+
+    def row(name, a, f=1.0):
+        lines.append(f"{name:<12} {a['mean'] * f:>10.4g}  [{a['lo'] * f:>10.4g}, "
+                     f"{a['hi'] * f:>10.4g}]  {a['n']:>4}  {a['method']}")
+
+    for name, a in agg.items():
+        row(name, a)
+        if name == "cha":
+            row("cha [deg]", a, 180.0 / math.pi)
+    counts = M.reason_counts(summary["reason"])
+    lines.append("reasons: " + ", ".join(f"{k} {v}" for k, v in counts.items() if v))
+    return "\n".join(lines)
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m mjxrow.episode",
+                                description="Run one batch of episodes and score them.")
+    p.add_argument("--preset", default="vineyard", choices=F.CROPS)
+    p.add_argument("--controller", default="oracle", choices=tuple(control.CONTROLLERS))
+    p.add_argument("--n", type=int, default=8, help="episodes (one field each)")
+    p.add_argument("--seed", type=int, default=0, help="episode i uses seed + i")
+    p.add_argument("--out", required=True, help="output directory (episodes.csv)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="field parameter override (repeatable), e.g. --set d_rr=3.0")
+    p.add_argument("--steps", type=int, default=600, help="control steps before timeout")
+    p.add_argument("--path-length", type=float, default=20.0, help="m, start → goal")
+    p.add_argument("--goal-radius", type=float, default=0.40, help="m")
+    p.add_argument("--lateral-std", type=float, default=0.0, help="m, start offset std")
+    p.add_argument("--heading-std-deg", type=float, default=0.0, help="deg, start heading std")
+    p.add_argument("--lookahead", type=float, default=1.0, help="m, oracle look-ahead")
+    p.add_argument("--no-progress", action="store_true", help="no progress lines")
+    return p
+
+
+def run_cli(args: argparse.Namespace) -> pd.DataFrame:
+    if args.n < 1:
+        raise ValueError(f"--n: must be at least 1, got {args.n}")
+    if args.seed < 0:
+        raise ValueError(f"--seed: must be non-negative, got {args.seed}")
+    sets = parse_sets(args.set)
+    params = F.make_params(args.preset, **sets)
+    params = jax.tree.map(lambda x: jnp.broadcast_to(x, (args.n,)), params)
+    shape = F.fit_shape(params, args.preset)
+    F.validate(params, shape)
+    row_len = float(params.row_length[0] * params.scale[0])
+    if args.path_length > row_len:
+        raise ValueError(f"--path-length: {args.path_length} m is longer than the rows "
+                         f"({row_len:g} m)")
+    cfg = EpisodeConfig(crop=args.preset, n_steps=args.steps, goal_radius=args.goal_radius,
+                        lateral_std=args.lateral_std,
+                        heading_std=math.radians(args.heading_std_deg),
+                        sim=sim.SimConfig(path_length=args.path_length))
+    policy, pparams = make_policy(args.controller, shape, args)
+    seeds = args.seed + np.arange(args.n)
+    keys = jax.vmap(lambda s: jax.random.split(jax.random.key(s)))(jnp.asarray(seeds))
+    show = not args.no_progress
+    with _ticker(f"fields ({args.n} × {args.preset})", show):
+        gen = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)
+        fields = jax.block_until_ready(gen(params, shape, keys[:, 0]))
+        _, mx = sim.make_model(shape, cfg.sim)
+    call_args = (*rollout_args(mx, fields, None, keys[:, 1], cfg), pparams)
+    fn = compiled(policy, _static(cfg), False)
+    t0 = time.perf_counter()
+    with _ticker("compiling", show):
+        exe = fn.lower(*call_args).compile()
+    t1 = time.perf_counter()
+    with _ticker(f"running {args.n} episodes × {cfg.n_steps} steps", show):
+        log = jax.block_until_ready(exe(*call_args))
+    t2 = time.perf_counter()
+    summary = jax.tree.map(np.asarray, summarise(log, cfg))
+    table = results_table(params, seeds, np.asarray(call_args[2]), summary)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    table.to_csv(out / "episodes.csv", index=False)
+    print(f"{args.controller} on {args.preset}: {args.n} episodes, compile {t1 - t0:.1f} s, "
+          f"run {t2 - t1:.1f} s ({args.n * cfg.n_steps / (t2 - t1):.0f} env-steps/s)")
+    print(format_aggregate(summary))
+    print(f"wrote {out / 'episodes.csv'}")
+    return table
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = _parser().parse_args(argv)
+    try:
+        run_cli(args)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)
+
+
+if __name__ == "__main__":
+    main()
