@@ -107,7 +107,7 @@ def to_mjcf(field: F.Field, shape: F.FieldShape, name: str = "field") -> tuple[s
     hfile = f"{name}_terrain.bin"
     prims = jax.tree.map(np.asarray, PL.plant_prims(f, shape))
     classes = [PL.MATERIAL_NAMES[m] + ("_capsule" if k == PL.CAPSULE else "")
-               for k, m in zip(prims.kind, prims.material)]
+               for k, m in zip(prims.kind, prims.material, strict=True)]
     cam_pos, cam_rot = lane_camera(f)
 
     out = [f'<mujoco model="{name}">',
