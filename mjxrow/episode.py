@@ -312,6 +312,8 @@ def run_cli(args: argparse.Namespace) -> pd.DataFrame:
     sets = parse_sets(args.set)
     params = F.make_params(args.preset, **sets)
     params = jax.tree.map(lambda x: jnp.broadcast_to(x, (args.n,)), params)
+    big = 1 << 20  # limits of the static shape are checked once it is fitted
+    F.validate(params, F.FieldShape(args.preset, big, big, (2, 2), big))
     shape = F.fit_shape(params, args.preset)
     F.validate(params, shape)
     row_len = float(params.row_length[0] * params.scale[0])

@@ -1,0 +1,178 @@
+"""Batched episodes: one compiled call for 8 different fields, no retrace on new FieldParams,
+the oracle drives a 20 m lane, every termination reason the flat field can provoke.
+
+One policy and one static config serve the default tests, so the module compiles once."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjxrow import control as C
+from mjxrow import episode as E
+from mjxrow import field as F
+from mjxrow import metrics as M
+from mjxrow import sim
+
+B = 8
+SHAPE = F.FieldShape(crop="vineyard", max_rows=8, max_plants_per_row=32, terrain_cells=(56, 112),
+                     obstacle_slots=8)
+FLAT = dict(terrain_length=26.0, row_length=22.0, terrain_width=12.0, terrain_dh=0.0,
+            stone_density=0.0, branch_density=0.0, p_missing=0.0)
+CFG = E.EpisodeConfig(crop="vineyard")  # 600 steps, 20 m, goal radius 0.40 m
+ORACLE = C.oracle_params()
+
+
+def _test_act(p, state, obs, key):
+    """mode 0: the oracle; mode 1: hold heading yaw_target at speed v."""
+    _, oracle = C.oracle_act(ORACLE, state, obs)
+    hold = jnp.stack([p["v"], jnp.clip(2.0 * (p["yaw"] - obs.pose[2]), -1.0, 1.0)])
+    return state, jnp.where(p["mode"] == 0, oracle, hold)
+
+
+POLICY = C.Policy(init=lambda p: (), act=_test_act)
+
+
+def policy_params(mode, v=0.0, yaw=0.0):
+    def arr(x):
+        return jnp.broadcast_to(jnp.asarray(x, jnp.float32), (B,))
+
+    return {"mode": arr(mode), "v": arr(v), "yaw": arr(yaw)}
+
+
+generate = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)
+
+
+def make_fields(seed, **varied):
+    params = F.make_params("vineyard", **FLAT)
+    params = jax.tree.map(lambda x: jnp.broadcast_to(x, (B,)), params).replace(
+        **{k: jnp.asarray(v, jnp.float32) for k, v in varied.items()})
+    F.validate(params, SHAPE)
+    return generate(params, SHAPE, jax.random.split(jax.random.key(seed), B))
+
+
+@pytest.fixture(scope="module")
+def setup():
+    _, mx = sim.make_model(SHAPE, CFG.sim)
+    fields = make_fields(0, d_rr=np.linspace(2.4, 3.0, B), d_RR=np.linspace(2.4, 3.0, B),
+                         d_pp=np.linspace(0.9, 1.2, B))
+    traces0 = E.TRACES
+    log = E.rollout(mx, fields, None, jax.random.split(jax.random.key(1), B), POLICY,
+                    policy_params(0), CFG, params_batched=True)
+    return mx, fields, jax.tree.map(np.asarray, log), E.TRACES - traces0
+
+
+def test_eight_fields_in_one_call(setup):
+    _, fields, log, traces = setup
+    assert traces == 1
+    assert log.pose.shape == (B, CFG.n_steps, 3) and log.reason.shape == (B,)
+    widths = np.asarray(jax.vmap(lambda f: f.lane_width[F.robot_lane(f)])(fields))
+    assert len(np.unique(np.round(widths, 4))) == B  # eight different fields
+    # each episode starts 20 m before its lane's end, on its lane's centre line
+    np.testing.assert_allclose(log.goal[:, 0] - log.start[:, 0], 20.0, atol=1e-4)
+    np.testing.assert_allclose(log.start[:, 1], log.lane_y, atol=1e-4)
+
+
+def test_oracle_drives_the_lane(setup):
+    _, _, log, _ = setup
+    s = jax.tree.map(np.asarray, E.summarise(log, CFG))
+    assert s["success"].all(), M.REASONS[int(s["reason"][np.argmin(s["success"])])]
+    assert not s["collision"].any()
+    assert (s["mae"] < 0.05).all(), s["mae"]
+    # 19.6 m at 0.5 m/s is 39.2 s; the robot needs a few tenths of a second to accelerate
+    assert ((s["time"] > 39.2) & (s["time"] < 40.0)).all(), s["time"]
+    assert (np.abs(s["path_ratio"] - 1.0) < 0.01).all()
+
+
+def test_new_field_params_do_not_retrace(setup):
+    mx, fields, log1, _ = setup
+    traces0 = E.TRACES
+    fields2 = make_fields(5, d_rr=np.linspace(3.0, 2.5, B), d_RR=np.linspace(3.0, 2.5, B),
+                          plant_width=np.linspace(0.4, 0.7, B))
+    log2 = E.rollout(mx, fields2, None, jax.random.split(jax.random.key(2), B), POLICY,
+                     policy_params(0), CFG, params_batched=True)
+    assert E.TRACES == traces0
+    assert not np.allclose(np.asarray(log2.lane_y), log1.lane_y)
+    assert np.asarray(log2.reason == M.GOAL).all()
+
+
+def test_termination_reasons(setup):
+    mx, fields, _, _ = setup
+    # ±0.25 rad: the 0.43 m wide swept band meets a trunk row over 0.43 / sin 0.25 = 1.74 m,
+    # more than the trunk spacing (≤ 1.2 m), so it cannot slip between two trunks
+    q = 0.25
+    params = {"mode": jnp.array([1, 1, 1, 1, 1, 1, 0, 1], jnp.float32),
+              "v": jnp.array([0.0, -0.5, jnp.nan, 0.1, 0.5, 0.5, 0.0, 0.5], jnp.float32),
+              "yaw": jnp.array([0.0, 0.0, 0.0, 0.0, q, -q, 0.0, 0.0], jnp.float32)}
+    traces0 = E.TRACES
+    log = jax.tree.map(np.asarray, E.rollout(mx, fields, None,
+                                             jax.random.split(jax.random.key(3), B), POLICY,
+                                             params, CFG, params_batched=True))
+    assert E.TRACES == traces0  # new policy params do not retrace either
+    names = [M.REASONS[r] for r in log.reason]
+    assert names == ["stuck", "off_patch", "sim_error", "timeout", "collision", "collision",
+                     "goal", "goal"]
+    assert log.steps[0] == CFG.stuck_window  # not moving: caught at the first check
+    assert log.steps[2] == 1 and log.steps[3] == CFG.n_steps
+    # the slanted runs end touching a trunk row: half a lane width from the lane centre minus
+    # the footprint's lateral reach (0.27 m at 0.25 rad) and the trunk radius (0.045 m)
+    lanes = np.asarray(jax.vmap(F.robot_lane)(fields))
+    for i, side in ((4, 1.0), (5, -1.0)):
+        last = log.pose[i, log.steps[i] - 1]
+        width = float(fields.lane_width[i, lanes[i]])
+        dev = side * (last[1] - log.lane_y[i])
+        assert 0.5 * width - 0.40 < dev < 0.5 * width, (dev, width)
+    # masking: alive is a prefix of length steps, the event sits on its last step
+    for i in range(B):
+        assert log.alive[i, : log.steps[i]].all() and not log.alive[i, log.steps[i]:].any()
+        assert log.event[i, log.steps[i] - 1] == log.reason[i]
+        assert (np.delete(log.event[i], log.steps[i] - 1) == 0).all()
+    s = jax.tree.map(np.asarray, E.summarise(jax.tree.map(jnp.asarray, log), CFG))
+    assert np.isfinite(s["mae"]).all()  # the NaN step of the sim_error run is masked
+    assert s["success"].tolist() == [False] * 6 + [True] * 2
+    assert s["collision"].tolist() == [False] * 4 + [True] * 2 + [False] * 2
+
+
+def test_cli_rejects_bad_input(tmp_path, capsys):
+    cases = [["--set", "d_rr=-1"], ["--set", "nope=1"], ["--set", "d_rr=abc"],
+             ["--path-length", "80"], ["--n", "0"], ["--controller", "segzeros"]]
+    for extra in cases:
+        with pytest.raises(SystemExit) as e:
+            E.main(["--preset", "vineyard", "--out", str(tmp_path), "--no-progress", *extra])
+        assert e.value.code == 2, extra
+        err = capsys.readouterr().err
+        assert "error" in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "episodes.csv").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("preset", F.CROPS)
+def test_oracle_every_preset(preset):
+    """The oracle drives a 20 m lane of each preset's default geometry on flat terrain."""
+    n = 2
+    params = F.make_params(preset, terrain_dh=0.0, stone_density=0.0, branch_density=0.0)
+    params = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,)), params)
+    shape = F.fit_shape(params, preset)
+    gen = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)
+    fields = gen(params, shape, jax.random.split(jax.random.key(0), n))
+    cfg = E.EpisodeConfig(crop=preset)
+    _, mx = sim.make_model(shape, cfg.sim)
+    log = E.rollout(mx, fields, None, jax.random.split(jax.random.key(1), n),
+                    C.as_policy("oracle"), C.oracle_params(), cfg)
+    s = jax.tree.map(np.asarray, E.summarise(log, cfg))
+    assert s["success"].all(), [M.REASONS[r] for r in s["reason"]]
+    assert not s["collision"].any() and (s["mae"] < 0.05).all(), s["mae"]
+
+
+@pytest.mark.slow
+def test_cli_writes_episodes_csv(tmp_path, capsys):
+    import pandas as pd
+
+    E.main(["--preset", "vineyard", "--n", "2", "--seed", "3", "--out", str(tmp_path),
+            "--set", "terrain_dh=0.05", "--no-progress"])
+    df = pd.read_csv(tmp_path / "episodes.csv")
+    assert df["seed"].tolist() == [3, 4]
+    assert set(E.CSV_METRICS) <= set(df.columns) and set(F.PARAM_NAMES) <= set(df.columns)
+    assert (df["terrain_dh"] == 0.05).all() and (df["reason"] == "goal").all()
+    out = capsys.readouterr().out
+    assert "cha [deg]" in out and "95 % CI" in out
