@@ -209,6 +209,54 @@ def summarise(log: Log, ep_cfg: EpisodeConfig) -> dict[str, jax.Array]:
 
 
 # ---------------------------------------------------------------------------------------------
+# Perception in the loop: render → (segment) → mask controller
+
+SOURCES = ("ground_truth", "learned")
+
+
+@functools.lru_cache(maxsize=16)
+def perception_policy(controller: str, shape: F.FieldShape, intr, source: str = "ground_truth",
+                      checkpoint: str = "", render_cfg=None):
+    """A mask controller ("segzeros", "segmin") fed by the renderer: its ground-truth plant mask
+    (`source="ground_truth"`) or the learned segmenter's mask of the rendered RGB
+    (`"learned"`, `checkpoint`: a crop name or checkpoint directory for seg.checkpoint.load).
+    Depth is the rendered depth. intr: render.Intrinsics (static).
+
+    Returns (policy, perception_params); the policy's params are the pair (perception_params,
+    controller params). perception_params: {"cond": render.Conditions} plus, for "learned",
+    {"variables": the segmenter's variables, "threshold": float32 []}. Cached: equal arguments
+    give the same policy, so rollouts reuse its compiled function."""
+    from mjxrow import render
+
+    if source not in SOURCES:
+        raise ValueError(f"source: unknown {source!r}; expected one of {SOURCES}")
+    c = control.get(controller)
+    if not c.needs_mask:
+        raise ValueError(f"controller: {controller!r} takes no mask")
+    rcfg = render_cfg or render.RenderConfig()
+    params: dict[str, Any] = {"cond": render.conditions("sunny")}
+    if source == "ground_truth":
+        def perceive(p, obs, key):
+            frame = render.render(obs.field, shape, obs.cam_pos, obs.cam_rot, intr, p["cond"],
+                                  None, rcfg)
+            return frame.mask, frame.depth
+    else:
+        from mjxrow.seg import checkpoint as ckpt
+        from mjxrow.seg import model as seg_model
+
+        module, variables = ckpt.load(checkpoint or shape.crop)
+        params.update(variables=variables, threshold=jnp.float32(0.7))
+
+        def perceive(p, obs, key):
+            frame = render.render(obs.field, shape, obs.cam_pos, obs.cam_rot, intr, p["cond"],
+                                  key, rcfg)
+            mask = seg_model.predict_mask(module, p["variables"], frame.rgb[None],
+                                          p["threshold"])[0]
+            return mask, frame.depth
+    return control.with_perception(c, perceive), params
+
+
+# ---------------------------------------------------------------------------------------------
 # CLI
 
 CSV_METRICS = ("success", "collision", "reason", "cha", "mae", "mse", "omega_std", "v_mean",
@@ -249,9 +297,19 @@ def make_policy(controller: str, shape: F.FieldShape, args: argparse.Namespace):
     """(policy, params) for the CLI's controller choice."""
     if controller == "oracle":
         return control.as_policy("oracle"), control.oracle_params(lookahead=args.lookahead)
-    raise ValueError(f"--controller {controller}: mask controllers need a perception source "
-                     "(render → segment), which is not available to this command yet; use "
-                     "--controller oracle")
+    from mjxrow import render
+
+    w, _, h = args.image.partition("x")
+    try:
+        intr = render.Intrinsics(int(w), int(h), args.fovy)
+    except ValueError as e:
+        raise ValueError(f"--image: expected WIDTHxHEIGHT, got {args.image!r} ({e})") from None
+    method = "zeros" if controller == "segzeros" else "min"
+    cparams = control.seg_params(method, args.variant, image_hw=(intr.height, intr.width))
+    policy, pparams = perception_policy(controller, shape, intr, args.perception,
+                                        args.checkpoint)
+    pparams = {**pparams, "cond": render.conditions(args.condition)}
+    return policy, (pparams, cparams)
 
 
 def results_table(params: F.FieldParams, seeds: np.ndarray, lanes: np.ndarray,
@@ -263,25 +321,6 @@ def results_table(params: F.FieldParams, seeds: np.ndarray, lanes: np.ndarray,
         v = np.asarray(summary[k])
         cols[k] = np.asarray(M.REASONS)[v] if k == "reason" else v
     return pd.DataFrame(cols)
-
-
-def format_aggregate(summary: dict[str, Any]) -> str:
-    """The aggregate table (mean and 95 % CI per metric; CHA also in degrees) as text."""
-    agg = M.aggregate({k: np.asarray(summary[k]) for k in CSV_METRICS})
-    lines = [f"{'metric':<12} {'mean':>10}  {'95 % CI':>24}  {'n':>4}  method",
-             "-" * 64]
-
-    def row(name, a, f=1.0):
-        lines.append(f"{name:<12} {a['mean'] * f:>10.4g}  [{a['lo'] * f:>10.4g}, "
-                     f"{a['hi'] * f:>10.4g}]  {a['n']:>4}  {a['method']}")
-
-    for name, a in agg.items():
-        row(name, a)
-        if name == "cha":
-            row("cha [deg]", a, 180.0 / math.pi)
-    counts = M.reason_counts(summary["reason"])
-    lines.append("reasons: " + ", ".join(f"{k} {v}" for k, v in counts.items() if v))
-    return "\n".join(lines)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -300,6 +339,15 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--lateral-std", type=float, default=0.0, help="m, start offset std")
     p.add_argument("--heading-std-deg", type=float, default=0.0, help="deg, start heading std")
     p.add_argument("--lookahead", type=float, default=1.0, help="m, oracle look-ahead")
+    p.add_argument("--variant", default="paper", choices=("paper", "public"),
+                   help="SegZeros/SegMin law: the paper's or the authors' public code's")
+    p.add_argument("--perception", default="ground_truth", choices=SOURCES,
+                   help="mask source of segzeros/segmin")
+    p.add_argument("--checkpoint", default="", help="segmenter checkpoint (default: the crop's)")
+    p.add_argument("--image", default="112x64", help="camera image WIDTHxHEIGHT [px]")
+    p.add_argument("--fovy", type=float, default=42.0, help="deg, vertical field of view")
+    p.add_argument("--condition", default="sunny",
+                   choices=("sunny", "cloudy", "crepuscular", "long_shadows"))
     p.add_argument("--no-progress", action="store_true", help="no progress lines")
     return p
 
@@ -348,7 +396,7 @@ def run_cli(args: argparse.Namespace) -> pd.DataFrame:
     table.to_csv(out / "episodes.csv", index=False)
     print(f"{args.controller} on {args.preset}: {args.n} episodes, compile {t1 - t0:.1f} s, "
           f"run {t2 - t1:.1f} s ({args.n * cfg.n_steps / (t2 - t1):.0f} env-steps/s)")
-    print(format_aggregate(summary))
+    print(M.format_table({k: summary[k] for k in CSV_METRICS}))
     print(f"wrote {out / 'episodes.csv'}")
     return table
 

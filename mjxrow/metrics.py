@@ -261,3 +261,22 @@ def reason_counts(reason: Any) -> dict[str, int]:
     """Episodes per termination reason: REASONS name → count (host). reason: int codes [B]."""
     r = np.asarray(reason).reshape(-1)
     return {name: int(np.sum(r == code)) for code, name in enumerate(REASONS) if code != RUNNING}
+
+
+def format_table(table: dict[str, Any], confidence: float = 0.95) -> str:
+    """`aggregate` as a text table (CHA also in degrees) with the episodes per reason."""
+    lines = [f"{'metric':<12} {'mean':>10}  {f'{confidence:.0%} CI':>24}  {'n':>4}  method",
+             "-" * 64]
+
+    def row(name, a, f=1.0):
+        lines.append(f"{name:<12} {a['mean'] * f:>10.4g}  [{a['lo'] * f:>10.4g}, "
+                     f"{a['hi'] * f:>10.4g}]  {a['n']:>4}  {a['method']}")
+
+    for name, a in aggregate(table, confidence).items():
+        row(name, a)
+        if name == "cha":
+            row("cha [deg]", a, 180.0 / math.pi)
+    if "reason" in table:
+        counts = reason_counts(table["reason"])
+        lines.append("reasons: " + ", ".join(f"{k} {v}" for k, v in counts.items() if v))
+    return "\n".join(lines)

@@ -173,3 +173,17 @@ def test_oracle_converges_on_a_unicycle():
     y = np.asarray(y)
     assert abs(y[-1] - 1.0) < 0.01
     assert np.max(np.abs(y - 1.0)) < 0.45  # no wild overshoot
+
+
+def test_with_perception_feeds_the_mask_controller():
+    def perceive(p, o, key):  # stands in for render → segment
+        return p["mask"], None
+
+    policy = C.with_perception("segzeros", perceive)
+    params = ({"mask": mask_with_free((14, 22))}, PAPER)
+    state = policy.init(params)
+    state, cmd = jax.jit(policy.act)(params, state, obs(), jax.random.key(0))
+    np.testing.assert_allclose(np.asarray(cmd), [0.5, 0.3], atol=1e-6)
+    assert not bool(state.end_of_row)
+    with pytest.raises(ValueError, match="mask"):
+        C.seg_act(PAPER, C.seg_init(PAPER), obs())

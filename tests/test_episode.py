@@ -175,4 +175,4 @@ def test_cli_writes_episodes_csv(tmp_path, capsys):
     assert set(E.CSV_METRICS) <= set(df.columns) and set(F.PARAM_NAMES) <= set(df.columns)
     assert (df["terrain_dh"] == 0.05).all() and (df["reason"] == "goal").all()
     out = capsys.readouterr().out
-    assert "cha [deg]" in out and "95 % CI" in out
+    assert "cha [deg]" in out and "95% CI" in out
