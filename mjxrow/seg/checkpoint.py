@@ -1,0 +1,110 @@
+"""Inference checkpoints of the segmenter: model config (JSON) + weights (orbax).
+
+A checkpoint folder holds
+
+    config.json   {"model": SegNet attributes, "weights_dtype": "float16" | ..., "meta": {...}}
+    weights/      orbax StandardCheckpointer tree {"params": ..., "batch_stats": ...}
+
+Shipped checkpoints live in `mjxrow/checkpoints/<crop>/` (one per crop, or `all/` for one model
+trained on every crop). `load` always returns float32 variables, whatever the stored dtype.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import orbax.checkpoint as ocp
+
+from mjxrow.field import CROPS
+from mjxrow.seg.model import SegNet
+
+CHECKPOINT_DIR = Path(__file__).resolve().parents[1] / "checkpoints"
+SHIPPED = (*CROPS, "all")
+WEIGHT_DTYPES = ("float32", "float16", "bfloat16")
+
+
+def save(path: str | Path, module: SegNet, variables: dict, *, weights_dtype: str = "float32",
+         meta: dict[str, Any] | None = None, overwrite: bool = True) -> Path:
+    """Write `variables` ({'params', 'batch_stats'}) and `module`'s config to folder `path`.
+
+    weights_dtype: storage precision of floating arrays ("float16" halves the size; the values
+    then round to ~1e-3 relative). meta: JSON-serialisable training facts (command, steps, IoU)."""
+    if weights_dtype not in WEIGHT_DTYPES:
+        raise ValueError(f"weights_dtype: expected one of {WEIGHT_DTYPES}, got {weights_dtype!r}")
+    path = Path(path).resolve()
+    if (path / "config.json").exists() and not overwrite:
+        raise ValueError(f"checkpoint {path}: already exists (pass overwrite=True to replace it)")
+    tree = {k: variables[k] for k in ("params", "batch_stats") if k in variables}
+    tree = jax.tree.map(lambda x: np.asarray(x).astype(weights_dtype)
+                        if jnp.issubdtype(x.dtype, jnp.floating) else np.asarray(x), tree)
+    path.mkdir(parents=True, exist_ok=True)
+    if (path / "weights").exists():
+        shutil.rmtree(path / "weights")
+    with ocp.StandardCheckpointer() as ckptr:
+        ckptr.save(path / "weights", tree)
+    config = {"model": module.config(), "weights_dtype": weights_dtype, "meta": meta or {}}
+    (path / "config.json").write_text(json.dumps(config, indent=2, sort_keys=True) + "\n")
+    return path
+
+
+def resolve(crop_or_path: str | Path) -> Path:
+    """Folder of a checkpoint: a crop name (shipped; falls back to the all-crop model `all/`)
+    or a path. Raises ValueError naming the crop or path when there is no checkpoint."""
+    name = str(crop_or_path)
+    if name in SHIPPED and not Path(name).exists():
+        for cand in (CHECKPOINT_DIR / name, CHECKPOINT_DIR / "all"):
+            if (cand / "config.json").is_file():
+                return cand
+        raise ValueError(
+            f"segmenter checkpoint for crop {name!r}: none shipped (looked for "
+            f"{CHECKPOINT_DIR / name}/config.json and {CHECKPOINT_DIR / 'all'}/config.json); "
+            f"train one with `python -m mjxrow.seg.train --crop {name} --export-to "
+            f"{CHECKPOINT_DIR / name}`")
+    path = Path(name).resolve()
+    if not (path / "config.json").is_file() or not (path / "weights").is_dir():
+        raise ValueError(f"segmenter checkpoint {str(crop_or_path)!r}: no config.json and "
+                         f"weights/ in {path}")
+    return path
+
+
+def read_config(crop_or_path: str | Path) -> dict[str, Any]:
+    """The checkpoint's config.json as a dict (model attributes, weights dtype, meta)."""
+    return json.loads((resolve(crop_or_path) / "config.json").read_text())
+
+
+def module_from_config(model_cfg: dict[str, Any]) -> SegNet:
+    """SegNet from a config dict; ValueError on unknown keys."""
+    known = set(SegNet().config())
+    unknown = sorted(set(model_cfg) - known)
+    if unknown:
+        raise ValueError(f"model config: unknown keys {unknown}; known: {sorted(known)}")
+    return SegNet(**model_cfg)
+
+
+def load(crop_or_path: str | Path) -> tuple[SegNet, dict]:
+    """(module, variables) of a shipped crop model or a checkpoint folder; float32 arrays."""
+    path = resolve(crop_or_path)
+    cfg = json.loads((path / "config.json").read_text())
+    module = module_from_config(cfg["model"])
+    stored = jnp.dtype(cfg.get("weights_dtype", "float32"))
+    target = jax.eval_shape(lambda k: module.init(k, jnp.zeros((1, 64, 64, 3), jnp.uint8)),
+                            jax.random.key(0))
+    target = {k: target[k] for k in ("params", "batch_stats") if k in target}
+    target = jax.tree.map(lambda s: jax.ShapeDtypeStruct(s.shape, stored)
+                          if jnp.issubdtype(s.dtype, jnp.floating) else s, target)
+    with ocp.StandardCheckpointer() as ckptr:
+        tree = ckptr.restore(path / "weights", target)
+    variables = jax.tree.map(lambda x: x.astype(jnp.float32)
+                             if jnp.issubdtype(x.dtype, jnp.floating) else x, tree)
+    return module, dict(variables)
+
+
+def size_bytes(crop_or_path: str | Path) -> int:
+    """Bytes on disk of a checkpoint folder (config + weights)."""
+    return sum(f.stat().st_size for f in resolve(crop_or_path).rglob("*") if f.is_file())

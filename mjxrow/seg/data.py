@@ -1,0 +1,254 @@
+"""Segmentation data: the dataset folder on disk (host side) and jittable batch augmentation.
+
+A dataset folder (written by `python -m mjxrow.dataset`) holds `index.csv` with columns
+`rgb,mask,crop,condition,x,y,z,yaw,pitch,lateral,split` (image paths relative to the folder),
+RGB PNGs and 8-bit masks (0 / 255). Splits: the `split` column (`train` / `test`, optionally `val`).
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+from collections.abc import Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+from PIL import Image
+from tqdm.auto import tqdm
+
+INDEX_COLUMNS = ("rgb", "mask", "crop", "condition", "x", "y", "z", "yaw", "pitch", "lateral",
+                 "split")
+REQUIRED = ("rgb", "mask", "crop", "condition", "split")
+LUMA = (0.299, 0.587, 0.114)  # ITU-R 601 greyscale weights
+
+
+def read_index(root: str | Path) -> pd.DataFrame:
+    """index.csv of a dataset folder; ValueError naming the folder or the missing column."""
+    path = Path(root) / "index.csv"
+    if not path.is_file():
+        raise ValueError(f"dataset {str(root)!r}: no index.csv in {Path(root).resolve()}")
+    df = pd.read_csv(path)
+    missing = [c for c in REQUIRED if c not in df.columns]
+    if missing:
+        raise ValueError(f"dataset {str(root)!r}: index.csv lacks columns {missing}")
+    return df
+
+
+def select(df: pd.DataFrame, crop: str | Sequence[str] | None = None,
+           split: str | None = None) -> pd.DataFrame:
+    """Rows of `crop` (a name, a list, or None / "all" for every crop) and `split`."""
+    out = df
+    if crop is not None and crop != "all":
+        crops = [crop] if isinstance(crop, str) else list(crop)
+        unknown = sorted(set(crops) - set(df["crop"]))
+        if unknown:
+            raise ValueError(f"crop: {unknown} not in the dataset (it has "
+                             f"{sorted(set(df['crop']))})")
+        out = out[out["crop"].isin(crops)]
+    if split is not None:
+        if split not in set(df["split"]):
+            raise ValueError(f"split: {split!r} not in the dataset (it has "
+                             f"{sorted(set(df['split']))})")
+        out = out[out["split"] == split]
+    return out.reset_index(drop=True)
+
+
+def train_val(df: pd.DataFrame, val_frac: float = 0.1,
+              seed: int = 0) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(train, val) rows: the `val` split if the index has one, else a fixed random `val_frac`
+    of the `train` split (the test split is never used for model selection)."""
+    if "val" in set(df["split"]):
+        return select(df, split="train"), select(df, split="val")
+    train = select(df, split="train")
+    if not 0.0 < val_frac < 1.0:
+        raise ValueError(f"val_frac: must be in (0, 1), got {val_frac}")
+    order = np.random.default_rng(seed).permutation(len(train))
+    n_val = max(1, int(round(val_frac * len(train))))
+    return (train.iloc[np.sort(order[n_val:])].reset_index(drop=True),
+            train.iloc[np.sort(order[:n_val])].reset_index(drop=True))
+
+
+def load_sample(root: str | Path, rgb_path: str, mask_path: str,
+                size: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """One sample: (rgb uint8 [S, S, 3], mask bool [S, S]); resized to `size` if given
+    (bilinear for RGB, nearest for the mask)."""
+    root = Path(root)
+    with Image.open(root / rgb_path) as im:
+        rgb = im.convert("RGB")
+        if size is not None and rgb.size != (size, size):
+            rgb = rgb.resize((size, size), Image.BILINEAR)
+        rgb = np.asarray(rgb, np.uint8)
+    with Image.open(root / mask_path) as im:
+        mask = im.convert("L")
+        if size is not None and mask.size != (size, size):
+            mask = mask.resize((size, size), Image.NEAREST)
+        mask = np.asarray(mask) > 127
+    return rgb, mask
+
+
+def load_arrays(root: str | Path, df: pd.DataFrame, size: int | None = None,
+                workers: int = 4, progress: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Every row of `df`: (rgb uint8 [N, S, S, 3], mask bool [N, S, S])."""
+    if len(df) == 0:
+        raise ValueError(f"dataset {str(root)!r}: no rows selected")
+    with ThreadPoolExecutor(workers) as pool:
+        it = pool.map(lambda r: load_sample(root, r[0], r[1], size),
+                      zip(df["rgb"], df["mask"], strict=True))
+        samples = list(tqdm(it, total=len(df), desc="load images", disable=not progress,
+                            leave=False))
+    return np.stack([s[0] for s in samples]), np.stack([s[1] for s in samples])
+
+
+class Loader:
+    """Shuffled training batches from disk, decoded by a thread pool and prefetched.
+
+    The batch of step s is a fixed function of (seed, s): epoch e = s // (N // batch) uses the
+    permutation `default_rng(seed + e)`, so a resumed run sees the same batches. Drops the last
+    partial batch of each epoch."""
+
+    def __init__(self, root: str | Path, df: pd.DataFrame, batch: int, size: int | None = None,
+                 seed: int = 0, workers: int = 4, prefetch: int = 4):
+        if len(df) < batch:
+            raise ValueError(f"batch: {batch} is larger than the {len(df)} training images")
+        self.root, self.df, self.batch, self.size = Path(root), df, batch, size
+        self.seed, self.workers, self.prefetch = seed, workers, prefetch
+        self.steps_per_epoch = len(df) // batch
+
+    def indices(self, step: int) -> np.ndarray:
+        """Row indices of the batch of `step` (int64 [batch])."""
+        epoch, i = divmod(step, self.steps_per_epoch)
+        perm = np.random.default_rng(self.seed + epoch).permutation(len(self.df))
+        return perm[i * self.batch:(i + 1) * self.batch]
+
+    def load(self, step: int, pool: ThreadPoolExecutor) -> tuple[np.ndarray, np.ndarray]:
+        rows = self.df.iloc[self.indices(step)]
+        samples = list(pool.map(lambda r: load_sample(self.root, r[0], r[1], self.size),
+                                zip(rows["rgb"], rows["mask"], strict=True)))
+        return np.stack([s[0] for s in samples]), np.stack([s[1] for s in samples])
+
+    def __call__(self, start: int = 0) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """Endless batches from step `start` on: (rgb uint8 [B, S, S, 3], mask bool [B, S, S])."""
+        q: queue.Queue = queue.Queue(self.prefetch)
+        stop = threading.Event()
+
+        def work():
+            with ThreadPoolExecutor(self.workers) as pool:
+                step = start
+                while not stop.is_set():
+                    try:
+                        item = self.load(step, pool)
+                    except Exception as e:  # handed to the consumer
+                        item = e
+                    while not stop.is_set():
+                        try:
+                            q.put(item, timeout=0.1)
+                            break
+                        except queue.Full:
+                            continue
+                    step += 1
+
+        thread = threading.Thread(target=work, daemon=True)
+        thread.start()
+        try:
+            while True:
+                item = q.get()
+                if isinstance(item, Exception):
+                    raise item
+                yield item
+        finally:
+            stop.set()
+
+
+def batches(rgb: np.ndarray, mask: np.ndarray,
+            batch: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Split arrays into consecutive batches; the last one is padded by repeating its last image
+    and returned with a weight mask so padded images count zero: [(rgb, mask, weight bool [B])]."""
+    out = []
+    for i in range(0, len(rgb), batch):
+        r, m = rgb[i:i + batch], mask[i:i + batch]
+        w = np.ones(len(r), bool)
+        if len(r) < batch:
+            pad = batch - len(r)
+            r = np.concatenate([r, np.repeat(r[-1:], pad, 0)])
+            m = np.concatenate([m, np.repeat(m[-1:], pad, 0)])
+            w = np.concatenate([w, np.zeros(pad, bool)])
+        out.append((r, m, w))
+    return out
+
+
+def greyscale(rgb: jax.Array) -> jax.Array:
+    """float [..., 3] → float [..., 3] with every channel the luma."""
+    y = rgb @ jnp.asarray(LUMA, rgb.dtype)
+    return jnp.repeat(y[..., None], 3, axis=-1)
+
+
+def augment(key: jax.Array, rgb: jax.Array, mask: jax.Array, *, flip: float = 0.5,
+            grey: float = 0.2, jitter: float = 0.0) -> tuple[jax.Array, jax.Array]:
+    """Random per-image augmentation of a batch (pure, jittable).
+
+    rgb uint8 [B, H, W, 3], mask bool [B, H, W] → same. flip: probability of a horizontal flip
+    (image and mask together); grey: probability of greyscale (as the paper); jitter: strength j of
+    colour jitter (brightness, contrast and saturation factors uniform in [1 − j, 1 + j]; 0 = off).
+    """
+    b = rgb.shape[0]
+    kf, kg, kb, kc, ks = jax.random.split(key, 5)
+    x = rgb.astype(jnp.float32)
+    do_flip = jax.random.uniform(kf, (b,)) < flip
+    x = jnp.where(do_flip[:, None, None, None], x[:, :, ::-1], x)
+    mask = jnp.where(do_flip[:, None, None], mask[:, :, ::-1], mask)
+    if jitter > 0.0:
+        f = lambda k: jax.random.uniform(k, (b, 1, 1, 1), minval=1 - jitter,  # noqa: E731
+                                         maxval=1 + jitter)
+        x = x * f(kb)
+        mean = jnp.mean(greyscale(x), axis=(1, 2, 3), keepdims=True)
+        x = mean + (x - mean) * f(kc)
+        g = greyscale(x)
+        x = g + (x - g) * f(ks)
+    do_grey = jax.random.uniform(kg, (b,)) < grey
+    x = jnp.where(do_grey[:, None, None, None], greyscale(x), x)
+    return jnp.clip(jnp.round(x), 0, 255).astype(jnp.uint8), mask
+
+
+def onthefly(crop: str, size: int, batch: int, fovy: float | None = None):
+    """Jittable `fn(key) -> (rgb uint8 [batch, size, size, 3], mask bool [batch, size, size])`
+    rendered by `mjxrow.dataset.make_batch_fn`; crop "all" mixes every crop in equal parts.
+    fovy: vertical field of view [deg], default the robot camera's."""
+    from mjxrow import dataset, render
+    from mjxrow.field import CROPS
+
+    crops = CROPS if crop == "all" else (crop,)
+    if crop != "all" and crop not in CROPS:
+        raise ValueError(f"crop: unknown crop {crop!r}; expected one of {CROPS} or 'all'")
+    if batch % len(crops):
+        raise ValueError(f"batch: {batch} must be a multiple of {len(crops)} with crop {crop!r}")
+    if fovy is None:
+        try:
+            from mjxrow.robot import RobotConfig
+            fovy = float(RobotConfig().cam_fovy)
+        except ImportError:
+            fovy = 42.0
+    intr = render.Intrinsics(size, size, fovy)
+    fns = [dataset.make_batch_fn(c, intr) for c in crops]
+    n = batch // len(crops)
+
+    def fn(key: jax.Array) -> tuple[jax.Array, jax.Array]:
+        outs = [f(k, n) for f, k in zip(fns, jax.random.split(key, len(fns)), strict=True)]
+        return (jnp.concatenate([o[0] for o in outs]), jnp.concatenate([o[1] for o in outs]))
+
+    return fn
+
+
+def fixed_set(batch_fn, n_batches: int, seed: int) -> list[tuple[np.ndarray, ...]]:
+    """A fixed evaluation set from a jittable batch function: `n_batches` batches made with keys
+    fold_in(key(seed), i), as [(rgb, mask, weight)] on the host."""
+    fn = jax.jit(batch_fn)
+    base = jax.random.key(seed)
+    out = []
+    for i in tqdm(range(n_batches), desc="render eval set", leave=False):
+        rgb, mask = jax.device_get(fn(jax.random.fold_in(base, i)))
+        out.append((np.asarray(rgb), np.asarray(mask), np.ones(len(rgb), bool)))
+    return out

@@ -1,0 +1,401 @@
+"""Training of the plant segmenter: losses, train state, jitted step, the loop with resume.
+
+CLI: `python -m mjxrow.seg.train --crop zucchini (--data DIR | --on-the-fly) [--arch small]
+[--width 1.0] [--size 224] [--steps N] [--batch B] [--loss iou|bce] [--out DIR] [--export-to DIR]`.
+
+The loss default is the paper's IoU loss 1 − Σyp / Σ(y + p − yp) with p = sigmoid(logit), summed
+over the pixels of EACH image and averaged over the batch (+1 smoothing in numerator and
+denominator, so images without plants still push p → 0). Validation IoU uses a hard mask at
+threshold 0.7 (the paper's), pooled over the validation set: Σ|M ∩ Y| / Σ|M ∪ Y|.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import orbax.checkpoint as ocp
+from flax import struct
+from tqdm.auto import tqdm
+
+from mjxrow.seg import checkpoint as C
+from mjxrow.seg.data import augment
+from mjxrow.seg.model import SegNet
+
+THRESHOLD = 0.7
+
+
+def iou_loss(logits: jax.Array, mask: jax.Array, weight: jax.Array | None = None,
+             smooth: float = 1.0) -> jax.Array:
+    """Paper's IoU loss, per image then (weighted) mean over the batch.
+
+    logits float [B, H, W], mask bool [B, H, W], weight [B] (0 drops an image) → scalar."""
+    p = jax.nn.sigmoid(logits.astype(jnp.float32))
+    y = mask.astype(jnp.float32)
+    inter = jnp.sum(y * p, axis=(1, 2))
+    union = jnp.sum(y + p - y * p, axis=(1, 2))
+    per_image = 1.0 - (inter + smooth) / (union + smooth)
+    return _wmean(per_image, weight)
+
+
+def bce_loss(logits: jax.Array, mask: jax.Array, weight: jax.Array | None = None) -> jax.Array:
+    """Binary cross-entropy per pixel, mean per image, (weighted) mean over the batch."""
+    per_pixel = optax.sigmoid_binary_cross_entropy(logits.astype(jnp.float32),
+                                                   mask.astype(jnp.float32))
+    return _wmean(jnp.mean(per_pixel, axis=(1, 2)), weight)
+
+
+LOSSES: dict[str, Callable[..., jax.Array]] = {"iou": iou_loss, "bce": bce_loss}
+
+
+def _wmean(x: jax.Array, weight: jax.Array | None) -> jax.Array:
+    if weight is None:
+        return jnp.mean(x)
+    w = weight.astype(jnp.float32)
+    return jnp.sum(x * w) / jnp.maximum(jnp.sum(w), 1.0)
+
+
+def counts(logits: jax.Array, mask: jax.Array, weight: jax.Array | None = None,
+           threshold: float = THRESHOLD) -> dict[str, jax.Array]:
+    """Pixel counts of a batch for pooled metrics: intersection, union, correct, total (float32
+    scalars); the prediction is sigmoid(logit) > threshold. weight [B] drops padded images."""
+    pred = jax.nn.sigmoid(logits.astype(jnp.float32)) > threshold
+    w = jnp.ones(mask.shape[0]) if weight is None else weight.astype(jnp.float32)
+    s = lambda a: jnp.sum(jnp.sum(a.astype(jnp.float32), axis=(1, 2)) * w)  # noqa: E731
+    return {"inter": s(pred & mask), "union": s(pred | mask), "correct": s(pred == mask),
+            "total": jnp.sum(w) * mask.shape[1] * mask.shape[2]}
+
+
+def scores(c: dict[str, Any]) -> dict[str, float]:
+    """Pooled IoU and pixel accuracy in [0, 1] from summed `counts` (IoU 1 when both are empty)."""
+    inter, union = float(c["inter"]), float(c["union"])
+    return {"iou": inter / union if union > 0 else 1.0,
+            "acc": float(c["correct"]) / max(float(c["total"]), 1.0)}
+
+
+@struct.dataclass
+class TrainState:
+    step: jax.Array  # int32 []
+    params: Any
+    batch_stats: Any
+    opt_state: Any
+    rng: jax.Array  # uint32 [2], raw key data of the run's base key
+    best_iou: jax.Array  # float32 [], best validation IoU so far (−1 before any)
+
+    def variables(self) -> dict:
+        return {"params": self.params, "batch_stats": self.batch_stats}
+
+
+def make_schedule(lr: float, steps: int, warmup: int = 0) -> optax.Schedule:
+    """Linear warmup from 0 over `warmup` steps, then cosine decay to lr/100 at `steps`."""
+    if warmup > 0:
+        return optax.warmup_cosine_decay_schedule(0.0, lr, warmup, max(steps, warmup + 1),
+                                                  lr / 100)
+    return optax.cosine_decay_schedule(lr, max(steps, 1), 0.01)
+
+
+def make_optimizer(lr: float | optax.Schedule, weight_decay: float = 1e-4,
+                   clip: float = 1.0) -> optax.GradientTransformation:
+    """AdamW (learning rate or schedule) with weight decay on conv kernels only (ndim > 1) and
+    global-norm gradient clipping."""
+    decay_mask = lambda p: jax.tree.map(lambda x: x.ndim > 1, p)  # noqa: E731
+    return optax.chain(optax.clip_by_global_norm(clip),
+                       optax.adamw(lr, weight_decay=weight_decay, mask=decay_mask))
+
+
+def init_state(variables: dict, tx: optax.GradientTransformation, seed: int = 0) -> TrainState:
+    params = variables["params"]
+    return TrainState(jnp.zeros((), jnp.int32), params, variables.get("batch_stats", {}),
+                      tx.init(params), jax.random.key_data(jax.random.key(seed)),
+                      jnp.array(-1.0, jnp.float32))
+
+
+def make_step(module: SegNet, tx: optax.GradientTransformation, loss: str = "iou",
+              flip: float = 0.5, grey: float = 0.2, jitter: float = 0.0,
+              batch_fn: Callable[[jax.Array], tuple[jax.Array, jax.Array]] | None = None):
+    """One optimisation step (pure; jit it). Without `batch_fn`:
+    `step(state, rgb uint8 [B,H,W,3], mask bool [B,H,W]) -> (state, {"loss"})`; with a jittable
+    `batch_fn(key) -> (rgb, mask)` the batch is made inside: `step(state) -> (state, metrics)`,
+    its key being fold_in(rng, step), so a resumed run sees the same data."""
+    if loss not in LOSSES:
+        raise ValueError(f"loss: unknown loss {loss!r}; expected one of {tuple(LOSSES)}")
+    loss_fn = LOSSES[loss]
+
+    def step(state: TrainState, rgb: jax.Array, mask: jax.Array):
+        key = jax.random.fold_in(jax.random.wrap_key_data(state.rng), state.step)
+        rgb, mask = augment(jax.random.fold_in(key, 1), rgb, mask, flip=flip, grey=grey,
+                            jitter=jitter)
+
+        def objective(params):
+            logits, upd = module.apply({"params": params, "batch_stats": state.batch_stats},
+                                       rgb, train=True, mutable=["batch_stats"])
+            return loss_fn(logits, mask), upd["batch_stats"]
+
+        (value, stats), grads = jax.value_and_grad(objective, has_aux=True)(state.params)
+        updates, opt_state = tx.update(grads, state.opt_state, state.params)
+        params = optax.apply_updates(state.params, updates)
+        new = state.replace(step=state.step + 1, params=params, batch_stats=stats,
+                            opt_state=opt_state)
+        return new, {"loss": value}
+
+    if batch_fn is None:
+        return step
+
+    def fused(state: TrainState):
+        key = jax.random.fold_in(jax.random.wrap_key_data(state.rng), state.step)
+        rgb, mask = batch_fn(jax.random.fold_in(key, 0))
+        return step(state, rgb, mask)
+
+    return fused
+
+
+def make_eval(module: SegNet, threshold: float = THRESHOLD):
+    """`eval(variables, rgb, mask, weight) -> counts` (pure; jit it)."""
+    def ev(variables, rgb, mask, weight):
+        return counts(module.apply(variables, rgb, train=False), mask, weight, threshold)
+    return ev
+
+
+def evaluate(eval_fn, variables: dict, batches) -> dict[str, float]:
+    """Pooled IoU / accuracy of `variables` over batches [(rgb, mask, weight)]."""
+    total: dict[str, float] = {}
+    for rgb, mask, weight in batches:
+        c = jax.device_get(eval_fn(variables, rgb, mask, weight))
+        for k, v in c.items():
+            total[k] = total.get(k, 0.0) + float(v)
+    return scores(total)
+
+
+@dataclasses.dataclass
+class Data:
+    """Training data: exactly one of `batch_fn` (jittable key → (rgb, mask), fused into the step)
+    or `batches` (start step → endless host iterator of numpy (rgb, mask)); `val` batches
+    [(rgb, mask, weight)]; `describe` says what it is (logged with the checkpoint)."""
+
+    val: list
+    describe: str
+    batch_fn: Callable[[jax.Array], tuple[jax.Array, jax.Array]] | None = None
+    batches: Callable[[int], Iterator[tuple[np.ndarray, np.ndarray]]] | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    steps: int = 20000
+    lr: float = 1e-3
+    warmup: int = 500
+    weight_decay: float = 1e-4
+    loss: str = "iou"
+    flip: float = 0.5
+    grey: float = 0.2
+    jitter: float = 0.0
+    seed: int = 0
+    eval_every: int = 500
+    ckpt_every: int = 500
+    log_every: int = 50
+    threshold: float = THRESHOLD
+    progress: bool = True
+
+
+def _manager(out: Path) -> ocp.CheckpointManager:
+    return ocp.CheckpointManager(out / "state", options=ocp.CheckpointManagerOptions(
+        max_to_keep=2, create=True))
+
+
+def fit(module: SegNet, variables: dict, data: Data, cfg: TrainConfig, out: str | Path,
+        meta: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Train `module` from `variables` for cfg.steps steps, writing under `out`:
+    `state/` (orbax: step, params, batch_stats, opt_state, rng, best IoU; resumed from if
+    present), `best/` (inference checkpoint with the best validation IoU), `train_log.jsonl`.
+    Returns {"step", "best_iou", "best_step", "final": last validation scores}."""
+    out = Path(out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    run_meta = {"model": module.config(), "train": dataclasses.asdict(cfg),
+                "data": data.describe, **(meta or {})}
+    sched = make_schedule(cfg.lr, cfg.steps, cfg.warmup)
+    tx = make_optimizer(sched, cfg.weight_decay)
+    state = init_state(variables, tx, cfg.seed)
+    mngr = _manager(out)
+    start = mngr.latest_step()
+    best_step = -1
+    if start is not None:
+        restored = mngr.restore(start, args=ocp.args.Composite(
+            state=ocp.args.StandardRestore(jax.eval_shape(lambda: state)),
+            meta=ocp.args.JsonRestore()))
+        old = restored.meta
+        if old.get("model") != run_meta["model"]:
+            raise ValueError(f"out {out}: holds a run of model {old.get('model')}, not "
+                             f"{run_meta['model']}; use another --out or --restart")
+        state, best_step = restored.state, old.get("best_step", -1)
+    step_fn = jax.jit(make_step(module, tx, cfg.loss, cfg.flip, cfg.grey, cfg.jitter,
+                                data.batch_fn), donate_argnums=0)
+    eval_fn = jax.jit(make_eval(module, cfg.threshold))
+    log = open(out / "train_log.jsonl", "a")
+    first = int(state.step)
+    it = None if data.batch_fn is not None else data.batches(first)
+    bar = tqdm(total=cfg.steps, initial=first, desc="train", disable=not cfg.progress,
+               dynamic_ncols=True)
+    pending, t0, t_last, last_scores = [], time.perf_counter(), time.perf_counter(), {}
+    rec: dict[str, Any] = {"loss": float("nan")}
+
+    def save_state(step: int):
+        mngr.save(step, args=ocp.args.Composite(
+            state=ocp.args.StandardSave(state),
+            meta=ocp.args.JsonSave({**run_meta, "best_step": best_step})))
+
+    try:
+        for step in range(first, cfg.steps):
+            if it is None:
+                state, m = step_fn(state)
+            else:
+                rgb, mask = next(it)
+                state, m = step_fn(state, rgb, mask)
+            pending.append(m["loss"])
+            done = step + 1
+            if done % cfg.log_every == 0 or done == cfg.steps:
+                losses = np.asarray(jax.device_get(pending), np.float32)
+                now = time.perf_counter()
+                rec = {"step": done, "loss": float(losses.mean()),
+                       "lr": float(sched(done)), "steps_per_s": len(losses) / (now - t_last),
+                       "elapsed_s": now - t0}
+                log.write(json.dumps(rec) + "\n")
+                log.flush()
+                pending, t_last = [], now
+                bar.set_postfix(loss=f"{rec['loss']:.4f}",
+                                val_iou=f"{float(state.best_iou):.3f}", refresh=False)
+            if done % cfg.eval_every == 0 or done == cfg.steps:
+                last_scores = evaluate(eval_fn, state.variables(), data.val)
+                improved = last_scores["iou"] > float(state.best_iou)
+                if improved:
+                    state = state.replace(best_iou=jnp.array(last_scores["iou"], jnp.float32))
+                    best_step = done
+                    C.save(out / "best", module, jax.device_get(state.variables()),
+                           meta={**run_meta, "step": done, "val_iou": last_scores["iou"],
+                                 "val_acc": last_scores["acc"]})
+                log.write(json.dumps({"step": done, "val_iou": last_scores["iou"],
+                                      "val_acc": last_scores["acc"],
+                                      "best_iou": float(state.best_iou)}) + "\n")
+                log.flush()
+                bar.set_postfix(loss=f"{rec['loss']:.4f}", val_iou=f"{last_scores['iou']:.3f}",
+                                refresh=False)
+            if done % cfg.ckpt_every == 0 or done == cfg.steps:
+                save_state(done)
+            bar.update(1)
+    finally:
+        bar.close()
+        log.close()
+        mngr.wait_until_finished()
+        mngr.close()
+    return {"step": int(state.step), "best_iou": float(state.best_iou), "best_step": best_step,
+            "final": last_scores}
+
+
+def export(out: str | Path, dest: str | Path, weights_dtype: str = "float16",
+           extra_meta: dict[str, Any] | None = None) -> Path:
+    """Copy the best checkpoint of run `out` to `dest` (a shipped-checkpoint folder), stored as
+    `weights_dtype`, with the run's training log beside it."""
+    out = Path(out)
+    module, variables = C.load(out / "best")
+    meta = {**C.read_config(out / "best")["meta"], **(extra_meta or {})}
+    path = C.save(dest, module, variables, weights_dtype=weights_dtype, meta=meta)
+    if (out / "train_log.jsonl").is_file():
+        (path / "train_log.jsonl").write_text((out / "train_log.jsonl").read_text())
+    return path
+
+
+def build_data(args) -> Data:
+    """Data for the CLI: the dataset folder (`--data`) or the renderer (`--on-the-fly`)."""
+    from mjxrow.seg import data as D
+
+    if args.data:
+        df = D.select(D.read_index(args.data), args.crop)
+        train_df, val_df = D.train_val(df, args.val_frac, args.seed)
+        loader = D.Loader(args.data, train_df, args.batch, args.size, args.seed, args.workers)
+        rgb, mask = D.load_arrays(args.data, val_df, args.size, args.workers)
+        return Data(val=D.batches(rgb, mask, args.batch), batches=loader,
+                    describe=f"folder {Path(args.data).resolve()} crop {args.crop}: "
+                             f"{len(train_df)} train / {len(val_df)} val images")
+    fn = D.onthefly(args.crop, args.size, args.batch)
+    n_val = max(1, -(-args.val_n // args.batch))
+    return Data(val=D.fixed_set(fn, n_val, 10_000 + args.seed), batch_fn=fn,
+                describe=f"on-the-fly renders crop {args.crop}, {n_val * args.batch} val images "
+                         f"(seed {10_000 + args.seed})")
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    import argparse
+    import shutil
+    import sys
+
+    from mjxrow.field import CROPS
+    from mjxrow.seg.model import ARCHS, create
+
+    p = argparse.ArgumentParser(prog="python -m mjxrow.seg.train", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--crop", default="zucchini", choices=(*CROPS, "all"))
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--data", help="dataset folder written by python -m mjxrow.dataset")
+    src.add_argument("--on-the-fly", action="store_true", help="render batches on the device")
+    p.add_argument("--arch", default="small", choices=ARCHS)
+    p.add_argument("--width", type=float, default=1.0, help="width multiplier")
+    p.add_argument("--reduced-tail", action="store_true", help="halve the last stage")
+    p.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"))
+    p.add_argument("--size", type=int, default=224, help="square input side [px]")
+    p.add_argument("--steps", type=int, default=20000)
+    p.add_argument("--batch", type=int, default=32)
+    p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument("--warmup", type=int, default=500, help="warmup steps")
+    p.add_argument("--weight-decay", type=float, default=1e-4)
+    p.add_argument("--loss", default="iou", choices=tuple(LOSSES))
+    p.add_argument("--flip", type=float, default=0.5, help="probability of a horizontal flip")
+    p.add_argument("--grey", type=float, default=0.2, help="probability of greyscale")
+    p.add_argument("--jitter", type=float, default=0.0, help="colour jitter strength (0 = off)")
+    p.add_argument("--eval-every", type=int, default=500)
+    p.add_argument("--log-every", type=int, default=50)
+    p.add_argument("--val-frac", type=float, default=0.1, help="of train split (--data)")
+    p.add_argument("--val-n", type=int, default=512, help="validation renders (--on-the-fly)")
+    p.add_argument("--workers", type=int, default=4, help="image decoding threads (--data)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", help="run folder (default runs/seg_<crop>_<arch>)")
+    p.add_argument("--restart", action="store_true", help="delete the run folder first")
+    p.add_argument("--export-to", help="write the best model here as a shipped checkpoint")
+    p.add_argument("--export-dtype", default="float16", choices=C.WEIGHT_DTYPES)
+    args = p.parse_args(argv)
+    for name in ("steps", "batch", "size", "eval_every", "log_every"):
+        if getattr(args, name) < 1:
+            raise ValueError(f"--{name.replace('_', '-')}: must be ≥ 1, got {getattr(args, name)}")
+    if args.size % 16:
+        raise ValueError(f"--size: must be a multiple of 16 (output stride), got {args.size}")
+    out = Path(args.out or f"runs/seg_{args.crop}_{args.arch}")
+    if args.restart and out.exists():
+        shutil.rmtree(out)
+    module, variables = create(args.arch, args.width, jax.random.key(args.seed), args.size,
+                               reduced_tail=args.reduced_tail, dtype=args.dtype)
+    cfg = TrainConfig(steps=args.steps, lr=args.lr, warmup=args.warmup,
+                      weight_decay=args.weight_decay, loss=args.loss, flip=args.flip,
+                      grey=args.grey, jitter=args.jitter, seed=args.seed,
+                      eval_every=args.eval_every, ckpt_every=args.eval_every,
+                      log_every=args.log_every)
+    data = build_data(args)
+    command = "python -m mjxrow.seg.train " + " ".join(sys.argv[1:] if argv is None else argv)
+    meta = {"command": command, "crop": args.crop, "image_size": args.size,
+            "batch": args.batch, "device": jax.devices()[0].device_kind}
+    result = fit(module, variables, data, cfg, out, meta)
+    print(json.dumps(result))
+    if args.export_to:
+        if result["best_step"] < 0 and not (out / "best").exists():
+            raise ValueError(f"--export-to: run {out} has no best checkpoint to export")
+        path = export(out, args.export_to, args.export_dtype)
+        print(f"exported {path} ({C.size_bytes(path) / 1e6:.2f} MB)")
+    return result
+
+
+if __name__ == "__main__":
+    main()
