@@ -122,7 +122,7 @@ def to_mjcf(field: F.Field, shape: F.FieldShape, name: str = "field") -> tuple[s
            '    <texture name="sky" type="skybox" builtin="gradient" rgb1="0.55 0.72 0.92" '
            'rgb2="0.95 0.97 1" width="256" height="1536"/>',
            f'    <texture name="soil" type="2d" builtin="flat" rgb1="{_v(SOIL_RGB, 2)}" '
-           'rgb2="0.32 0.24 0.16" mark="random" random="0.25" width="256" height="256"/>',
+           'rgb2="0.38 0.29 0.19" mark="random" random="0.3" width="256" height="256"/>',
            '    <material name="soil" texture="soil" texrepeat="2 2" texuniform="true" '
            'reflectance="0"/>',
            f'    <hfield name="terrain" file="{hfile}" size="{_v([L / 2, W / 2], 6)} '
@@ -224,10 +224,11 @@ def to_sdf(field: F.Field, shape: F.FieldShape, name: str = "field",
     terrain, one static model per row whose link holds every plant primitive as a visual (names
     as in the MJCF), the obstacles (visual + collision) and a sun.
 
-    Plant collisions: "footprint" (default) one per plant, `plant_r{row}_p{index}`: a dome
-    (half ellipsoid centred at the base) with the semi-axes of `plants.footprint` and the
+    Plant collisions: "footprint" (default) one per plant, `plant_r{row}_p{index}`: an ellipsoid
+    centred at the base (a dome above ground) with the semi-axes of `plants.footprint` and the
     plant's height, i.e. the footprint the navigation metrics count as a collision;
-    "primitives" every primitive (a file about twice as large); "none"."""
+    "primitives" every primitive, `<visual name>_collision` (a file about 1.7× as large);
+    "none"."""
     if collisions not in SDF_COLLISIONS:
         raise ValueError(f"collisions: {collisions!r} is not one of {SDF_COLLISIONS}")
     f = _host(field)
@@ -249,8 +250,8 @@ def to_sdf(field: F.Field, shape: F.FieldShape, name: str = "field",
            '<pose>0 0 40 0 0 0</pose><diffuse>0.8 0.8 0.75 1</diffuse>'
            '<specular>0.1 0.1 0.1 1</specular><direction>0.35 0.45 -1</direction></light>',
            '<model name="terrain"><static>true</static><link name="link">',
-           f'<collision name="terrain"><geometry><heightmap>{hgeom}</heightmap></geometry>'
-           '</collision>',
+           f'<collision name="terrain_collision"><geometry><heightmap>{hgeom}</heightmap>'
+           '</geometry></collision>',
            '<visual name="terrain"><geometry><heightmap><use_terrain_paging>false'
            f'</use_terrain_paging><texture><size>2</size><diffuse>{soil}</diffuse>'
            f'<normal>{normal}</normal></texture>{hgeom}</heightmap></geometry></visual>',
@@ -267,7 +268,8 @@ def to_sdf(field: F.Field, shape: F.FieldShape, name: str = "field",
                 rgb = PLANT_RGB[PL.MATERIAL_NAMES[prims.material[k]]]
                 out.append(_sdf_item(f"plant_r{row}_p{p}_k{k}", pose[r, p, k], geom, rgb))
                 if collisions == "primitives":
-                    out.append(_sdf_item(f"plant_r{row}_p{p}_k{k}", pose[r, p, k], geom))
+                    out.append(_sdf_item(f"plant_r{row}_p{p}_k{k}_collision", pose[r, p, k],
+                                         geom))
             if collisions == "footprint":
                 radii = np.r_[foot[r, p], f.plant_size[r, p, 2]]
                 out.append(_sdf_item(f"plant_r{row}_p{p}", np.r_[f.plant_pos[r, p], 0, 0, 0],
@@ -285,7 +287,7 @@ def to_sdf(field: F.Field, shape: F.FieldShape, name: str = "field",
             nm, rgb = f"branch_{n[kind]}", BRANCH_RGB
             pose_i = np.r_[f.obst_pos[i], 0, np.pi / 2, f.obst_yaw[i]]
             geom = _sdf_geom(PL.CAPSULE, np.array([rad, rad, half]))
-        out += [_sdf_item(nm, pose_i, geom, rgb), _sdf_item(nm, pose_i, geom)]
+        out += [_sdf_item(nm, pose_i, geom, rgb), _sdf_item(f"{nm}_collision", pose_i, geom)]
         n[kind] += 1
     out += ["</link></model>", "</world>", "</sdf>", ""]
     return "\n".join(out), assets
@@ -355,6 +357,24 @@ def resolve(preset: str, sets: dict[str, float]) -> tuple[F.FieldParams, F.Field
     return params, shape
 
 
+def snapshot(xml_path: str | Path, png_path: str | Path, width: int = 960,
+             height: int = 540) -> None:
+    """Render the `eye` camera of an exported MJCF to a 256-colour PNG with MuJoCo's renderer
+    (headless: set MUJOCO_GL=osmesa or egl before the first mujoco import)."""
+    import mujoco
+
+    m = mujoco.MjModel.from_xml_path(str(xml_path))
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    renderer = mujoco.Renderer(m, height, width, max_geom=m.ngeom + 100)
+    try:
+        renderer.update_scene(d, camera="eye")
+        img = Image.fromarray(renderer.render()).quantize(256, Image.Quantize.MEDIANCUT)
+        img.save(png_path, optimize=True)
+    finally:
+        renderer.close()
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjxrow.worlds", description=__doc__.split("\n")[0])
     ap.add_argument("--preset", choices=tuple(F.PRESETS), default="zucchini")
@@ -365,7 +385,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="override a field parameter (repeatable), e.g. --set d_rr=2.0")
     ap.add_argument("--sdf-collisions", choices=SDF_COLLISIONS, default="footprint",
                     help="plant collisions in the SDF (see to_sdf)")
+    ap.add_argument("--picture", metavar="PNG", help="also render the `eye` view (one preset)")
     args = ap.parse_args(argv)
+    if args.picture and args.all:
+        ap.error("--picture takes one preset, not --all")
     presets = tuple(F.PRESETS) if args.all else (args.preset,)
     try:
         sets = parse_sets(args.sets)
@@ -383,6 +406,8 @@ def main(argv: list[str] | None = None) -> int:
         kb = sum(p.stat().st_size for p in paths.values()) / 1024
         tqdm.write(f"{preset}: {int(fld.plant_active.sum())} plants in {int(fld.n_rows)} rows, "
                    f"{len(paths)} files, {kb:.0f} KiB → {Path(args.out) / preset}.xml")
+        if args.picture:
+            snapshot(paths["xml"], args.picture)
     return 0
 
 

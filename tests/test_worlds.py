@@ -183,6 +183,9 @@ def test_sdf(tiny, paths):
     assert len(plant_vis) == len(set(plant_vis)) == field.plant_active.sum() * K
     coll = [c.get("name") for c in root.iter("collision") if c.get("name").startswith("plant_")]
     assert len(coll) == field.plant_active.sum()  # one footprint dome per plant
+    prim_root = ET.fromstring(Wd.to_sdf(field, shape, "t", collisions="primitives")[0])
+    assert sum(c.get("name").startswith("plant_") for c in prim_root.iter("collision")) == len(
+        plant_vis)
     assert sum(n.startswith(("stone_", "branch_")) for n in visuals) == field.obst_active.sum()
     # the heightmap: square 2^n+1, row 0 at +y, heights = pos.z + pixel/65535 · size.z
     hm = root.find(".//collision/geometry/heightmap")
