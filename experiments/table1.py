@@ -20,6 +20,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
 from mjxrow import field as F  # noqa: E402
@@ -123,7 +124,7 @@ def table(seeds: int, tol: float = 0.05) -> tuple[str, list[str]]:
     head = ("| crop | source | terrain L×W [m] | max \\|ΔH\\| [m] | plant L×W×H [m] | d_rr [m] | "
             "d_RR [m] | d_pp [m] | rows per group | rows (groups) |")
     lines, off = [head, "|" + "---|" * 10], []
-    for preset in F.PRESETS:
+    for preset in tqdm(F.PRESETS, desc="presets", file=sys.stderr):
         q = F.PRESETS[preset]
         if preset in PAPER:
             (tl, tw), dh, plant, d_rr, d_RR, d_pp, rpg = PAPER[preset]
