@@ -103,7 +103,6 @@ def to_mjcf(field: F.Field, shape: F.FieldShape, name: str = "field") -> tuple[s
     order, new_row = _rows(f)
     hbin, z_lo, z_top = _terrain_bin(f.terrain)
     L, W = (float(s) for s in f.terrain_size)
-    nrow, ncol = f.terrain.shape
     hfile = f"{name}_terrain.bin"
     prims = jax.tree.map(np.asarray, PL.plant_prims(f, shape))
     classes = [PL.MATERIAL_NAMES[m] + ("_capsule" if k == PL.CAPSULE else "")
