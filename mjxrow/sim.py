@@ -172,7 +172,7 @@ def model_xml(shape: F.FieldShape, sim_cfg: SimConfig, robot_cfg: R.RobotConfig)
   </asset>
   <worldbody>
     <light name="sun" pos="0 0 20" dir="0.3 0.2 -1" directional="true"/>
-    <geom name="{TERRAIN}" type="hfield" hfield="patch" contype="0" conaffinity="1"
+    <geom name="{TERRAIN}" type="hfield" hfield="patch" pos="0 0 -1" contype="0" conaffinity="1"
           condim="3" group="0" rgba="0.45 0.35 0.25 1"/>
 {obst}
 {robot}
@@ -330,8 +330,13 @@ def world_model(mx: mjx.Model, field: F.Field, lane: jax.Array, sim_cfg: SimConf
 
 def world_mjmodel(m: mujoco.MjModel, mx_world: mjx.Model) -> mujoco.MjModel:
     """A copy of the C model with one world's arrays (from `world_model`, unbatched) written
-    back: for MuJoCo C comparisons, its viewer and its renderer (host)."""
+    back: for MuJoCo C comparisons, its viewer and its renderer (host). C's midphase is
+    disabled: its bounding-volume tree of the world body was built for the compile-time geom
+    positions, which `world_model` moves (MJX has no midphase); and no geom is marked as sharing
+    its body's frame (C would then ignore the moved `geom_pos`)."""
     out = copy.deepcopy(m)
+    out.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_MIDPHASE
+    out.geom_sameframe[:] = 0
     for name in WORLD_FIELDS:
         getattr(out, name)[...] = np.asarray(getattr(mx_world, name)).reshape(
             getattr(out, name).shape)
