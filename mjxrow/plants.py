@@ -85,10 +85,12 @@ def _local(crop: str, L, W, H, yaw, phase):
     """Local-frame primitives of one crop (origin at the plant base). Returns centre, rot, size,
     kind [K], material [K]."""
     if crop == "zucchini":  # broad leaves in a low dome around a central mound
-        parts = [_rosette(L, W, H, yaw, phase, 6, 0.98, 0.36, 0.34, 0.09, 0.30, 0.62),
-                 _upright(L, W, H, (0.22, 0.22, 0.32, 0.38))]
-        kind = [ELLIPSOID] * 7
-        mat = [LEAF] * 6 + [STEM]
+        parts = [_rosette(L, W, H, yaw, phase, 5, 0.98, 0.36, 0.34, 0.12, 0.25, 0.36),
+                 _rosette(L, W, H, yaw + 0.6, phase, 2, 0.45, 0.40, 0.30, 0.10, 1.0, 0.56,
+                          upright=True),
+                 _upright(L, W, H, (0.25, 0.25, 0.30, 0.25))]
+        kind = [ELLIPSOID] * 8
+        mat = [LEAF] * 7 + [STEM]
     elif crop == "lettuce":  # a compact head and a ring of flattened leaves
         parts = [_rosette(L, W, H, yaw, phase, 4, 0.98, 0.30, 0.34, 0.18, 0.25, 0.38),
                  _upright(L, W, H, (0.32, 0.32, 0.50, 0.50))]
