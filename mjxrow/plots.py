@@ -16,6 +16,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
+import yaml  # noqa: E402
+
+from mjxrow import config as C  # noqa: E402
+from mjxrow import field as F  # noqa: E402
+from mjxrow import metrics as M  # noqa: E402
 
 # metric → (title, unit, format, better: "high" | "low" | None)
 METRICS: dict[str, tuple[str, str, str, str | None]] = {
@@ -52,6 +57,13 @@ def _fmt_tick(v: Any) -> str:
 
 def _numeric(vals) -> bool:
     return all(isinstance(v, (int, float, np.number)) and not isinstance(v, bool) for v in vals)
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write a text file atomically: temp file in the same folder, then os.replace."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
 
 
 def _save(fig, path: Path) -> Path:
@@ -176,6 +188,28 @@ def surfaces(summary: pd.DataFrame, axes: list[str], metrics: list[str], out_dir
 
 
 # ---------------------------------------------------------------------------------------------
+# Summary
+
+
+def summary_table(results: pd.DataFrame, axes: list[str], metric_names: list[str]) -> pd.DataFrame:
+    """Per cell: axis values, n, and per metric its mean with the 95 % interval (`m`, `m_lo`,
+    `m_hi`; Wilson for rates, Student t otherwise, via metrics.aggregate), plus the share of
+    episodes per ending reason (`reason_<name>`)."""
+    out = []
+    for cell, rows in results.groupby("cell", sort=True):
+        row: dict[str, Any] = {"cell": cell, **{a: rows[a].iloc[0] for a in axes},
+                               "n": len(rows)}
+        table = {m: rows[m].to_numpy() for m in metric_names if m != "reason"}
+        for m, agg in M.aggregate(table).items():
+            row.update({m: agg["mean"], f"{m}_lo": agg["lo"], f"{m}_hi": agg["hi"]})
+        if "reason" in rows:
+            shares = rows["reason"].value_counts(normalize=True)
+            row.update({f"reason_{r}": float(shares.get(r, 0.0)) for r in M.REASONS[1:]})
+        out.append(row)
+    return pd.DataFrame(out)
+
+
+# ---------------------------------------------------------------------------------------------
 # Report
 
 
@@ -231,7 +265,37 @@ def report(path: str | Path, title: str, info: dict[str, Any], config_yaml: str,
     parts += ["## Summary (mean [95 % CI] per cell)", "",
               summary_markdown(summary, axes, metrics), "",
               "## Resolved configuration", "", "```yaml", config_yaml.rstrip(), "```", ""]
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text("\n".join(parts))
-    os.replace(tmp, path)
+    atomic_write_text(path, "\n".join(parts))
     return path
+
+
+# ---------------------------------------------------------------------------------------------
+# Outputs of a sweep
+
+ID_COLUMNS = ("cell", "episode", "cell_hash", "group", "lane")
+
+
+def metric_columns(results: pd.DataFrame) -> list[str]:
+    """The metric columns of a results table: all but identity and parameter columns."""
+    params = {k for k, _ in C.leaf_keys()} | {f"field.{k}" for k in F.PARAM_NAMES}
+    return [c for c in results.columns if c not in params and c not in ID_COLUMNS]
+
+
+def write_outputs(results: pd.DataFrame, cfg: C.SweepConfig, out: Path, info: dict[str, Any],
+                  figures: bool = True) -> dict[str, Path]:
+    """summary.csv and config.yaml from a results table (one row per episode); with `figures`
+    also one PNG per numeric metric and report.md. Every file written atomically."""
+    axes = list(cfg.axis_order)
+    names = metric_columns(results)
+    numeric = [m for m in names if m != "reason" and pd.api.types.is_numeric_dtype(results[m])]
+    summary = summary_table(results, axes, names)
+    atomic_write_text(out / "summary.csv", summary.to_csv(index=False))
+    config_yaml = yaml.safe_dump(C.to_dict(cfg), sort_keys=False, allow_unicode=True)
+    atomic_write_text(out / "config.yaml", config_yaml)
+    files = {"summary": out / "summary.csv", "config": out / "config.yaml"}
+    if not figures:
+        return files
+    images = surfaces(summary, axes, numeric, out, cfg.name)
+    report(out / "report.md", cfg.name, info, config_yaml, summary, axes, numeric, images,
+           list(M.REASONS[1:]))
+    return {**files, "report": out / "report.md", **images}

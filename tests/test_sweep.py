@@ -1,0 +1,247 @@
+"""Sweep machinery with a fake evaluator: grid → groups → batches → cell files → results,
+summary, PNGs, report; resume after a finished run and after an interrupt; CLI errors."""
+
+import math
+import os
+import signal
+
+import jax
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from mjxrow import config as C
+from mjxrow import sweep as S
+
+BASE = {"name": "fake", "seeds": 3, "batch_size": 3,
+        "perception": {"source": "ground_truth"},
+        "field": {"d_rr": [1.6, 2.4], "terrain_dh": [0.1, 0.3]}}
+
+
+def fake_metrics(cfg: C.SweepConfig, e: int) -> dict:
+    """Hand-checkable numbers: success unless (odd episode and d_rr < 2); mae = dh + e/100."""
+    d, dh = C.field_values(cfg)["d_rr"], C.field_values(cfg)["terrain_dh"]
+    ok = e % 2 == 0 or d > 2.0
+    mae = dh + 0.01 * e
+    return dict(success=ok, collision=not ok, reason="goal" if ok else "collision", cha=0.0,
+                mae=mae, mse=mae * mae, omega_std=0.1 * d, v_mean=0.5,
+                time=10.0 + e if ok else math.nan, path_ratio=1.0, max_offset=2 * mae)
+
+
+class Fake:
+    """An evaluator that records its calls; can stop after `stop_after` batches with a
+    KeyboardInterrupt or a SIGTERM to this process."""
+
+    def __init__(self, stop_after=None, how="interrupt"):
+        self.groups, self.batches, self.stop_after, self.how = [], [], stop_after, how
+
+    def __call__(self, group, cfg, on_batch_done):
+        self.groups.append(group)
+        out = []
+        for start in range(0, len(group.episodes), cfg.batch_size):
+            if self.stop_after is not None and len(self.batches) == self.stop_after:
+                if self.how == "sigterm":
+                    os.kill(os.getpid(), signal.SIGTERM)
+                raise KeyboardInterrupt
+            eps = group.episodes[start:start + cfg.batch_size]
+            rows = pd.DataFrame([{"cell": c, "episode": e,
+                                  **fake_metrics(group.cell(c).cfg, e)} for c, e in eps])
+            self.batches.append(eps)
+            on_batch_done(rows)
+            out.append(rows)
+        return pd.concat(out)
+
+
+def run(tmp_path, raw=BASE, fake=None, **kw):
+    fake = fake or Fake()
+    res = S.run(C.from_dict(raw, **kw), tmp_path, evaluate=fake, progress=False)
+    return res, fake
+
+
+def test_two_by_two_sweep_writes_everything(tmp_path):
+    res, fake = run(tmp_path)
+    assert len(fake.groups) == 1  # one static group: one compile
+    assert len(fake.groups[0].episodes) == 4 * 3 and len(fake.batches) == 4
+    results = pd.read_csv(tmp_path / "results.csv")
+    assert len(results) == 4 * 3
+    assert set(results.groupby("cell").size()) == {3}
+    assert {"field.d_rr", "field.d_pp", "episode.v_max", "controller.omega_gain",
+            "camera.width", "success", "mae", "reason", "cell_hash"} <= set(results.columns)
+    assert results["field.d_pp"].eq(0.7).all()  # zucchini's preset value, resolved
+    summary = pd.read_csv(tmp_path / "summary.csv")
+    assert len(summary) == 4
+    row = summary[(summary["field.d_rr"] == 1.6) & (summary["field.terrain_dh"] == 0.1)]
+    assert row["mae"].item() == pytest.approx(0.11)  # (0.10 + 0.11 + 0.12) / 3
+    assert row["success"].item() == pytest.approx(2 / 3)
+    assert row["reason_collision"].item() == pytest.approx(1 / 3)
+    assert row["time"].item() == pytest.approx(11.0)  # only successful episodes: 10 and 12
+    assert row["mae_lo"].item() < 0.11 < row["mae_hi"].item()
+    wide = summary[summary["field.d_rr"] == 2.4]
+    assert wide["success"].eq(1.0).all()
+    for m in ("success", "collision", "mae", "mse", "cha", "omega_std", "time"):
+        assert (tmp_path / f"{m}.png").stat().st_size > 1000, m
+    report = (tmp_path / "report.md").read_text()
+    assert "![success](success.png)" in report and "![mae](mae.png)" in report
+    assert "2 of 4 cells succeed in fewer than 95%" in report
+    cfg_block = report.split("```yaml\n")[1].split("```")[0]
+    assert yaml.safe_load(cfg_block)["field"]["d_rr"] == [1.6, 2.4]
+    assert len(list((tmp_path / "cells").glob("*.csv"))) == 4
+    assert not list(tmp_path.rglob("*.tmp"))
+    assert res["ran"] == 12 and res["skipped"] == 0
+
+
+def test_rerun_skips_finished_cells(tmp_path):
+    run(tmp_path)
+    before = pd.read_csv(tmp_path / "results.csv")
+    res, fake = run(tmp_path)
+    assert fake.groups == [] and res["ran"] == 0 and res["skipped"] == 4
+    pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "results.csv"), before)
+    # a wider grid runs only its new cells
+    raw = {**BASE, "field": {"d_rr": [1.6, 2.4], "terrain_dh": [0.1, 0.3, 0.5]}}
+    res, fake = run(tmp_path, raw)
+    assert res["skipped"] == 4 and res["ran"] == 2 * 3
+    assert {C.field_values(fake.groups[0].cell(c).cfg)["terrain_dh"]
+            for c, _ in fake.groups[0].episodes} == {0.5}
+    assert len(pd.read_csv(tmp_path / "results.csv")) == 6 * 3
+
+
+@pytest.mark.parametrize("how", ["interrupt", "sigterm"])
+def test_interrupt_keeps_finished_cells_and_resumes(tmp_path, how):
+    with pytest.raises(KeyboardInterrupt):
+        run(tmp_path, fake=Fake(stop_after=1, how=how))
+    assert len(list((tmp_path / "cells").glob("*.csv"))) == 1  # batch = one whole cell
+    assert len(pd.read_csv(tmp_path / "results.csv")) == 3
+    assert not list(tmp_path.rglob("*.tmp"))
+    res, fake = run(tmp_path)
+    assert res["skipped"] == 1 and res["ran"] == 3 * 3
+    assert len(fake.groups[0].episodes) == 9
+    full, _ = run(tmp_path / "fresh")
+    pd.testing.assert_frame_equal(
+        pd.read_csv(tmp_path / "results.csv").drop(columns="group"),
+        pd.read_csv(tmp_path / "fresh" / "results.csv").drop(columns="group"))
+
+
+def test_partial_cell_is_rerun_not_half_kept(tmp_path):
+    # batches of 2 episodes: the interrupt lands inside cell 1 (episodes 0-2 of cell 0 and
+    # 0 of cell 1 done)
+    with pytest.raises(KeyboardInterrupt):
+        run(tmp_path, {**BASE, "batch_size": 2}, fake=Fake(stop_after=2))
+    assert len(list((tmp_path / "cells").glob("*.csv"))) == 1
+    res, fake = run(tmp_path, {**BASE, "batch_size": 2})
+    assert res["ran"] == 9 and fake.groups[0].episodes[0] == (1, 0)
+
+
+def test_groups_by_static_values(tmp_path):
+    raw = {**BASE, "camera": {"width": [16, 24]}, "field": {"d_rr": [1.6, 2.4]}}
+    res, fake = run(tmp_path, raw)
+    assert len(fake.groups) == 2
+    assert [{fake.groups[i].cell(c).cfg.camera.width for c, _ in g.episodes}
+            for i, g in enumerate(fake.groups)] == [{16}, {24}]
+    assert len(pd.read_csv(tmp_path / "results.csv")) == 4 * 3
+    # field axes share a group and its fitted shape holds every cell's field
+    groups = S.plan(C.from_dict({**BASE, "field": {"d_pp": [0.3, 0.7], "row_length": [20, 50]}}))
+    assert len(groups) == 1
+    assert groups[0].shape.max_plants_per_row >= 50 / 0.3 + 1
+    # presets differ in crop: one group each
+    assert len(S.plan(C.from_dict({**BASE, "field": {}, "preset": ["zucchini", "pear"]}))) == 2
+
+
+def test_one_axis_gives_line_plots_and_categorical_axes_work(tmp_path):
+    raw = {**BASE, "field": {"terrain_dh": [0.1, 0.2, 0.3]}}
+    run(tmp_path / "line", raw)
+    assert (tmp_path / "line" / "mae.png").exists()
+    raw = {**BASE, "field": {"d_rr": [1.6, 2.4]}, "controller": {"variant": ["paper", "public"]}}
+    _, fake = run(tmp_path / "cat", raw)
+    assert len(fake.groups) == 2 and (tmp_path / "cat" / "success.png").exists()
+
+
+def test_episode_keys_are_deterministic():
+    def data(seed, eps):
+        return np.asarray(jax.random.key_data(S.episode_keys(seed, eps)))
+
+    a = data(0, [0, 1, 2])
+    assert a.shape[0] == 3 and np.array_equal(a, data(0, [0, 1, 2]))
+    assert len({tuple(r) for r in a}) == 3
+    assert np.array_equal(data(0, [2]), a[2:])  # episode i's key does not depend on the batch
+    assert not np.array_equal(a, data(5, [0, 1, 2]))
+
+
+def test_cli_bad_yaml_exits_2_with_dotted_key(tmp_path, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("field:\n  d_rrr: [1.2, 1.8]\n")
+    assert S.main([str(bad), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == "error: field.d_rrr: unknown key; did you mean d_rr?"
+    assert not (tmp_path / "o").exists()  # validation before any work
+    assert S.main([str(bad), "--set", "field.d_rrr=1"]) == 2
+
+
+def test_cli_smoke_with_fake_evaluator(tmp_path, monkeypatch):
+    fake = Fake()
+    monkeypatch.setattr(S, "evaluate_group", fake)
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump({**BASE, "seeds": 8, "field": {
+        "d_rr": [1.6, 1.8, 2.0, 2.4], "terrain_dh": [0.0, 0.1, 0.2]}}))
+    assert S.main([str(path), "--smoke", "--out", str(tmp_path / "o"), "--no-progress"]) == 0
+    results = pd.read_csv(tmp_path / "o" / "results.csv")
+    assert len(results) == 4 * 2 and len(fake.groups) == 1
+    assert sorted(set(results["field.d_rr"])) == [1.6, 2.4]
+
+
+# ---------------------------------------------------------------------------------------------
+# The real evaluator (episode.rollout): small, oracle controller, one compile shared by the tests
+
+REAL = {"name": "real", "seeds": 2, "batch_size": 4, "controller": {"name": "oracle"},
+        "perception": {"source": "ground_truth"},
+        "field": {"d_rr": [1.6, 2.4], "terrain_dh": [0.0, 0.2], "row_length": 6.0,
+                  "terrain_length": 10.0, "terrain_width": 10.0, "rows_per_group": 2},
+        "episode": {"path_length": 1.5, "max_time": 4.0}, "camera": {"width": 16, "height": 16}}
+
+
+@pytest.fixture(scope="module")
+def real_run(tmp_path_factory):
+    from mjxrow import episode as E
+
+    out = tmp_path_factory.mktemp("real")
+    before = E.TRACES
+    res = S.run(C.from_dict(REAL), out, progress=False)
+    return out, res, E.TRACES - before
+
+
+def test_real_sweep_compiles_once_and_writes_results(real_run):
+    out, res, traces = real_run
+    assert traces == 1  # 8 episodes in 2 batches of 4, one trace
+    results = pd.read_csv(out / "results.csv")
+    assert len(results) == 4 * 2
+    assert results["success"].all(), results[["cell", "reason"]]
+    assert (results["mae"] < 0.1).all() and (results["time"] < 4.0).all()
+    assert results["lane"].nunique() >= 1 and (out / "success.png").exists()
+    assert "![mae](mae.png)" in (out / "report.md").read_text()
+
+
+def test_real_sweep_is_deterministic_and_resumes(real_run, tmp_path):
+    from mjxrow import episode as E
+
+    out, _, _ = real_run
+    before = E.TRACES
+    res = S.run(C.from_dict(REAL), tmp_path, progress=False)
+    assert E.TRACES == before  # same static group: the compiled function is reused
+    cols = ["cell", "episode", "success", "mae", "mse", "cha", "omega_std", "time"]
+    pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "results.csv")[cols],
+                                  pd.read_csv(out / "results.csv")[cols])
+    again = S.run(C.from_dict(REAL), tmp_path, progress=False)
+    assert res["ran"] == 8 and again["ran"] == 0 and again["skipped"] == 4
+
+
+@pytest.mark.slow
+def test_cli_smoke_segzeros_ground_truth(tmp_path):
+    from pathlib import Path
+
+    root = Path(__file__).parents[1]
+    code = S.main([str(root / "sweeps.yaml"), "--smoke", "--out", str(tmp_path),
+                   "--set", "perception.source=ground_truth", "--no-progress"])
+    assert code == 0
+    results = pd.read_csv(tmp_path / "results.csv")
+    assert len(results) == 4 * 2 and set(results["controller.name"]) == {"segzeros"}
+    assert (tmp_path / "report.md").exists()
