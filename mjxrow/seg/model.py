@@ -397,7 +397,8 @@ def param_count(tree: Any) -> int:
     return int(sum(x.size for x in jax.tree.leaves(tree)))
 
 
-def abstract_variables(module: SegNet, image_size: int = 64) -> dict:
+def abstract_variables(module: SegNet, image_size: int | tuple[int, int] = 64) -> dict:
     """Shapes and dtypes of a module's variables, computed without allocating (eval_shape)."""
-    x = jax.ShapeDtypeStruct((1, image_size, image_size, 3), jnp.uint8)
+    h, w = (image_size, image_size) if isinstance(image_size, int) else image_size
+    x = jax.ShapeDtypeStruct((1, h, w, 3), jnp.uint8)
     return jax.eval_shape(lambda k, x: module.init(k, x), jax.random.key(0), x)

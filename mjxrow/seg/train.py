@@ -12,6 +12,7 @@ threshold 0.7 (the paper's), pooled over the validation set: Σ|M ∩ Y| / Σ|M 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import time
 from collections.abc import Callable, Iterator
@@ -130,9 +131,10 @@ def make_step(module: SegNet, tx: optax.GradientTransformation, loss: str = "iou
     loss_fn = LOSSES[loss]
 
     def step(state: TrainState, rgb: jax.Array, mask: jax.Array):
-        key = jax.random.fold_in(jax.random.wrap_key_data(state.rng), state.step)
-        rgb, mask = augment(jax.random.fold_in(key, 1), rgb, mask, flip=flip, grey=grey,
-                            jitter=jitter)
+        if flip > 0 or grey > 0 or jitter > 0:
+            key = jax.random.fold_in(jax.random.wrap_key_data(state.rng), state.step)
+            rgb, mask = augment(jax.random.fold_in(key, 1), rgb, mask, flip=flip, grey=grey,
+                                jitter=jitter)
 
         def objective(params):
             logits, upd = module.apply({"params": params, "batch_stats": state.batch_stats},
@@ -204,6 +206,25 @@ class TrainConfig:
     progress: bool = True
 
 
+def _truncate_log(path: Path, step: int) -> None:
+    """Drop log lines of steps after `step` (work lost by an interruption)."""
+    if path.is_file():
+        lines = [ln for ln in path.read_text().splitlines()
+                 if ln.strip() and json.loads(ln).get("step", 0) <= step]
+        path.write_text("".join(ln + "\n" for ln in lines))
+
+
+@functools.lru_cache(maxsize=8)
+def _compiled(module: SegNet, lr: float, steps: int, warmup: int, weight_decay: float, loss: str,
+              flip: float, grey: float, jitter: float, threshold: float, batch_fn):
+    """(schedule, optimizer, jitted step, jitted eval) for a run; cached so that runs with
+    equal settings (a resumed run in the same process, tests) reuse the compiled functions."""
+    sched = make_schedule(lr, steps, warmup)
+    tx = make_optimizer(sched, weight_decay)
+    step = jax.jit(make_step(module, tx, loss, flip, grey, jitter, batch_fn), donate_argnums=0)
+    return sched, tx, step, jax.jit(make_eval(module, threshold))
+
+
 def _manager(out: Path) -> ocp.CheckpointManager:
     return ocp.CheckpointManager(out / "state", options=ocp.CheckpointManagerOptions(
         max_to_keep=2, create=True))
@@ -214,14 +235,18 @@ def fit(module: SegNet, variables: dict, data: Data, cfg: TrainConfig, out: str 
     """Train `module` from `variables` for cfg.steps steps, writing under `out`:
     `state/` (orbax: step, params, batch_stats, opt_state, rng, best IoU; resumed from if
     present), `best/` (inference checkpoint with the best validation IoU), `train_log.jsonl`.
-    Returns {"step", "best_iou", "best_step", "final": last validation scores}."""
+    Returns {"step", "best_iou", "best_step", "final": last validation scores}.
+
+    A run resumes from its last saved state (every cfg.ckpt_every steps); the log is cut back to
+    that step. The model must match; a different cfg.steps changes the schedule from there on."""
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     run_meta = {"model": module.config(), "train": dataclasses.asdict(cfg),
                 "data": data.describe, **(meta or {})}
-    sched = make_schedule(cfg.lr, cfg.steps, cfg.warmup)
-    tx = make_optimizer(sched, cfg.weight_decay)
-    state = init_state(variables, tx, cfg.seed)
+    sched, tx, step_fn, eval_fn = _compiled(module, cfg.lr, cfg.steps, cfg.warmup,
+                                            cfg.weight_decay, cfg.loss, cfg.flip, cfg.grey,
+                                            cfg.jitter, cfg.threshold, data.batch_fn)
+    state = init_state(jax.tree.map(jnp.copy, variables), tx, cfg.seed)  # donated below
     mngr = _manager(out)
     start = mngr.latest_step()
     best_step = -1
@@ -234,11 +259,11 @@ def fit(module: SegNet, variables: dict, data: Data, cfg: TrainConfig, out: str 
             raise ValueError(f"out {out}: holds a run of model {old.get('model')}, not "
                              f"{run_meta['model']}; use another --out or --restart")
         state, best_step = restored.state, old.get("best_step", -1)
-    step_fn = jax.jit(make_step(module, tx, cfg.loss, cfg.flip, cfg.grey, cfg.jitter,
-                                data.batch_fn), donate_argnums=0)
-    eval_fn = jax.jit(make_eval(module, cfg.threshold))
+        _truncate_log(out / "train_log.jsonl", start)
     log = open(out / "train_log.jsonl", "a")
     first = int(state.step)
+    # fresh and restored states alike on the default device, committed: one compiled step
+    state = jax.device_put(state, jax.sharding.SingleDeviceSharding(jax.devices()[0]))
     it = None if data.batch_fn is not None else data.batches(first)
     bar = tqdm(total=cfg.steps, initial=first, desc="train", disable=not cfg.progress,
                dynamic_ncols=True)
