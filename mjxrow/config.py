@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import hashlib
 import itertools
 import json
@@ -32,7 +33,6 @@ VARIANTS = ("paper", "public")
 ON_END = ("straight", "stop", "hold")
 SOURCES = ("learned", "ground_truth")
 CONDITIONS = ("sunny", "cloudy", "crepuscular", "long_shadows")
-CHECKPOINT_DIR = Path(__file__).parent / "checkpoints"
 
 
 class ConfigError(ValueError):
@@ -58,11 +58,13 @@ class EpisodeSection:
                       static=True)
     omega_max: float = _k(1.0, "clip on the yaw-rate command", "rad/s", "positive",
                           static=True)
-    goal_tolerance: float = _k(0.40, "goal reached within this distance", "m", "positive")
-    start_offset_std: float = _k(0.0, "std of the start's lateral offset from the lane centre",
-                                 "m", "nonneg")
-    start_yaw_std: float = _k(0.0, "std of the start heading about the row direction", "deg",
-                              "nonneg")
+    goal_tolerance: float = _k(0.40, "goal reached within this distance", "m", "positive",
+                               static=True)
+    start_offset_std: float = _k(0.0, "std of the start's lateral offset from the lane centre "
+                                 "(one value per batch, so a group key)", "m", "nonneg",
+                                 static=True)
+    start_yaw_std: float = _k(0.0, "std of the start heading about the row direction (one "
+                              "value per batch, so a group key)", "deg", "nonneg", static=True)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -155,7 +157,7 @@ TOP_KEYS = tuple(f.name for f in dataclasses.fields(SweepConfig)
 NOT_AXES = {"name", "seeds", "seed", "batch_size", "out"}
 
 # --smoke: a quick check of the whole pipeline on tiny problems.
-SMOKE: dict[str, Any] = {"seeds": 2, "batch_size": 8, "episode.max_time": 2.0,
+SMOKE: dict[str, Any] = {"seeds": 2, "batch_size": 8, "episode.max_time": 4.0,
                          "episode.path_length": 1.5, "camera.width": 16, "camera.height": 16,
                          "field.row_length": 6.0, "field.terrain_length": 10.0}
 
@@ -400,6 +402,7 @@ def resolved(cfg: SweepConfig) -> dict[str, Any]:
     out = {k: get(cfg, k) for k, _ in leaf_keys() if not k.startswith("field.")}
     out.update({f"field.{k}": float(v) for k, v in field_values(cfg).items()})
     out["perception.checkpoint"] = checkpoint_path(cfg)
+    out["perception.checkpoint_id"] = checkpoint_id(out["perception.checkpoint"])
     return out
 
 
@@ -431,16 +434,37 @@ def static_key(cfg: SweepConfig) -> tuple:
 
 
 def checkpoint_path(cfg: SweepConfig) -> str:
-    """Resolved checkpoint directory ('' for ground-truth perception or a non-learned run)."""
+    """Checkpoint folder of a cell config ('' when no segmenter is used): the crop's shipped
+    one (seg.checkpoint.resolve, which falls back to the all-crop model), or the given path
+    (relative to the working directory, else to the YAML's folder). ConfigError if missing."""
     if cfg.perception.source != "learned" or cfg.controller.name == "oracle":
         return ""
+    from mjxrow.seg import checkpoint as ckpt
+
     ck = cfg.perception.checkpoint
     if ck == "shipped":
-        return str(CHECKPOINT_DIR / cfg.preset)
-    p = Path(ck).expanduser()
-    if not p.is_absolute() and not p.exists():
-        p = Path(cfg.base_dir) / p
-    return str(p.resolve())
+        ck = cfg.preset
+    else:
+        p = Path(ck).expanduser()
+        ck = str(p if p.is_absolute() or p.exists() else Path(cfg.base_dir) / p)
+    try:
+        return str(ckpt.resolve(ck))
+    except ValueError as e:
+        raise ConfigError(f"perception.checkpoint: {e}") from None
+
+
+@functools.lru_cache(maxsize=32)
+def checkpoint_id(path: str) -> str:
+    """sha256 (16 hex digits) of every file of a checkpoint folder: a retrained checkpoint in
+    the same folder makes new cell hashes. '' for no checkpoint."""
+    if not path:
+        return ""
+    h = hashlib.sha256()
+    for f in sorted(Path(path).rglob("*")):
+        if f.is_file():
+            h.update(str(f.relative_to(path)).encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()[:16]
 
 
 def check(cfg: SweepConfig) -> None:
@@ -466,9 +490,10 @@ def check(cfg: SweepConfig) -> None:
         c = cell.cfg
         where = "" if not cell.point else " (cell " + ", ".join(
             f"{k}={v}" for k, v in cell.point) + ")"
-        ck = checkpoint_path(c)
-        if ck and not (Path(ck).is_dir() and any(Path(ck).iterdir())):
-            raise ConfigError(f"perception.checkpoint: checkpoint {ck} not found{where}")
+        try:
+            checkpoint_path(c)
+        except ConfigError as e:
+            raise ConfigError(f"{e}{where}") from None
         if c.controller.name == "segmin" and c.controller.smooth % 2 == 0:
             raise ConfigError(f"controller.smooth: must be odd, got {c.controller.smooth}")
         if c.controller.name == "segmin" and c.camera.width < c.controller.smooth + 4:

@@ -19,7 +19,6 @@ import pandas as pd  # noqa: E402
 import yaml  # noqa: E402
 
 from mjxrow import config as C  # noqa: E402
-from mjxrow import field as F  # noqa: E402
 from mjxrow import metrics as M  # noqa: E402
 
 # metric → (title, unit, format, better: "high" | "low" | None)
@@ -276,9 +275,11 @@ ID_COLUMNS = ("cell", "episode", "cell_hash", "group", "lane")
 
 
 def metric_columns(results: pd.DataFrame) -> list[str]:
-    """The metric columns of a results table: all but identity and parameter columns."""
-    params = {k for k, _ in C.leaf_keys()} | {f"field.{k}" for k in F.PARAM_NAMES}
-    return [c for c in results.columns if c not in params and c not in ID_COLUMNS]
+    """The metric columns of a results table: all but identity and parameter columns
+    (parameters are dotted, `field.d_rr`, or top-level config keys)."""
+    params = {k for k, _ in C.leaf_keys()}
+    return [c for c in results.columns
+            if c not in params and c not in ID_COLUMNS and "." not in c]
 
 
 def write_outputs(results: pd.DataFrame, cfg: C.SweepConfig, out: Path, info: dict[str, Any],

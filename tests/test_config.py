@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import pytest
+import yaml
 
 from mjxrow import config as C
 
@@ -68,15 +69,23 @@ def test_impossible_values():
 
 def test_missing_checkpoint(tmp_path):
     msg = error_of({"perception": {"source": "learned", "checkpoint": str(tmp_path / "nope")}})
-    assert msg.startswith("perception.checkpoint: checkpoint ") and "nope not found" in msg
-    empty = tmp_path / "empty"
-    empty.mkdir()
-    assert "not found" in error_of({"perception": {"checkpoint": str(empty)}})
-    (empty / "params").write_text("x")
-    cfg = C.from_dict({"perception": {"checkpoint": "empty"}}, base_dir=tmp_path)
-    assert C.checkpoint_path(C.expand(cfg)[0].cfg) == str(empty.resolve())
+    assert msg.startswith("perception.checkpoint: segmenter checkpoint ") and "nope" in msg
+    ck = tmp_path / "ck"
+    ck.mkdir()
+    assert "no config.json" in error_of({"perception": {"checkpoint": str(ck)}})
+    (ck / "config.json").write_text("{}")
+    (ck / "weights").mkdir()
+    cfg = C.from_dict({"perception": {"checkpoint": "ck"}}, base_dir=tmp_path)  # YAML-relative
+    r = C.resolved(C.expand(cfg)[0].cfg)
+    assert r["perception.checkpoint"] == str(ck.resolve())
+    assert len(r["perception.checkpoint_id"]) == 16
+    (ck / "config.json").write_text('{"retrained": 1}')
+    C.checkpoint_id.cache_clear()
+    assert C.resolved(C.expand(cfg)[0].cfg)["perception.checkpoint_id"] != \
+        r["perception.checkpoint_id"]
     # the oracle needs no checkpoint; ground truth neither
     C.from_dict({"controller": {"name": "oracle"}, "perception": {"checkpoint": "nope"}})
+    C.from_dict({"perception": {"source": "ground_truth", "checkpoint": "nope"}})
 
 
 def test_ranges_lists_and_grid_order():
@@ -155,3 +164,24 @@ def test_docs_list_every_key():
     doc = (Path(__file__).parents[1] / "docs" / "sweep.md").read_text()
     for key, _ in C.leaf_keys():
         assert f"`{key}`" in doc, key
+
+
+@pytest.mark.parametrize("name", ["sweeps.yaml", "sweeps/presets.yaml",
+                                  "sweeps/spacing_length.yaml", "sweeps/slope_roughness.yaml"])
+def test_shipped_sweeps_are_valid(name):
+    root = Path(__file__).parents[1]
+    cfg = C.load(root / name, sets=["perception.source=ground_truth"])
+    cells = C.expand(cfg)
+    assert len(cells) * cfg.seeds >= 200, (len(cells), cfg.seeds)
+    if name == "sweeps.yaml":
+        assert cfg.preset == "zucchini" and cfg.controller.name == "segzeros"
+        assert cfg.axis_order == ("field.d_rr", "field.terrain_dh")
+        assert len(cfg.field.d_rr) >= 6 and len(cfg.field.terrain_dh) >= 6
+        raw = yaml.safe_load((root / name).read_text())
+        assert raw["perception"] == {**raw["perception"], "source": "learned",
+                                     "checkpoint": "shipped"}
+
+
+def test_docs_reference_table_is_current():
+    doc = (Path(__file__).parents[1] / "docs" / "sweep.md").read_text()
+    assert C.reference_markdown() in doc
