@@ -1,0 +1,85 @@
+"""Segmenter inference frames/s: single-image latency (batch 1) and batched throughput.
+
+Single-image: jit(apply) on one uint8 image, median of `--single-repeats` calls, for every
+`--single` config (arch:width:size). Batched: `--batch` images per call at each `--sizes` side.
+Random weights (speed does not depend on their values) unless `--ckpt` names a checkpoint.
+CPU-sized run: `python -m mjxrow.bench segmenter --batch 16 --repeats 3`.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import jax
+import numpy as np
+
+from mjxrow.bench import time_call
+from mjxrow.seg import model as M
+
+SINGLE = ("small:1.0:224", "small:0.75:224", "small:0.5:224", "small:1.0:192", "small:1.0:160",
+          "small:1.0:128", "large:1.0:224")
+
+
+def add_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--single", nargs="*", default=list(SINGLE),
+                   help="arch:width:size configs timed at batch 1 (none to skip)")
+    p.add_argument("--single-repeats", type=int, default=50)
+    p.add_argument("--arch", default="small", help="batched throughput: architecture")
+    p.add_argument("--width", type=float, default=1.0, help="batched throughput: width")
+    p.add_argument("--sizes", type=int, nargs="*", default=[224, 128],
+                   help="batched throughput: image sides (none to skip)")
+    p.add_argument("--batch", type=int, nargs="+", default=[256])
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"))
+    p.add_argument("--dw-impl", default="auto", choices=("auto", "conv", "shift"),
+                   help="depthwise conv implementation (auto: shift on CPU, conv elsewhere)")
+    p.add_argument("--ckpt", help="checkpoint folder or crop to time instead of random weights")
+
+
+def _model(arch: str, width: float, size: int, args) -> tuple[M.SegNet, dict]:
+    if args.ckpt:
+        from mjxrow.seg import checkpoint as C
+        module, variables = C.load(args.ckpt)
+        return module.clone(dtype=args.dtype, dw_impl=args.dw_impl), variables
+    return M.create(arch, width, 0, size, dtype=args.dtype, dw_impl=args.dw_impl)
+
+
+def _config(module: M.SegNet, size: int) -> str:
+    impl = module.dw_impl if module.dw_impl != "auto" else \
+        ("shift" if jax.default_backend() == "cpu" else "conv")
+    return (f"MobileNetV3-{module.arch.capitalize()} w{module.width:g} + LR-ASPP, "
+            f"{size}x{size}, {module.dtype}, dw {impl}")
+
+
+def run(args: argparse.Namespace) -> list[dict]:
+    rows = []
+    rng = np.random.default_rng(0)
+    for spec in args.single:
+        try:
+            arch, width, size = spec.split(":")
+            width, size = float(width), int(size)
+        except ValueError:
+            msg = f"--single {spec!r}: expected arch:width:size, e.g. small:1.0:224"
+            raise ValueError(msg) from None
+        module, variables = _model(arch, width, size, args)
+        fn = jax.jit(lambda v, x, m=module: M.apply(m, v, x))
+        x = jax.device_put(rng.integers(0, 256, (1, size, size, 3), dtype=np.uint8))
+        t = time_call(fn, variables, x, repeats=args.single_repeats)
+        rows.append({"stage": "segmenter", "config": _config(module, size) + ", single image",
+                     "batch": 1, "value": 1.0 / t["median_s"], "unit": "frames/s",
+                     "latency_ms": 1e3 * t["median_s"], "compile_s": t["compile_s"],
+                     "params": M.param_count(variables["params"])})
+        print(f"{rows[-1]['config']}: {rows[-1]['value']:.1f} frames/s "
+              f"(compile {t['compile_s']:.1f} s)", flush=True)
+    for size in args.sizes:
+        module, variables = _model(args.arch, args.width, size, args)
+        fn = jax.jit(lambda v, x, m=module: M.apply(m, v, x))
+        for b in args.batch:
+            x = jax.device_put(rng.integers(0, 256, (b, size, size, 3), dtype=np.uint8))
+            t = time_call(fn, variables, x, repeats=args.repeats)
+            rows.append({"stage": "segmenter", "config": _config(module, size) + ", batched",
+                         "batch": b, "value": b / t["median_s"], "unit": "frames/s",
+                         "compile_s": t["compile_s"], "runs_s": t["runs_s"]})
+            print(f"{rows[-1]['config']} B={b}: {rows[-1]['value']:.1f} frames/s "
+                  f"(compile {t['compile_s']:.1f} s)", flush=True)
+    return rows
