@@ -74,6 +74,8 @@ def evaluate_folder(module: SegNet, variables: dict, root: str | Path, crop: str
                     threshold: float = THRESHOLD, workers: int = 4) -> pd.DataFrame:
     """Per-image counts with the index columns (crop, condition, ...) of the selected rows."""
     rows = D.select(D.read_index(root), crop, split)
+    if len(rows) == 0:
+        raise ValueError(f"dataset {str(root)!r}: no images of crop {crop!r} in split {split!r}")
     rgb, mask = D.load_arrays(root, rows, size, workers)
     counts = count_batches(module, variables, D.batches(rgb, mask, batch), threshold)
     return pd.concat([rows.reset_index(drop=True), counts], axis=1)

@@ -1,0 +1,121 @@
+"""The paper's Table 2 (segmentation accuracy and IoU per crop) beside ours, and a cross-crop
+matrix (model trained on one crop, tested on each).
+
+    python experiments/table2_segmentation.py [--data-root DIR] [--n 512] [--out table2.md]
+
+Models: the checkpoints `<ckpt-root>/<crop>/` (default the shipped `mjxrow/checkpoints/`), plus
+`all/` (one model for every crop) if present. Test sets: with `--data-root`, the test split of
+the dataset folder `DIR/<crop>/` (or of `DIR` itself when it holds every crop); without it, `--n`
+renders per crop made on the fly with a fixed seed (20,000 + `--seed`), the same for every model.
+Pixel accuracy and IoU (plant class, sigmoid > 0.7) are pooled over each test set.
+
+IoU is reported in [0, 1]. The paper's Table 2 prints IoU figures such as 197.8 and 93.0, which
+cannot be IoUs in [0, 1] or in percent, and its accuracies lie between 0.63 and 0.80; its per-crop
+values could not be retrieved for this script, so its columns read "n/a" rather than guessed
+numbers. Fill `PAPER` from the publication to show them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
+from mjxrow.field import CROPS  # noqa: E402
+from mjxrow.seg import checkpoint as C  # noqa: E402
+from mjxrow.seg import eval as E  # noqa: E402
+
+# Martini et al., Table 2: crop → (accuracy, IoU) as printed; None where not available here.
+PAPER: dict[str, tuple[float | None, float | None]] = {c: (None, None) for c in CROPS}
+
+
+def _fmt(x) -> str:
+    return "n/a" if x is None or pd.isna(x) else f"{x:.3f}"
+
+
+def markdown(df: pd.DataFrame, index: str | None = None) -> str:
+    """A pipe table of `df` (floats with 3 decimals); `index` names the index column if kept."""
+    d = df.reset_index() if index else df
+    cols = [index or c if i == 0 and index else c for i, c in enumerate(d.columns)]
+    cell = lambda v: _fmt(v) if isinstance(v, float) else str(v)  # noqa: E731
+    lines = ["| " + " | ".join(map(str, cols)) + " |", "|" + "---|" * len(cols)]
+    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in d.itertuples(False)]
+    return "\n".join(lines)
+
+
+def models(root: Path) -> dict[str, Path]:
+    """Trained-on name → checkpoint folder, for every crop (and 'all') found under `root`."""
+    return {name: root / name for name in (*CROPS, "all")
+            if (root / name / "config.json").is_file()}
+
+
+def test_counts(module, variables, crop: str, args, size: int) -> pd.DataFrame:
+    """Per-image counts of a model on the test set of `crop`."""
+    if args.data_root:
+        root = Path(args.data_root)
+        folder = root / crop if (root / crop / "index.csv").is_file() else root
+        return E.evaluate_folder(module, variables, folder, crop, "test", size, args.batch)
+    return E.evaluate_renders(module, variables, crop, args.n, size, args.batch, args.seed)
+
+
+def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--ckpt-root", default=str(C.CHECKPOINT_DIR))
+    p.add_argument("--data-root", help="dataset folder(s) written by python -m mjxrow.dataset")
+    p.add_argument("--n", type=int, default=512, help="renders per crop without --data-root")
+    p.add_argument("--batch", type=int, default=32)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--crops", nargs="+", default=list(CROPS), choices=CROPS)
+    p.add_argument("--out", help="write the markdown tables here")
+    args = p.parse_args(argv)
+
+    found = models(Path(args.ckpt_root))
+    if not found:
+        raise SystemExit(f"no checkpoints in {args.ckpt_root}: train them with `python -m "
+                         "mjxrow.seg.train --crop CROP --on-the-fly --export-to "
+                         f"{args.ckpt_root}/CROP`")
+    rows = []
+    for name, path in found.items():
+        module, variables = C.load(path)
+        size = C.read_config(path)["meta"].get("image_size", 224)
+        for crop in args.crops:
+            print(f"model {name} on {crop} ...", file=sys.stderr, flush=True)
+            s = E.summarise(test_counts(module, variables, crop, args, size))
+            total = s[(s["crop"] == "all") & (s["condition"] == "all")].iloc[0]
+            rows.append({"trained_on": name, "tested_on": crop, "images": int(total["images"]),
+                         "accuracy": float(total["accuracy"]), "iou": float(total["iou"])})
+    cross = pd.DataFrame(rows)
+
+    table = []
+    for crop in args.crops:
+        own = crop if crop in found else "all"
+        hit = cross[(cross["trained_on"] == own) & (cross["tested_on"] == crop)]
+        acc, iou = (hit["accuracy"].iloc[0], hit["iou"].iloc[0]) if len(hit) else (None, None)
+        table.append({"crop": crop, "paper accuracy": _fmt(PAPER[crop][0]),
+                      "paper IoU": _fmt(PAPER[crop][1]), "our accuracy": _fmt(acc),
+                      "our IoU [0, 1]": _fmt(iou), "model": own if len(hit) else "none",
+                      "test images": int(hit["images"].iloc[0]) if len(hit) else 0})
+    table = pd.DataFrame(table)
+    matrix = cross.pivot(index="trained_on", columns="tested_on", values="iou")
+    matrix = matrix.reindex(index=[n for n in found], columns=args.crops)
+
+    source = (f"test split of {args.data_root}" if args.data_root else
+              f"{args.n} renders per crop, seed {20_000 + args.seed}")
+    text = ("## Table 2: segmentation per crop\n\n" + markdown(table) +
+            f"\n\nTest sets: {source}. IoU in [0, 1]; the paper's columns read n/a where its "
+            "values are not available (see the script's docstring).\n\n"
+            "## Cross-crop IoU (rows: trained on, columns: tested on)\n\n" +
+            markdown(matrix, "trained on \\ tested on") + "\n")
+    print(text)
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(text)
+    return table, cross
+
+
+if __name__ == "__main__":
+    main()
