@@ -122,10 +122,10 @@ def test_iou_and_bce_losses_hand_computed():
     bce = (math.log(2.0) + math.log(4 / 3)) / 2
     assert float(T.bce_loss(logits, mask)) == pytest.approx(bce, abs=1e-6)
     # hard metrics at 0.7: image 0 predicts nothing (0.5), image 1 everything (0.75)
-    c = T.counts(logits, mask)
+    c = E.counts(logits, mask)
     assert {k: float(v) for k, v in c.items()} == {"inter": 4, "union": 5, "correct": 7,
                                                    "total": 8}
-    assert T.scores(c) == {"iou": 0.8, "acc": 7 / 8}
+    assert E.scores(c) == {"iou": 0.8, "acc": 7 / 8}
 
 
 def test_augment_flip_and_grey():
@@ -306,5 +306,5 @@ def test_shipped_checkpoint_segments_a_rendered_frame(crop):
     size = C.read_config(crop)["meta"].get("image_size", 224)
     rgb, mask = D.fixed_set(D.onthefly(crop, size, 2), 1, 123)[0][:2]
     logits = M.apply(module, variables, rgb)
-    c = T.counts(logits, jnp.asarray(mask))
-    assert T.scores(c)["iou"] >= 0.8
+    c = E.counts(logits, jnp.asarray(mask))
+    assert E.scores(c)["iou"] >= 0.8

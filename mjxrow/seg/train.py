@@ -29,9 +29,8 @@ from tqdm.auto import tqdm
 
 from mjxrow.seg import checkpoint as C
 from mjxrow.seg.data import augment
+from mjxrow.seg.eval import THRESHOLD, evaluate, make_eval
 from mjxrow.seg.model import SegNet
-
-THRESHOLD = 0.7
 
 
 def iou_loss(logits: jax.Array, mask: jax.Array, weight: jax.Array | None = None,
@@ -62,24 +61,6 @@ def _wmean(x: jax.Array, weight: jax.Array | None) -> jax.Array:
         return jnp.mean(x)
     w = weight.astype(jnp.float32)
     return jnp.sum(x * w) / jnp.maximum(jnp.sum(w), 1.0)
-
-
-def counts(logits: jax.Array, mask: jax.Array, weight: jax.Array | None = None,
-           threshold: float = THRESHOLD) -> dict[str, jax.Array]:
-    """Pixel counts of a batch for pooled metrics: intersection, union, correct, total (float32
-    scalars); the prediction is sigmoid(logit) > threshold. weight [B] drops padded images."""
-    pred = jax.nn.sigmoid(logits.astype(jnp.float32)) > threshold
-    w = jnp.ones(mask.shape[0]) if weight is None else weight.astype(jnp.float32)
-    s = lambda a: jnp.sum(jnp.sum(a.astype(jnp.float32), axis=(1, 2)) * w)  # noqa: E731
-    return {"inter": s(pred & mask), "union": s(pred | mask), "correct": s(pred == mask),
-            "total": jnp.sum(w) * mask.shape[1] * mask.shape[2]}
-
-
-def scores(c: dict[str, Any]) -> dict[str, float]:
-    """Pooled IoU and pixel accuracy in [0, 1] from summed `counts` (IoU 1 when both are empty)."""
-    inter, union = float(c["inter"]), float(c["union"])
-    return {"iou": inter / union if union > 0 else 1.0,
-            "acc": float(c["correct"]) / max(float(c["total"]), 1.0)}
 
 
 @struct.dataclass
@@ -157,23 +138,6 @@ def make_step(module: SegNet, tx: optax.GradientTransformation, loss: str = "iou
         return step(state, rgb, mask)
 
     return fused
-
-
-def make_eval(module: SegNet, threshold: float = THRESHOLD):
-    """`eval(variables, rgb, mask, weight) -> counts` (pure; jit it)."""
-    def ev(variables, rgb, mask, weight):
-        return counts(module.apply(variables, rgb, train=False), mask, weight, threshold)
-    return ev
-
-
-def evaluate(eval_fn, variables: dict, batches) -> dict[str, float]:
-    """Pooled IoU / accuracy of `variables` over batches [(rgb, mask, weight)]."""
-    total: dict[str, float] = {}
-    for rgb, mask, weight in batches:
-        c = jax.device_get(eval_fn(variables, rgb, mask, weight))
-        for k, v in c.items():
-            total[k] = total.get(k, 0.0) + float(v)
-    return scores(total)
 
 
 @dataclasses.dataclass
