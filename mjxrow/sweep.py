@@ -107,7 +107,12 @@ def atomic_write_csv(path: Path, df: pd.DataFrame) -> None:
 
 
 def finished_cells(cells_dir: Path) -> set[str]:
-    return {p.stem for p in cells_dir.glob("*.csv")} if cells_dir.is_dir() else set()
+    """Hashes of the finished cells; removes temp files a killed run may have left."""
+    if not cells_dir.is_dir():
+        return set()
+    for tmp in cells_dir.glob(".*.tmp"):
+        tmp.unlink(missing_ok=True)
+    return {p.stem for p in cells_dir.glob("*.csv")}
 
 
 def cell_rows(group: Group, cell_index: int, rows: pd.DataFrame) -> pd.DataFrame:
@@ -239,6 +244,7 @@ def evaluate_group(group: Group, cfg: C.SweepConfig,
     devices = jax.devices()
     mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
     batched = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
+    mx = jax.device_put(mx, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))
     n = len(devices)
     B = -(-min(cfg.batch_size, len(group.episodes)) // n) * n
     by_cell = {c.index: c.cfg for c in group.cells}
@@ -332,10 +338,11 @@ def _ticking(bar, enabled: bool):
 
 
 def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
-        progress: bool = True, command: str = "") -> dict[str, Any]:
+        progress: bool = True, command: str = "", figures: bool = True) -> dict[str, Any]:
     """Run every unfinished cell of `cfg`, persisting each as it finishes, then write the
-    outputs. Returns {'groups', 'ran', 'skipped', 'files'}. On Ctrl-C or SIGTERM the finished
-    cells are kept, results.csv and summary.csv hold them, and KeyboardInterrupt propagates."""
+    outputs (without `figures`: no PNGs and no report). Returns {'groups', 'ran', 'skipped',
+    'files'}. On Ctrl-C or SIGTERM the finished cells are kept, results.csv and summary.csv
+    hold them, and KeyboardInterrupt propagates."""
     evaluate = evaluate or evaluate_group
     out = Path(out)
     (out / "cells").mkdir(parents=True, exist_ok=True)
@@ -377,7 +384,7 @@ def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
             signal.signal(signal.SIGTERM, old)
     info["wall time"] = f"{time.perf_counter() - t0:.1f} s for {ran} episodes"
     return {"groups": groups, "ran": ran, "skipped": skipped,
-            "files": write_outputs(cfg, groups, out, info)}
+            "files": write_outputs(cfg, groups, out, info, figures)}
 
 
 def _main_thread() -> bool:
@@ -385,13 +392,8 @@ def _main_thread() -> bool:
 
 
 def _device() -> str:
-    try:
-        import jax
-
-        devs = jax.devices()
-        return f"{len(devs)} × {devs[0].device_kind}"
-    except Exception:  # noqa: BLE001 - a report line, never a failure
-        return "unknown"
+    devs = jax.devices()
+    return f"{len(devs)} × {devs[0].device_kind}"
 
 
 # ---------------------------------------------------------------------------------------------

@@ -53,14 +53,15 @@ class Fake:
         return pd.concat(out)
 
 
-def run(tmp_path, raw=BASE, fake=None, **kw):
+def run(tmp_path, raw=BASE, fake=None, figures=False, **kw):
     fake = fake or Fake()
-    res = S.run(C.from_dict(raw, **kw), tmp_path, evaluate=fake, progress=False)
+    res = S.run(C.from_dict(raw, **kw), tmp_path, evaluate=fake, progress=False,
+                figures=figures)
     return res, fake
 
 
 def test_two_by_two_sweep_writes_everything(tmp_path):
-    res, fake = run(tmp_path)
+    res, fake = run(tmp_path, figures=True)
     assert len(fake.groups) == 1  # one static group: one compile
     assert len(fake.groups[0].episodes) == 4 * 3 and len(fake.batches) == 4
     results = pd.read_csv(tmp_path / "results.csv")
@@ -149,10 +150,10 @@ def test_groups_by_static_values(tmp_path):
 
 def test_one_axis_gives_line_plots_and_categorical_axes_work(tmp_path):
     raw = {**BASE, "field": {"terrain_dh": [0.1, 0.2, 0.3]}}
-    run(tmp_path / "line", raw)
+    run(tmp_path / "line", raw, figures=True)
     assert (tmp_path / "line" / "mae.png").exists()
     raw = {**BASE, "field": {"d_rr": [1.6, 2.4]}, "controller": {"variant": ["paper", "public"]}}
-    _, fake = run(tmp_path / "cat", raw)
+    _, fake = run(tmp_path / "cat", raw, figures=True)
     assert len(fake.groups) == 2 and (tmp_path / "cat" / "success.png").exists()
 
 
@@ -225,12 +226,12 @@ def test_real_sweep_is_deterministic_and_resumes(real_run, tmp_path):
 
     out, _, _ = real_run
     before = E.TRACES
-    res = S.run(C.from_dict(REAL), tmp_path, progress=False)
+    res = S.run(C.from_dict(REAL), tmp_path, progress=False, figures=False)
     assert E.TRACES == before  # same static group: the compiled function is reused
     cols = ["cell", "episode", "success", "mae", "mse", "cha", "omega_std", "time"]
     pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "results.csv")[cols],
                                   pd.read_csv(out / "results.csv")[cols])
-    again = S.run(C.from_dict(REAL), tmp_path, progress=False)
+    again = S.run(C.from_dict(REAL), tmp_path, progress=False, figures=False)
     assert res["ran"] == 8 and again["ran"] == 0 and again["skipped"] == 4
 
 
