@@ -176,3 +176,31 @@ def test_cli_writes_episodes_csv(tmp_path, capsys):
     assert (df["terrain_dh"] == 0.05).all() and (df["reason"] == "goal").all()
     out = capsys.readouterr().out
     assert "cha [deg]" in out and "95% CI" in out
+
+
+@pytest.mark.slow
+def test_segzeros_on_rendered_masks_steers_back():
+    """Closed loop through the renderer's ground-truth mask: from a lateral offset SegZeros
+    turns back toward the lane centre (image column 0 is the left: signs end to end)."""
+    from mjxrow import render
+
+    n = 2
+    params = F.make_params("vineyard", **FLAT)
+    params = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,)), params)
+    fields = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)(
+        params, SHAPE, jax.random.split(jax.random.key(0), n))
+    cfg = E.EpisodeConfig(crop="vineyard", n_steps=200, lateral_std=0.3,
+                          sim=sim.SimConfig(path_length=6.0))
+    _, mx = sim.make_model(SHAPE, cfg.sim)
+    intr = render.Intrinsics(48, 32, 42.0)
+    policy, pparams = E.perception_policy("segzeros", SHAPE, intr)
+    cparams = C.seg_params("zeros", image_hw=(32, 48))
+    log = jax.tree.map(np.asarray, E.rollout(mx, fields, None,
+                                             jax.random.split(jax.random.key(4), n), policy,
+                                             (pparams, cparams), cfg))
+    off0 = np.abs(log.start[:, 1] - log.lane_y)
+    assert (off0 > 0.05).all(), off0  # the keys give a visible start offset
+    for i in range(n):
+        end = np.abs(log.pose[i, log.steps[i] - 1, 1] - log.lane_y[i])
+        assert end < 0.5 * off0[i], (off0[i], end)
+    assert (log.reason == M.GOAL).all(), log.reason
