@@ -47,7 +47,10 @@ TRACES = 0  # times the episode function was traced (each one is a compile)
 
 @dataclasses.dataclass(frozen=True)
 class EpisodeConfig:
-    """Static episode settings (hashable). `crop` picks the plants' collision footprint."""
+    """Static episode settings (hashable). `crop` picks the plants' collision footprint.
+
+    The path length (`sim.path_length`, 20 m), the control rate (`sim.control_hz`, 15 Hz) and
+    the flip threshold (`sim.max_tilt_deg`) live in the simulation config `sim`."""
 
     crop: str
     n_steps: int = 600  # control steps before timeout (600 at 15 Hz = 40 s)
