@@ -417,9 +417,11 @@ def to_dict(cfg: SweepConfig) -> dict[str, Any]:
 
 
 def cell_hash(cell: Cell, extra: Any = None) -> str:
-    """Identity of a cell's results: its resolved parameters (not name, out or batch size) and
-    `extra` (e.g. the static field shape of its group). 16 hex digits."""
-    r = {k: v for k, v in resolved(cell.cfg).items() if k not in ("name", "out", "batch_size")}
+    """Identity of a cell's results: its resolved parameters (not name, out or batch size;
+    the checkpoint by its content, not its path) and `extra` (e.g. the static field shape of
+    its group). 16 hex digits."""
+    skip = ("name", "out", "batch_size", "perception.checkpoint")
+    r = {k: v for k, v in resolved(cell.cfg).items() if k not in skip}
     text = json.dumps([r, repr(extra)], sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 

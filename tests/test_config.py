@@ -1,5 +1,6 @@
 """Sweep config: YAML parsing, one-line errors with dotted keys, grid expansion, hashes."""
 
+import shutil
 from pathlib import Path
 
 import pytest
@@ -79,10 +80,16 @@ def test_missing_checkpoint(tmp_path):
     r = C.resolved(C.expand(cfg)[0].cfg)
     assert r["perception.checkpoint"] == str(ck.resolve())
     assert len(r["perception.checkpoint_id"]) == 16
+    # a copy elsewhere is the same checkpoint; retrained weights are another one
+    shutil.copytree(ck, tmp_path / "copy")
+    h = C.cell_hash(C.expand(cfg)[0])
+    copy = C.from_dict({"perception": {"checkpoint": str(tmp_path / "copy")}})
+    assert C.cell_hash(C.expand(copy)[0]) == h
     (ck / "config.json").write_text('{"retrained": 1}')
     C.checkpoint_id.cache_clear()
     assert C.resolved(C.expand(cfg)[0].cfg)["perception.checkpoint_id"] != \
         r["perception.checkpoint_id"]
+    assert C.cell_hash(C.expand(cfg)[0]) != h
     # the oracle needs no checkpoint; ground truth neither
     C.from_dict({"controller": {"name": "oracle"}, "perception": {"checkpoint": "nope"}})
     C.from_dict({"perception": {"source": "ground_truth", "checkpoint": "nope"}})
