@@ -267,6 +267,8 @@ def test_dataset_folder_loading(tmp_path):
     np.testing.assert_array_equal(loader.indices(2), loader.indices(2))
     first = next(loader(1))
     np.testing.assert_array_equal(first[0], rgb[:4][loader.indices(1)])
+    multi = D.Loader(tmp_path, D.select(df, split="train"), 2, size=(16, 32), seed=0)
+    assert [next(multi(s))[0].shape[1] for s in (0, 1, 2)] == [16, 32, 16]
     with pytest.raises(ValueError, match="pear"):
         D.select(df, "pear")
     with pytest.raises(ValueError, match="index.csv"):
@@ -295,7 +297,8 @@ def test_eval_tables(tiny, tmp_path):
     assert ((table["iou"] >= 0) & (table["iou"] <= 1) & (table["accuracy"] <= 1)).all()
 
 
-SHIPPED = [c for c in CROPS if (C.CHECKPOINT_DIR / c / "config.json").is_file()]
+SHIPPED = [c for c in CROPS if any((C.CHECKPOINT_DIR / n / "config.json").is_file()
+                                   for n in (c, "all"))]
 
 
 @pytest.mark.parametrize("crop", SHIPPED or ["none"])
@@ -303,7 +306,8 @@ def test_shipped_checkpoint_segments_a_rendered_frame(crop):
     if not SHIPPED:
         pytest.skip(f"no shipped checkpoints in {C.CHECKPOINT_DIR}")
     module, variables = C.load(crop)
-    size = C.read_config(crop)["meta"].get("image_size", 224)
+    meta = C.read_config(crop)["meta"]
+    size = min(meta.get("image_sizes", [meta.get("image_size", 224)]))  # the smallest trained
     rgb, mask = D.fixed_set(D.onthefly(crop, size, 2), 1, 123)[0][:2]
     logits = M.apply(module, variables, rgb)
     c = E.counts(logits, jnp.asarray(mask))

@@ -108,13 +108,16 @@ class Loader:
 
     The batch of step s is a fixed function of (seed, s): epoch e = s // (N // batch) uses the
     permutation `default_rng(seed + e)`, so a resumed run sees the same batches. Drops the last
-    partial batch of each epoch."""
+    partial batch of each epoch. `size`: side images are resized to; a sequence of sides is
+    used in turn (step s: sizes[s % n]) for multi-resolution training."""
 
-    def __init__(self, root: str | Path, df: pd.DataFrame, batch: int, size: int | None = None,
-                 seed: int = 0, workers: int = 4, prefetch: int = 4):
+    def __init__(self, root: str | Path, df: pd.DataFrame, batch: int,
+                 size: int | Sequence[int] | None = None, seed: int = 0, workers: int = 4,
+                 prefetch: int = 4):
         if len(df) < batch:
             raise ValueError(f"batch: {batch} is larger than the {len(df)} training images")
-        self.root, self.df, self.batch, self.size = Path(root), df, batch, size
+        self.root, self.df, self.batch = Path(root), df, batch
+        self.sizes = tuple(size) if isinstance(size, (list, tuple)) else (size,)
         self.seed, self.workers, self.prefetch = seed, workers, prefetch
         self.steps_per_epoch = len(df) // batch
 
@@ -124,9 +127,14 @@ class Loader:
         perm = np.random.default_rng(self.seed + epoch).permutation(len(self.df))
         return perm[i * self.batch:(i + 1) * self.batch]
 
+    def size_at(self, step: int) -> int | None:
+        """Image side of the batch of `step` (None: as stored)."""
+        return self.sizes[step % len(self.sizes)]
+
     def load(self, step: int, pool: ThreadPoolExecutor) -> tuple[np.ndarray, np.ndarray]:
         rows = self.df.iloc[self.indices(step)]
-        samples = list(pool.map(lambda r: load_sample(self.root, r[0], r[1], self.size),
+        size = self.size_at(step)
+        samples = list(pool.map(lambda r: load_sample(self.root, r[0], r[1], size),
                                 zip(rows["rgb"], rows["mask"], strict=True)))
         return np.stack([s[0] for s in samples]), np.stack([s[1] for s in samples])
 

@@ -142,13 +142,14 @@ def make_step(module: SegNet, tx: optax.GradientTransformation, loss: str = "iou
 
 @dataclasses.dataclass
 class Data:
-    """Training data: exactly one of `batch_fn` (jittable key → (rgb, mask), fused into the step)
-    or `batches` (start step → endless host iterator of numpy (rgb, mask)); `val` batches
-    [(rgb, mask, weight)]; `describe` says what it is (logged with the checkpoint)."""
+    """Training data: exactly one of `batch_fn` (jittable key → (rgb, mask), fused into the step;
+    a tuple of them, e.g. one per image size, is used in turn: step s takes fn[s % n]) or
+    `batches` (start step → endless host iterator of numpy (rgb, mask), any image sizes);
+    `val` batches [(rgb, mask, weight)], any sizes, pooled; `describe` says what it is."""
 
     val: list
     describe: str
-    batch_fn: Callable[[jax.Array], tuple[jax.Array, jax.Array]] | None = None
+    batch_fn: Callable | tuple[Callable, ...] | None = None
     batches: Callable[[int], Iterator[tuple[np.ndarray, np.ndarray]]] | None = None
 
 
@@ -180,13 +181,15 @@ def _truncate_log(path: Path, step: int) -> None:
 
 @functools.lru_cache(maxsize=8)
 def _compiled(module: SegNet, lr: float, steps: int, warmup: int, weight_decay: float, loss: str,
-              flip: float, grey: float, jitter: float, threshold: float, batch_fn):
-    """(schedule, optimizer, jitted step, jitted eval) for a run; cached so that runs with
-    equal settings (a resumed run in the same process, tests) reuse the compiled functions."""
+              flip: float, grey: float, jitter: float, threshold: float, batch_fns: tuple):
+    """(schedule, optimizer, jitted steps (one per batch function, or one for host batches),
+    jitted eval) for a run; cached so that runs with equal settings (a resumed run in the same
+    process, tests) reuse the compiled functions."""
     sched = make_schedule(lr, steps, warmup)
     tx = make_optimizer(sched, weight_decay)
-    step = jax.jit(make_step(module, tx, loss, flip, grey, jitter, batch_fn), donate_argnums=0)
-    return sched, tx, step, jax.jit(make_eval(module, threshold))
+    steps_ = tuple(jax.jit(make_step(module, tx, loss, flip, grey, jitter, fn), donate_argnums=0)
+                   for fn in batch_fns or (None,))
+    return sched, tx, steps_, jax.jit(make_eval(module, threshold))
 
 
 def _manager(out: Path) -> ocp.CheckpointManager:
@@ -207,9 +210,11 @@ def fit(module: SegNet, variables: dict, data: Data, cfg: TrainConfig, out: str 
     out.mkdir(parents=True, exist_ok=True)
     run_meta = {"model": module.config(), "train": dataclasses.asdict(cfg),
                 "data": data.describe, **(meta or {})}
-    sched, tx, step_fn, eval_fn = _compiled(module, cfg.lr, cfg.steps, cfg.warmup,
-                                            cfg.weight_decay, cfg.loss, cfg.flip, cfg.grey,
-                                            cfg.jitter, cfg.threshold, data.batch_fn)
+    fns = data.batch_fn if isinstance(data.batch_fn, tuple) else \
+        (() if data.batch_fn is None else (data.batch_fn,))
+    sched, tx, step_fns, eval_fn = _compiled(module, cfg.lr, cfg.steps, cfg.warmup,
+                                             cfg.weight_decay, cfg.loss, cfg.flip, cfg.grey,
+                                             cfg.jitter, cfg.threshold, fns)
     state = init_state(jax.tree.map(jnp.copy, variables), tx, cfg.seed)  # donated below
     mngr = _manager(out)
     start = mngr.latest_step()
@@ -242,10 +247,10 @@ def fit(module: SegNet, variables: dict, data: Data, cfg: TrainConfig, out: str 
     try:
         for step in range(first, cfg.steps):
             if it is None:
-                state, m = step_fn(state)
+                state, m = step_fns[step % len(step_fns)](state)
             else:
                 rgb, mask = next(it)
-                state, m = step_fn(state, rgb, mask)
+                state, m = step_fns[0](state, rgb, mask)
             pending.append(m["loss"])
             done = step + 1
             if done % cfg.log_every == 0 or done == cfg.steps:
@@ -303,19 +308,23 @@ def build_data(args) -> Data:
     """Data for the CLI: the dataset folder (`--data`) or the renderer (`--on-the-fly`)."""
     from mjxrow.seg import data as D
 
+    sizes = "x".join(map(str, args.size))
     if args.data:
         df = D.select(D.read_index(args.data), args.crop)
         train_df, val_df = D.train_val(df, args.val_frac, args.seed)
         loader = D.Loader(args.data, train_df, args.batch, args.size, args.seed, args.workers)
-        rgb, mask = D.load_arrays(args.data, val_df, args.size, args.workers)
-        return Data(val=D.batches(rgb, mask, args.batch), batches=loader,
+        val = []
+        for size in args.size:
+            val += D.batches(*D.load_arrays(args.data, val_df, size, args.workers), args.batch)
+        return Data(val=val, batches=loader,
                     describe=f"folder {Path(args.data).resolve()} crop {args.crop}: "
-                             f"{len(train_df)} train / {len(val_df)} val images")
-    fn = D.onthefly(args.crop, args.size, args.batch)
+                             f"{len(train_df)} train / {len(val_df)} val images, sizes {sizes}")
+    fns = tuple(D.onthefly(args.crop, size, args.batch) for size in args.size)
     n_val = max(1, -(-args.val_n // args.batch))
-    return Data(val=D.fixed_set(fn, n_val, 10_000 + args.seed), batch_fn=fn,
-                describe=f"on-the-fly renders crop {args.crop}, {n_val * args.batch} val images "
-                         f"(seed {10_000 + args.seed})")
+    val = [b for i, fn in enumerate(fns) for b in D.fixed_set(fn, n_val, 10_000 + args.seed + i)]
+    return Data(val=val, batch_fn=fns,
+                describe=f"on-the-fly renders crop {args.crop}, sizes {sizes}, "
+                         f"{n_val * args.batch} val images per size (seed {10_000 + args.seed})")
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -336,7 +345,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--width", type=float, default=1.0, help="width multiplier")
     p.add_argument("--reduced-tail", action="store_true", help="halve the last stage")
     p.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"))
-    p.add_argument("--size", type=int, default=224, help="square input side [px]")
+    p.add_argument("--size", type=int, nargs="+", default=[224],
+                   help="square input side(s) [px]; several are trained in turn, step by step "
+                        "(e.g. 224 128 64 for a model that serves any camera size)")
     p.add_argument("--steps", type=int, default=20000)
     p.add_argument("--batch", type=int, default=32)
     p.add_argument("--lr", type=float, default=1e-3)
@@ -357,15 +368,16 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--export-to", help="write the best model here as a shipped checkpoint")
     p.add_argument("--export-dtype", default="float16", choices=C.WEIGHT_DTYPES)
     args = p.parse_args(argv)
-    for name in ("steps", "batch", "size", "eval_every", "log_every"):
+    for name in ("steps", "batch", "eval_every", "log_every"):
         if getattr(args, name) < 1:
             raise ValueError(f"--{name.replace('_', '-')}: must be ≥ 1, got {getattr(args, name)}")
-    if args.size % 16:
-        raise ValueError(f"--size: must be a multiple of 16 (output stride), got {args.size}")
+    for size in args.size:
+        if size < 16 or size % 16:
+            raise ValueError(f"--size: {size} is not a positive multiple of 16 (output stride)")
     out = Path(args.out or f"runs/seg_{args.crop}_{args.arch}")
     if args.restart and out.exists():
         shutil.rmtree(out)
-    module, variables = create(args.arch, args.width, jax.random.key(args.seed), args.size,
+    module, variables = create(args.arch, args.width, jax.random.key(args.seed), args.size[0],
                                reduced_tail=args.reduced_tail, dtype=args.dtype)
     cfg = TrainConfig(steps=args.steps, lr=args.lr, warmup=args.warmup,
                       weight_decay=args.weight_decay, loss=args.loss, flip=args.flip,
@@ -374,7 +386,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                       log_every=args.log_every)
     data = build_data(args)
     command = "python -m mjxrow.seg.train " + " ".join(sys.argv[1:] if argv is None else argv)
-    meta = {"command": command, "crop": args.crop, "image_size": args.size,
+    meta = {"command": command, "crop": args.crop, "image_size": args.size[0],
+            "image_sizes": args.size,
             "batch": args.batch, "device": jax.devices()[0].device_kind}
     result = fit(module, variables, data, cfg, out, meta)
     print(json.dumps(result))
