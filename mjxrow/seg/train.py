@@ -268,7 +268,8 @@ def fit(module: SegNet, variables: dict, data: Data, cfg: TrainConfig, out: str 
                 last_scores = evaluate(eval_fn, state.variables(), data.val)
                 improved = last_scores["iou"] > float(state.best_iou)
                 if improved:
-                    state = state.replace(best_iou=jnp.array(last_scores["iou"], jnp.float32))
+                    best = jax.device_put(np.float32(last_scores["iou"]), state.best_iou.sharding)
+                    state = state.replace(best_iou=best)  # committed like the rest: no recompile
                     best_step = done
                     C.save(out / "best", module, jax.device_get(state.variables()),
                            meta={**run_meta, "step": done, "val_iou": last_scores["iou"],
