@@ -135,7 +135,9 @@ def test_termination_reasons(setup):
 
 def test_cli_rejects_bad_input(tmp_path, capsys):
     cases = [["--set", "d_rr=-1"], ["--set", "nope=1"], ["--set", "d_rr=abc"],
-             ["--path-length", "80"], ["--n", "0"], ["--controller", "segzeros"]]
+             ["--path-length", "80"], ["--n", "0"], ["--controller", "segzeros", "--image", "64"],
+             ["--controller", "segmin", "--perception", "learned", "--checkpoint",
+              str(tmp_path / "no_such_checkpoint")]]
     for extra in cases:
         with pytest.raises(SystemExit) as e:
             E.main(["--preset", "vineyard", "--out", str(tmp_path), "--no-progress", *extra])
