@@ -3,10 +3,12 @@
 One MuJoCo model per static configuration, every world's data written into model arrays:
 
 - `make_model(shape, sim_cfg, robot_cfg) -> (mujoco.MjModel, mjx.Model)`: the robot, a
-  heightfield PATCH and `min(sim_cfg.obstacle_slots, shape.obstacle_slots)` obstacle slots.
+  heightfield PATCH, obstacle geoms and a few obstacle CONTACT slots.
 - `world_model(mx, field, lane, sim_cfg) -> mjx.Model`: this world's patch heights
   (`hfield_data`), the patch's placement and the obstacles near the lane (`geom_pos`,
   `geom_quat`, `geom_size`) written into the model (pure; vmap it with a batched `field`).
+- `refresh_contacts(mx, xy)`: the contact slots filled with the obstacles nearest the robot
+  (`step` does this every control period).
 - `model_axes(mx)`: `in_axes` for a model batched by `world_model` under vmap.
 - `reset(mx, field, lane, key, sim_cfg, noise) -> SimState`, `step(mx, state, cmd, sim_cfg)`,
   `pose`, `velocity`, `camera_pose`, `is_bad`, `is_flipped`, `off_patch`.
@@ -23,11 +25,18 @@ falls off its edge: `off_patch` tells when. With cells ≥ 0.196 m a wheel of ra
 touches a 2×2-cell sub-grid (8 prisms) per step instead of 3×3 (18 prisms).
 
 Obstacles. Stones and fallen branches are capsules (a stone is a capsule of half length
-`_STONE_HALF` ≈ 0: a sphere), so one slot holds either kind and slot types stay static. Per world
-the slots take the field's active obstacles that lie on the patch, nearest the lane's centre line
-first; further obstacles on the patch (more than the slots) are left out (`obstacles_dropped`
-counts them). Unused slots are parked 100 m below the patch. Contacts are only wheel↔terrain and
-wheel↔obstacle (plus chassis↔both with `chassis_contacts`); plants take no part in physics.
+`_STONE_HALF` ≈ 0: a sphere), so one geom holds either kind and geom types stay static. Per
+world, `obst_{i}` geoms (K = min(sim_cfg.obstacle_candidates, shape.obstacle_slots)) take the
+field's active obstacles that lie on the patch, nearest the lane's centre line first (more than K
+are left out: `obstacles_dropped` counts them); unused ones are parked 100 m below the patch.
+These geoms do not collide: MJX has no broadphase, so every colliding pair costs every step
+(4 contacts per wheel on the terrain, 1 per wheel and obstacle, 4 constraint rows each), and
+obstacles made the solver 2.3× slower at 6 slots. Instead J = sim_cfg.obstacle_slots colliding
+`contact_{j}` geoms are filled, at the start of every control period, with copies of the J
+obstacles nearest the chassis (`refresh_contacts`); in one period the robot moves ≤ 3.5 cm, so
+this is exact unless more than J obstacles touch the robot at once (default J = 2). Contacts are
+only wheel↔terrain and wheel↔obstacle (plus chassis↔both with `chassis_contacts`); plants take
+no part in physics.
 
 Time. The physics step is `sim_cfg.dt` rounded DOWN so that a control period holds a whole number
 of steps: substeps = ceil(1 / (control_hz · dt)), physics_dt = 1 / (control_hz · substeps). With
@@ -76,7 +85,8 @@ class SimConfig:
     patch_width: float = 6.0  # m, patch extent across the lane (y), centred on the lane
     patch_cell: float = 0.2  # m, largest heightfield cell
     patch_z: float = 4.0  # m, heightfield height range (static), must hold the patch's relief
-    obstacle_slots: int = 6  # obstacle geoms near the lane (at most shape.obstacle_slots)
+    obstacle_slots: int = 2  # colliding obstacle slots, refilled near the robot every period
+    obstacle_candidates: int = 16  # obstacles per world on the patch (≤ shape.obstacle_slots)
     chassis_contacts: bool = False  # chassis box collides with terrain and obstacles
     max_speed: float = 20.0  # m/s or rad/s: any faster velocity counts as exploded (is_bad)
     max_tilt_deg: float = 75.0  # degrees: chassis tilt beyond this counts as flipped
@@ -89,7 +99,7 @@ class SimConfig:
         for name in ("patch_back", "patch_front"):
             if getattr(self, name) < 0:
                 raise ValueError(f"sim.{name}: must be non-negative, got {getattr(self, name)}")
-        for name in ("iterations", "ls_iterations", "obstacle_slots"):
+        for name in ("iterations", "ls_iterations", "obstacle_slots", "obstacle_candidates"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"sim.{name}: must be at least 1, got {getattr(self, name)}")
 
@@ -146,12 +156,18 @@ def model_xml(shape: F.FieldShape, sim_cfg: SimConfig, robot_cfg: R.RobotConfig)
     """MJCF text of the physics model for `shape` (no assets: the heightfield starts flat)."""
     ny, nx = sim_cfg.patch_cells
     lx, ly = sim_cfg.patch_size
-    n_obst = min(sim_cfg.obstacle_slots, shape.obstacle_slots)
+    n_obst, n_slots = _obstacle_counts(shape, sim_cfg)
     obst = "\n".join(
         f'    <geom name="obst_{i}" type="capsule" size="{_MAX_OBST[0]} {_MAX_OBST[1]}" '
-        f'pos="0 0 {-_PARK_DEPTH - 3 * i}" contype="0" conaffinity="1" condim="3" group="2" '
+        f'pos="0 0 {-_PARK_DEPTH - 3 * i}" contype="0" conaffinity="0" group="2" '
         f'rgba="0.5 0.45 0.4 1"/>'
         for i in range(n_obst)
+    )
+    obst += "".join(
+        f'\n    <geom name="contact_{j}" type="capsule" size="{_MAX_OBST[0]} {_MAX_OBST[1]}" '
+        f'pos="0 0 {-_PARK_DEPTH - 3 * (n_obst + j)}" contype="0" conaffinity="1" condim="3" '
+        f'group="3" rgba="1 0 0 0.3"/>'
+        for j in range(n_slots)
     )
     robot = R.mjcf_body(robot_cfg, pos=(0.0, 0.0, robot_cfg.wheel_radius + 0.01),
                         chassis_contacts=sim_cfg.chassis_contacts)
@@ -208,13 +224,23 @@ def robot_numbers(mx: mjx.Model | mujoco.MjModel) -> dict[str, float]:
     return {k: float(v) for k, v in zip(R.NUMERIC_KEYS, vals, strict=True)}
 
 
-def _geom_ids(mx: mjx.Model | mujoco.MjModel) -> tuple[int, np.ndarray]:
-    terrain = mjx.name2id(mx, mujoco.mjtObj.mjOBJ_GEOM, TERRAIN)
-    obst, i = [], 0
-    while (g := mjx.name2id(mx, mujoco.mjtObj.mjOBJ_GEOM, f"obst_{i}")) >= 0:
-        obst.append(g)
-        i += 1
-    return terrain, np.asarray(obst, np.int32)
+def _obstacle_counts(shape: F.FieldShape, sim_cfg: SimConfig) -> tuple[int, int]:
+    """(obstacle geoms per world, colliding contact slots)."""
+    k = min(sim_cfg.obstacle_candidates, shape.obstacle_slots)
+    return k, min(sim_cfg.obstacle_slots, k)
+
+
+def _geom_ids(mx: mjx.Model | mujoco.MjModel) -> tuple[int, np.ndarray, np.ndarray]:
+    """(terrain geom id, obstacle geom ids [K], contact-slot geom ids [J]) (static)."""
+
+    def series(prefix):
+        ids, i = [], 0
+        while (g := mjx.name2id(mx, mujoco.mjtObj.mjOBJ_GEOM, f"{prefix}_{i}")) >= 0:
+            ids.append(g)
+            i += 1
+        return np.asarray(ids, np.int32)
+
+    return mjx.name2id(mx, mujoco.mjtObj.mjOBJ_GEOM, TERRAIN), series("obst"), series("contact")
 
 
 # arrays world_model writes: batched along axis 0 by model_axes
@@ -284,7 +310,7 @@ def _select_obstacles(field: F.Field, centre: jax.Array, sim_cfg: SimConfig, k: 
 def obstacles_dropped(field: F.Field, lane: jax.Array, sim_cfg: SimConfig,
                       shape: F.FieldShape) -> jax.Array:
     """int32 []: active obstacles on the patch that found no physics slot (0 when all fit)."""
-    k = min(sim_cfg.obstacle_slots, shape.obstacle_slots)
+    k = _obstacle_counts(shape, sim_cfg)[0]
     return _select_obstacles(field, patch_frame(field, lane, sim_cfg), sim_cfg, k)[2]
 
 
@@ -298,7 +324,7 @@ def world_model(mx: mjx.Model, field: F.Field, lane: jax.Array, sim_cfg: SimConf
       (capsule lying along its yaw) nearest the lane; unused slots parked below the patch.
 
     field: one Field (no batch axis); lane: int32 [] lane index (e.g. `field.robot_lane`)."""
-    terrain_id, obst_ids = _geom_ids(mx)
+    terrain_id, obst_ids, _ = _geom_ids(mx)
     centre = patch_frame(field, lane, sim_cfg)
     h = patch_heights(field, lane, sim_cfg)
     h_min = jnp.min(h)
@@ -323,9 +349,33 @@ def world_model(mx: mjx.Model, field: F.Field, lane: jax.Array, sim_cfg: SimConf
         geom_pos = geom_pos.at[obst_ids].set(pos.astype(geom_pos.dtype))
         geom_quat = geom_quat.at[obst_ids].set(quat.astype(geom_quat.dtype))
         geom_size = geom_size.at[obst_ids].set(size.astype(geom_size.dtype))
-    return mx.tree_replace({"hfield_data": data.astype(mx.hfield_data.dtype),
-                            "geom_pos": geom_pos, "geom_quat": geom_quat,
-                            "geom_size": geom_size})
+    mx = mx.tree_replace({"hfield_data": data.astype(mx.hfield_data.dtype),
+                          "geom_pos": geom_pos, "geom_quat": geom_quat, "geom_size": geom_size})
+    start = jnp.stack([field.row_x[1] - sim_cfg.path_length, field.lane_y[lane]])
+    return refresh_contacts(mx, start)
+
+
+def refresh_contacts(mx: mjx.Model, xy: jax.Array) -> mjx.Model:
+    """`mx` with its colliding `contact_{j}` slots holding copies of the J obstacle geoms nearest
+    to the point xy float [2] (world, m): nearest by the horizontal distance from xy to the
+    obstacle's segment minus its radius; parked obstacles rank last (pure, jittable).
+    `step` calls it with the chassis position at the start of every control period."""
+    _, obst_ids, slot_ids = _geom_ids(mx)
+    j = slot_ids.shape[0]
+    if j == 0:
+        return mx
+    pos, quat, size = mx.geom_pos[obst_ids], mx.geom_quat[obst_ids], mx.geom_size[obst_ids]
+    w, x, y, z = quat[:, 0], quat[:, 1], quat[:, 2], quat[:, 3]
+    axis = jnp.stack([2 * (x * z + w * y), 2 * (y * z - w * x)], -1)  # local z in world, xy
+    rel = xy - pos[:, :2]
+    t = jnp.clip(jnp.sum(rel * axis, -1) / jnp.maximum(jnp.sum(axis * axis, -1), 1e-9),
+                 -size[:, 1], size[:, 1])
+    dist = jnp.linalg.norm(rel - t[:, None] * axis, axis=-1) - size[:, 0]
+    parked = pos[:, 2] < mx.geom_pos[_geom_ids(mx)[0], 2] - 0.5 * _PARK_DEPTH
+    _, idx = jax.lax.top_k(-jnp.where(parked, jnp.inf, dist), j)
+    return mx.tree_replace({"geom_pos": mx.geom_pos.at[slot_ids].set(pos[idx]),
+                            "geom_quat": mx.geom_quat.at[slot_ids].set(quat[idx]),
+                            "geom_size": mx.geom_size.at[slot_ids].set(size[idx])})
 
 
 def world_mjmodel(m: mujoco.MjModel, mx_world: mjx.Model) -> mujoco.MjModel:
@@ -349,7 +399,7 @@ def world_mjmodel(m: mujoco.MjModel, mx_world: mjx.Model) -> mujoco.MjModel:
 
 def _patch_surface(mx: mjx.Model, sim_cfg: SimConfig, x: jax.Array, y: jax.Array) -> jax.Array:
     """Height [m] of the world's patch surface (as MuJoCo triangulates it) at world (x, y)."""
-    terrain_id, _ = _geom_ids(mx)
+    terrain_id = _geom_ids(mx)[0]
     ny, nx = sim_cfg.patch_cells
     c = mx.geom_pos[terrain_id]
     grid = mx.hfield_data.reshape(ny, nx) * sim_cfg.patch_z
@@ -396,10 +446,12 @@ def reset(mx: mjx.Model, field: F.Field, lane: jax.Array | None, key: jax.Array,
 def step(mx: mjx.Model, state: SimState, cmd: jax.Array, sim_cfg: SimConfig) -> SimState:
     """Advance one control period (sim_cfg.substeps physics steps) under cmd float [2] =
     (v [m/s], ω [rad/s]), clipped to the robot's limits and mapped to wheel speeds
-    (robot.wheel_speeds). Kinematics (xpos, xmat, cam_xpos, ...) are refreshed to the final
-    qpos, so `camera_pose` and `pose` describe the same instant."""
+    (robot.wheel_speeds). The obstacle contact slots are refilled first around the chassis
+    (`refresh_contacts`). Kinematics (xpos, xmat, cam_xpos, ...) are refreshed to the final
+    qpos, so `camera_pose` and `pose` describe the same instant. mx: the world's model."""
     ctrl = R.wheel_speeds(cmd, robot_numbers(mx))
     d = state.data.replace(ctrl=ctrl.astype(state.data.ctrl.dtype))
+    mx = refresh_contacts(mx, d.qpos[:2])
 
     def body(d, _):
         return mjx.step(mx, d), None
@@ -460,7 +512,7 @@ def is_bad(state: SimState, sim_cfg: SimConfig | None = None) -> jax.Array:
 def off_patch(mx: mjx.Model, state: SimState, sim_cfg: SimConfig, margin: float = 0.3) -> jax.Array:
     """bool []: the chassis origin is within `margin` [m] of the terrain patch's edge or beyond
     (where the robot would fall off the physics terrain). mx: the world's model."""
-    terrain_id, _ = _geom_ids(mx)
+    terrain_id = _geom_ids(mx)[0]
     c = mx.geom_pos[terrain_id, :2]
     half = 0.5 * jnp.asarray(sim_cfg.patch_size) - margin
     return jnp.any(jnp.abs(state.data.qpos[:2] - c) > half)
