@@ -153,26 +153,86 @@ def episode(mx, field: F.Field, lane: jax.Array, key: jax.Array, noise: sim.Pose
                steps=jnp.sum(out["alive"]).astype(jnp.int32), vel=out["vel"])
 
 
+def canonical_axes(params_axes: Any) -> tuple:
+    """A hashable form of a vmap in_axes prefix pytree for policy params: (treedef, leaves),
+    each leaf None (shared by the batch) or 0 (per episode). ValueError for other leaves."""
+    leaves, treedef = jax.tree.flatten(params_axes, is_leaf=lambda x: x is None)
+    for a in leaves:
+        if a is not None and (isinstance(a, bool) or a != 0):
+            raise ValueError(f"params_axes: leaves must be None (shared) or 0 (per episode), "
+                             f"got {a!r} in {params_axes!r}")
+    return treedef, tuple(leaves)
+
+
+def compiled(policy, cfg: EpisodeConfig, params_axes: Any = None):
+    """jit(vmap(episode)) for one policy, static config and policy-params axes: a function
+    `(mx, fields [B], lanes [B], keys [B], noise, policy_params) -> Log [B]`. params_axes:
+    vmap in_axes prefix of the policy params (None: all shared, 0: all per episode, or a
+    pytree such as `((None, 0), 0)`). Cached, so equal (policy, cfg, axes) reuse one compiled
+    function."""
+    return _compiled(policy, cfg, canonical_axes(params_axes))
+
+
 @functools.lru_cache(maxsize=64)
-def compiled(policy, cfg: EpisodeConfig, params_batched: bool = False):
-    """jit(vmap(episode)) for one policy and static config: a function
-    `(mx, fields [B], lanes [B], keys [B], noise, policy_params) -> Log [B]`. Cached, so equal
-    (policy, cfg) reuse one compiled function; noise stds are not part of the key."""
+def _compiled(policy, cfg: EpisodeConfig, axes: tuple):
+    treedef, leaves = axes
 
     def one(mx, field, lane, key, noise, params):
         return episode(mx, field, lane, key, noise, policy, params, cfg)
 
-    axes = (None, 0, 0, 0, None, 0 if params_batched else None)
-    return jax.jit(jax.vmap(one, in_axes=axes))
+    in_axes = (None, 0, 0, 0, None, jax.tree.unflatten(treedef, leaves))
+    return jax.jit(jax.vmap(one, in_axes=in_axes))
 
 
 def _static(cfg: EpisodeConfig) -> EpisodeConfig:
     return dataclasses.replace(cfg, lateral_std=0.0, heading_std=0.0)
 
 
+def _split_params(policy_params: Any, params_axes: Any) -> list[tuple[tuple, Any, Any]]:
+    """(path, axis, part) triples of the policy params cut along the axes prefix pytree."""
+    treedef, leaves = canonical_axes(params_axes)
+    axes_tree = jax.tree.unflatten(treedef, leaves)
+    paths = [p for p, _ in jax.tree_util.tree_flatten_with_path(
+        axes_tree, is_leaf=lambda x: x is None)[0]]
+    try:
+        parts = treedef.flatten_up_to(policy_params)
+    except (ValueError, TypeError) as e:
+        raise ValueError(f"params_axes: {axes_tree!r} is not a prefix of the policy params' "
+                         f"structure ({e})") from None
+    return list(zip(paths, leaves, parts, strict=True))
+
+
+def check_params(policy_params: Any, params_axes: Any, batch: int) -> None:
+    """ValueError unless every per-episode leaf of the policy params has a leading [batch]."""
+    for prefix, axis, part in _split_params(policy_params, params_axes):
+        if axis is None:
+            continue
+        for path, x in jax.tree_util.tree_leaves_with_path(part):
+            shape = np.shape(x)
+            if not shape or shape[0] != batch:
+                raise ValueError(f"policy_params{jax.tree_util.keystr(tuple(prefix) + path)}: "
+                                 f"per-episode (axis 0) but has shape {shape}, expected a "
+                                 f"leading [{batch}]")
+
+
+def stack_params(trees: list, params_axes: Any = 0) -> Any:
+    """Batch per-episode policy params: leaves under a 0 axis are stacked into [B, ...]; parts
+    under a None axis (shared, e.g. segmenter weights) are taken from the first tree."""
+    treedef, leaves = canonical_axes(params_axes)
+    cut = [treedef.flatten_up_to(t) for t in trees]
+    out = []
+    for i, axis in enumerate(leaves):
+        parts = [c[i] for c in cut]
+        out.append(parts[0] if axis is None else jax.tree.map(
+            lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *parts))
+    return treedef.unflatten(out)
+
+
 def rollout_args(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array,
-                 cfg: EpisodeConfig) -> tuple:
-    """Checked arguments of the compiled function (host): (mx, fields, lanes, keys, noise)."""
+                 cfg: EpisodeConfig, policy_params: Any = None, params_axes: Any = None
+                 ) -> tuple:
+    """Checked arguments of the compiled function (host): (mx, fields, lanes, keys, noise,
+    policy_params)."""
     valid = np.asarray(fields.valid)
     if valid.ndim != 1:
         raise ValueError(f"fields: expected a batch (leading [B] axis), valid has shape "
@@ -189,21 +249,26 @@ def rollout_args(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array,
     if lanes.shape != (B,):
         raise ValueError(f"lanes: expected shape ({B},), got {lanes.shape}")
     noise = sim.pose_noise(cfg.lateral_std, cfg.heading_std)
-    return mx, fields, lanes, keys, noise
+    check_params(policy_params, params_axes, B)
+    return mx, fields, lanes, keys, noise, policy_params
 
 
 def rollout(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array, policy,
-            policy_params: Any, ep_cfg: EpisodeConfig, params_batched: bool = False) -> Log:
+            policy_params: Any, ep_cfg: EpisodeConfig, params_axes: Any = None) -> Log:
     """B episodes in one compiled call: jit(vmap(scan)).
 
     mx: MJX model of the fields' static shape (sim.make_model); fields: Field with a leading
     [B] axis (all valid); lanes: int32 [B] lane per field, or None for each field's
     `field.robot_lane`; keys: PRNG keys [B]; policy: a `control.Policy` (e.g.
-    `control.as_policy("oracle")`, `control.with_perception(...)`), hashable: the same object
-    reuses the compiled function; policy_params: its params, shared by all episodes, or with a
-    leading [B] axis when `params_batched`. Returns a Log with a leading [B] axis."""
-    args = rollout_args(mx, fields, lanes, keys, ep_cfg)
-    return compiled(policy, _static(ep_cfg), params_batched)(*args, policy_params)
+    `control.as_policy("oracle")`, `perception_policy(...)`), hashable: the same
+    object reuses the compiled function; policy_params: its params; params_axes: which of them
+    are per episode (a vmap in_axes prefix pytree): None (default) shares them all, 0 gives
+    every leaf a leading [B] axis, and a pytree mixes the two, e.g. `((None, 0), 0)` for
+    `((segmenter weights, conditions), controller gains)`: weights shared, the rest per
+    episode. New values of any of them never recompile; other axes do. Returns a Log with a
+    leading [B] axis."""
+    args = rollout_args(mx, fields, lanes, keys, ep_cfg, policy_params, params_axes)
+    return compiled(policy, _static(ep_cfg), params_axes)(*args)
 
 
 def summarise(log: Log, ep_cfg: EpisodeConfig) -> dict[str, jax.Array]:
@@ -383,8 +448,8 @@ def run_cli(args: argparse.Namespace) -> pd.DataFrame:
         gen = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)
         fields = jax.block_until_ready(gen(params, shape, keys[:, 0]))
         _, mx = sim.make_model(shape, cfg.sim)
-    call_args = (*rollout_args(mx, fields, None, keys[:, 1], cfg), pparams)
-    fn = compiled(policy, _static(cfg), False)
+    call_args = rollout_args(mx, fields, None, keys[:, 1], cfg, pparams)
+    fn = compiled(policy, _static(cfg))
     t0 = time.perf_counter()
     with _ticker("compiling", show):
         exe = fn.lower(*call_args).compile()

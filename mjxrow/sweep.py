@@ -261,7 +261,7 @@ def evaluate_group(group: Group, cfg: C.SweepConfig,
         lanes = jax.vmap(F.robot_lane)(fields)
         pol = put(_stack([pparams[c] for c, _ in eps]))
         log = E.rollout(mx, fields, lanes, put(keys[:, 1]), policy, pol, ep_cfg,
-                        params_batched=True)
+                        params_axes=0)
         k = len(real)
         met = {name: np.asarray(v)[:k] for name, v in E.summarise(log, ep_cfg).items()}
         rows = pd.DataFrame({"cell": [c for c, _ in real], "episode": [e for _, e in real],

@@ -23,21 +23,24 @@ CFG = E.EpisodeConfig(crop="vineyard")  # 600 steps, 20 m, goal radius 0.40 m
 ORACLE = C.oracle_params()
 
 
-def _test_act(p, state, obs, key):
-    """mode 0: the oracle; mode 1: hold heading yaw_target at speed v."""
-    _, oracle = C.oracle_act(ORACLE, state, obs)
+def _test_act(params, state, obs, key):
+    """params = (oracle params, shared; per-episode dict): mode 0: the oracle; mode 1: hold
+    heading yaw_target at speed v."""
+    oracle_p, p = params
+    _, oracle = C.oracle_act(oracle_p, state, obs)
     hold = jnp.stack([p["v"], jnp.clip(2.0 * (p["yaw"] - obs.pose[2]), -1.0, 1.0)])
     return state, jnp.where(p["mode"] == 0, oracle, hold)
 
 
 POLICY = C.Policy(init=lambda p: (), act=_test_act)
+AXES = (None, 0)  # oracle gains shared by the batch, the rest per episode
 
 
-def policy_params(mode, v=0.0, yaw=0.0):
+def policy_params(mode, v=0.0, yaw=0.0, oracle=ORACLE):
     def arr(x):
         return jnp.broadcast_to(jnp.asarray(x, jnp.float32), (B,))
 
-    return {"mode": arr(mode), "v": arr(v), "yaw": arr(yaw)}
+    return oracle, {"mode": arr(mode), "v": arr(v), "yaw": arr(yaw)}
 
 
 generate = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)
@@ -58,7 +61,7 @@ def setup():
                          d_pp=np.linspace(0.9, 1.2, B))
     traces0 = E.TRACES
     log = E.rollout(mx, fields, None, jax.random.split(jax.random.key(1), B), POLICY,
-                    policy_params(0), CFG, params_batched=True)
+                    policy_params(0), CFG, params_axes=AXES)
     return mx, fields, jax.tree.map(np.asarray, log), E.TRACES - traces0
 
 
@@ -90,10 +93,42 @@ def test_new_field_params_do_not_retrace(setup):
     fields2 = make_fields(5, d_rr=np.linspace(3.0, 2.5, B), d_RR=np.linspace(3.0, 2.5, B),
                           plant_width=np.linspace(0.4, 0.7, B))
     log2 = E.rollout(mx, fields2, None, jax.random.split(jax.random.key(2), B), POLICY,
-                     policy_params(0), CFG, params_batched=True)
+                     policy_params(0), CFG, params_axes=AXES)
     assert E.TRACES == traces0
     assert not np.allclose(np.asarray(log2.lane_y), log1.lane_y)
     assert np.asarray(log2.reason == M.GOAL).all()
+
+
+def test_new_shared_params_do_not_retrace(setup):
+    """The shared part (None axis) is traced too: slower oracle gains, same compiled call.
+    At 0.4 m/s the 40 s timeout comes after about 16 m, before the 20 m lane's end."""
+    mx, fields, _, _ = setup
+    traces0 = E.TRACES
+    log = E.rollout(mx, fields, None, jax.random.split(jax.random.key(1), B), POLICY,
+                    policy_params(0, oracle=C.oracle_params(v_max=0.4)), CFG, params_axes=AXES)
+    assert E.TRACES == traces0
+    log = jax.tree.map(np.asarray, log)
+    assert (log.reason == M.TIMEOUT).all(), log.reason
+    driven = log.pose[:, -1, 0] - log.start[:, 0]
+    assert ((driven > 15.5) & (driven < 16.0)).all(), driven
+
+
+def test_params_axes_are_checked():
+    params = ({"w": jnp.ones(3)}, {"g": jnp.ones(B)})
+    E.check_params(params, (None, 0), B)
+    E.check_params(params, None, B)
+    with pytest.raises(ValueError, match=r"policy_params\[0\]\['w'\]: per-episode .* \(3,\)"):
+        E.check_params(params, 0, B)
+    with pytest.raises(ValueError, match=r"policy_params\[1\]\['g'\]: .* \(\)"):
+        E.check_params(({"w": 1.0}, {"g": 2.0}), (None, 0), B)
+    with pytest.raises(ValueError, match="params_axes: leaves must be None"):
+        E.check_params(params, (None, 1), B)
+    with pytest.raises(ValueError, match="not a prefix"):
+        E.check_params(params, (None, 0, 0), B)
+    # stacking per-episode parts, keeping the shared one as it is
+    w = {"w": jnp.arange(3.0)}
+    stacked = E.stack_params([(w, {"g": 1.0}), (w, {"g": 2.0})], (None, 0))
+    assert stacked[0] is w and stacked[1]["g"].tolist() == [1.0, 2.0]
 
 
 def test_termination_reasons(setup):
@@ -101,13 +136,13 @@ def test_termination_reasons(setup):
     # ±0.25 rad: the 0.43 m wide swept band meets a trunk row over 0.43 / sin 0.25 = 1.74 m,
     # more than the trunk spacing (≤ 1.2 m), so it cannot slip between two trunks
     q = 0.25
-    params = {"mode": jnp.array([1, 1, 1, 1, 1, 1, 0, 1], jnp.float32),
-              "v": jnp.array([0.0, -0.5, jnp.nan, 0.1, 0.5, 0.5, 0.0, 0.5], jnp.float32),
-              "yaw": jnp.array([0.0, 0.0, 0.0, 0.0, q, -q, 0.0, 0.0], jnp.float32)}
+    params = ORACLE, {"mode": jnp.array([1, 1, 1, 1, 1, 1, 0, 1], jnp.float32),
+                      "v": jnp.array([0.0, -0.5, jnp.nan, 0.1, 0.5, 0.5, 0.0, 0.5], jnp.float32),
+                      "yaw": jnp.array([0.0, 0.0, 0.0, 0.0, q, -q, 0.0, 0.0], jnp.float32)}
     traces0 = E.TRACES
     log = jax.tree.map(np.asarray, E.rollout(mx, fields, None,
                                              jax.random.split(jax.random.key(3), B), POLICY,
-                                             params, CFG, params_batched=True))
+                                             params, CFG, params_axes=AXES))
     assert E.TRACES == traces0  # new policy params do not retrace either
     names = [M.REASONS[r] for r in log.reason]
     assert names == ["stuck", "off_patch", "sim_error", "timeout", "collision", "collision",
