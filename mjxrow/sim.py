@@ -439,7 +439,7 @@ def reset(mx: mjx.Model, field: F.Field, lane: jax.Array | None, key: jax.Array,
     d = mjx.make_data(mx)
     qpos = d.qpos.at[:3].set(jnp.stack([x0, y0, z0])).at[3:7].set(quat).at[7:].set(0.0)
     d = d.replace(qpos=qpos.astype(d.qpos.dtype), qvel=jnp.zeros_like(d.qvel))
-    d = mjx.forward(mx, d)
+    d = mjx.camlight(mx, mjx.kinematics(mx, d))  # poses only: step begins with mjx.forward
     return SimState(data=d, steps=jnp.int32(0))
 
 
