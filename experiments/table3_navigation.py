@@ -136,8 +136,11 @@ def checkpoint_missing(preset: str) -> str | None:
 
     try:
         ckpt.resolve(preset)
-    except ValueError as e:
-        return str(e)
+    except ValueError:
+        d = Path(ckpt.CHECKPOINT_DIR)
+        d = d.relative_to(ROOT) if d.is_relative_to(ROOT) else d
+        return (f"none in {d / preset}/ or {d / 'all'}/; train one with `python -m "
+                f"mjxrow.seg.train --crop {preset} --export-to {d / preset}`")
     return None
 
 
@@ -279,7 +282,7 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
     for c, p in bar:
         bar.set_postfix_str(f"{c} / {p}")
         if c == "segzeros_learned" and (why := checkpoint_missing(p)) is not None:
-            msg = f"{CONTROLLERS[c][0]} on {p}: no segmenter checkpoint ({why})"
+            msg = f"{CONTROLLERS[c][0]} on {p}: no segmenter checkpoint: {why}"
             left_out.append(msg)
             tqdm.write(f"skipped: {msg}", file=sys.stderr)
             continue
