@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
-from mjxrow import control, sim
+from mjxrow import closed_loop, control, sim
 from mjxrow import field as F
 from mjxrow import metrics as M
 from mjxrow.metrics import Log
@@ -260,7 +260,7 @@ def rollout(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array, polic
     mx: MJX model of the fields' static shape (sim.make_model); fields: Field with a leading
     [B] axis (all valid); lanes: int32 [B] lane per field, or None for each field's
     `field.robot_lane`; keys: PRNG keys [B]; policy: a `control.Policy` (e.g.
-    `control.as_policy("oracle")`, `perception_policy(...)`), hashable: the same
+    `control.as_policy("oracle")`, `closed_loop.perception_policy(...)`), hashable: the same
     object reuses the compiled function; policy_params: its params; params_axes: which of them
     are per episode (a vmap in_axes prefix pytree): None (default) shares them all, 0 gives
     every leaf a leading [B] axis, and a pytree mixes the two, e.g. `((None, 0), 0)` for
@@ -274,54 +274,6 @@ def rollout(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array, polic
 def summarise(log: Log, ep_cfg: EpisodeConfig) -> dict[str, jax.Array]:
     """metrics.summarise with this config's control period."""
     return M.summarise(log, ep_cfg.control_dt)
-
-
-# ---------------------------------------------------------------------------------------------
-# Perception in the loop: render → (segment) → mask controller
-
-SOURCES = ("ground_truth", "learned")
-
-
-@functools.lru_cache(maxsize=16)
-def perception_policy(controller: str, shape: F.FieldShape, intr, source: str = "ground_truth",
-                      checkpoint: str = "", render_cfg=None):
-    """A mask controller ("segzeros", "segmin") fed by the renderer: its ground-truth plant mask
-    (`source="ground_truth"`) or the learned segmenter's mask of the rendered RGB
-    (`"learned"`, `checkpoint`: a crop name or checkpoint directory for seg.checkpoint.load).
-    Depth is the rendered depth. intr: render.Intrinsics (static).
-
-    Returns (policy, perception_params); the policy's params are the pair (perception_params,
-    controller params). perception_params: {"cond": render.Conditions} plus, for "learned",
-    {"variables": the segmenter's variables, "threshold": float32 []}. Cached: equal arguments
-    give the same policy, so rollouts reuse its compiled function."""
-    from mjxrow import render
-
-    if source not in SOURCES:
-        raise ValueError(f"source: unknown {source!r}; expected one of {SOURCES}")
-    c = control.get(controller)
-    if not c.needs_mask:
-        raise ValueError(f"controller: {controller!r} takes no mask")
-    rcfg = render_cfg or render.RenderConfig()
-    params: dict[str, Any] = {"cond": render.conditions("sunny")}
-    if source == "ground_truth":
-        def perceive(p, obs, key):
-            frame = render.render(obs.field, shape, obs.cam_pos, obs.cam_rot, intr, p["cond"],
-                                  None, rcfg)
-            return frame.mask, frame.depth
-    else:
-        from mjxrow.seg import checkpoint as ckpt
-        from mjxrow.seg import model as seg_model
-
-        module, variables = ckpt.load(checkpoint or shape.crop)
-        params.update(variables=variables, threshold=jnp.float32(0.7))
-
-        def perceive(p, obs, key):
-            frame = render.render(obs.field, shape, obs.cam_pos, obs.cam_rot, intr, p["cond"],
-                                  key, rcfg)
-            mask = seg_model.predict_mask(module, p["variables"], frame.rgb[None],
-                                          p["threshold"])[0]
-            return mask, frame.depth
-    return control.with_perception(c, perceive), params
 
 
 # ---------------------------------------------------------------------------------------------
@@ -362,9 +314,10 @@ def _ticker(desc: str, enabled: bool = True):
 
 
 def make_policy(controller: str, shape: F.FieldShape, args: argparse.Namespace):
-    """(policy, params) for the CLI's controller choice."""
+    """(policy, params, params_axes) for the CLI's controller choice: the oracle, or a mask
+    controller in the perception loop (closed_loop.make), segmenter weights shared."""
     if controller == "oracle":
-        return control.as_policy("oracle"), control.oracle_params(lookahead=args.lookahead)
+        return control.as_policy("oracle"), control.oracle_params(lookahead=args.lookahead), None
     from mjxrow import render
 
     w, _, h = args.image.partition("x")
@@ -374,10 +327,9 @@ def make_policy(controller: str, shape: F.FieldShape, args: argparse.Namespace):
         raise ValueError(f"--image: expected WIDTHxHEIGHT, got {args.image!r} ({e})") from None
     method = "zeros" if controller == "segzeros" else "min"
     cparams = control.seg_params(method, args.variant, image_hw=(intr.height, intr.width))
-    policy, pparams = perception_policy(controller, shape, intr, args.perception,
-                                        args.checkpoint)
-    pparams = {**pparams, "cond": render.conditions(args.condition)}
-    return policy, (pparams, cparams)
+    policy, pparams = closed_loop.make(controller, shape, intr, args.perception,
+                                      args.checkpoint, args.condition)
+    return policy, (pparams, cparams), None
 
 
 def results_table(params: F.FieldParams, seeds: np.ndarray, lanes: np.ndarray,
@@ -409,7 +361,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--lookahead", type=float, default=1.0, help="m, oracle look-ahead")
     p.add_argument("--variant", default="paper", choices=("paper", "public"),
                    help="SegZeros/SegMin law: the paper's or the authors' public code's")
-    p.add_argument("--perception", default="ground_truth", choices=SOURCES,
+    p.add_argument("--perception", default="ground_truth", choices=closed_loop.SOURCES,
                    help="mask source of segzeros/segmin")
     p.add_argument("--checkpoint", default="", help="segmenter checkpoint (default: the crop's)")
     p.add_argument("--image", default="112x64", help="camera image WIDTHxHEIGHT [px]")
@@ -440,7 +392,7 @@ def run_cli(args: argparse.Namespace) -> pd.DataFrame:
                         lateral_std=args.lateral_std,
                         heading_std=math.radians(args.heading_std_deg),
                         sim=sim.SimConfig(path_length=args.path_length))
-    policy, pparams = make_policy(args.controller, shape, args)
+    policy, pparams, axes = make_policy(args.controller, shape, args)
     seeds = args.seed + np.arange(args.n)
     keys = jax.vmap(lambda s: jax.random.split(jax.random.key(s)))(jnp.asarray(seeds))
     show = not args.no_progress
@@ -448,8 +400,8 @@ def run_cli(args: argparse.Namespace) -> pd.DataFrame:
         gen = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)
         fields = jax.block_until_ready(gen(params, shape, keys[:, 0]))
         _, mx = sim.make_model(shape, cfg.sim)
-    call_args = rollout_args(mx, fields, None, keys[:, 1], cfg, pparams)
-    fn = compiled(policy, _static(cfg))
+    call_args = rollout_args(mx, fields, None, keys[:, 1], cfg, pparams, axes)
+    fn = compiled(policy, _static(cfg), axes)
     t0 = time.perf_counter()
     with _ticker("compiling", show):
         exe = fn.lower(*call_args).compile()

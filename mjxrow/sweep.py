@@ -192,40 +192,48 @@ def controller_params(cfg: C.SweepConfig):
 
 
 def make_policy(cfg: C.SweepConfig, shape: F.FieldShape, intr):
-    """(policy, params_of(cell_cfg)) for a group. Mask controllers see the world through the
-    renderer: its ground-truth plant mask, or the learned segmenter's mask of its RGB image
-    (weights closed over, shared by the batch). Per-cell params: (condition, threshold) and
-    the controller's gains, all traced."""
+    """(policy, params_of(cell_cfg)) for a group. The oracle's params are its gains; a mask
+    controller runs in the perception loop of `closed_loop` (render → ground-truth mask, or
+    the learned segmenter of `perception.checkpoint`), its params are
+    `(PerceptionParams(condition, threshold, segmenter weights), controller gains)`: the
+    weights are loaded once and the same object for every cell (shared by a batch, see
+    `params_axes`), everything else per cell and traced."""
+    from mjxrow import closed_loop
     from mjxrow import control as K
-    from mjxrow import render
 
     name = cfg.controller.name
     if name == "oracle":
         return K.as_policy("oracle"), controller_params
-    learned = cfg.perception.source == "learned"
-    if learned:
-        from mjxrow.seg import checkpoint as ckpt
-        from mjxrow.seg import model as segmodel
-
-        module, variables = ckpt.load(C.checkpoint_path(cfg))
-
-    def perceive(pp, obs, key):
-        cond, threshold = pp
-        frame = render.render(obs.field, shape, obs.cam_pos, obs.cam_rot, intr, cond)
-        if not learned:
-            return frame.mask, frame.depth
-        logits = segmodel.apply(module, variables, frame.rgb[None])[0]
-        return jax.nn.sigmoid(logits) > threshold, frame.depth
+    policy, base = closed_loop.make(name, shape, intr, cfg.perception.source,
+                                    C.checkpoint_path(cfg))
 
     def params_of(c: C.SweepConfig):
-        cond = render.conditions(c.perception.condition)
-        return (cond, jnp.float32(c.perception.threshold)), controller_params(c)
+        return (closed_loop.perception_params(c.perception.condition, c.perception.threshold,
+                                              base.variables), controller_params(c))
 
-    return K.with_perception(name, perceive), params_of
+    return policy, params_of
+
+
+def params_axes(cfg: C.SweepConfig):
+    """vmap axes of a group's policy params (episode.rollout's params_axes): the oracle's all
+    per episode; a mask controller's segmenter weights shared, the rest per episode."""
+    from mjxrow import closed_loop
+
+    return 0 if cfg.controller.name == "oracle" else closed_loop.PARAMS_AXES
 
 
 def _stack(trees):
     return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *trees)
+
+
+def _put_params(params, axes, batched, replicated):
+    """device_put of policy params: per-episode parts sharded on the batch, shared replicated."""
+    from mjxrow import episode as E
+
+    treedef, leaves = E.canonical_axes(axes)
+    parts = treedef.flatten_up_to(params)
+    return treedef.unflatten([jax.device_put(x, replicated if a is None else batched)
+                              for a, x in zip(leaves, parts, strict=True)])
 
 
 def evaluate_group(group: Group, cfg: C.SweepConfig,
@@ -241,10 +249,12 @@ def evaluate_group(group: Group, cfg: C.SweepConfig,
     robot_cfg, ep_cfg, intr = static_configs(gcfg, shape)
     _, mx = sim.make_model(shape, ep_cfg.sim, robot_cfg)
     policy, params_of = make_policy(gcfg, shape, intr)
+    axes = params_axes(gcfg)
     devices = jax.devices()
     mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
     batched = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
-    mx = jax.device_put(mx, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))
+    replicated = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
+    mx = jax.device_put(mx, replicated)
     n = len(devices)
     B = -(-min(cfg.batch_size, len(group.episodes)) // n) * n
     by_cell = {c.index: c.cfg for c in group.cells}
@@ -259,9 +269,10 @@ def evaluate_group(group: Group, cfg: C.SweepConfig,
         params = put(_stack([fparams[c] for c, _ in eps]))
         fields = _generate_fn()(params, shape, put(keys[:, 0]))
         lanes = jax.vmap(F.robot_lane)(fields)
-        pol = put(_stack([pparams[c] for c, _ in eps]))
+        pol = _put_params(E.stack_params([pparams[c] for c, _ in eps], axes), axes, batched,
+                          replicated)
         log = E.rollout(mx, fields, lanes, put(keys[:, 1]), policy, pol, ep_cfg,
-                        params_axes=0)
+                        params_axes=axes)
         k = len(real)
         met = {name: np.asarray(v)[:k] for name, v in E.summarise(log, ep_cfg).items()}
         rows = pd.DataFrame({"cell": [c for c, _ in real], "episode": [e for _, e in real],

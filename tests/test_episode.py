@@ -219,7 +219,7 @@ def test_cli_writes_episodes_csv(tmp_path, capsys):
 def test_segzeros_on_rendered_masks_steers_back():
     """Closed loop through the renderer's ground-truth mask: from a lateral offset SegZeros
     turns back toward the lane centre (image column 0 is the left: signs end to end)."""
-    from mjxrow import render
+    from mjxrow import closed_loop, render
 
     n = 2
     params = F.make_params("vineyard", **FLAT)
@@ -230,7 +230,7 @@ def test_segzeros_on_rendered_masks_steers_back():
                           sim=sim.SimConfig(path_length=6.0))
     _, mx = sim.make_model(SHAPE, cfg.sim)
     intr = render.Intrinsics(48, 32, 42.0)
-    policy, pparams = E.perception_policy("segzeros", SHAPE, intr)
+    policy, pparams = closed_loop.make("segzeros", SHAPE, intr)
     cparams = C.seg_params("zeros", image_hw=(32, 48))
     log = jax.tree.map(np.asarray, E.rollout(mx, fields, None,
                                              jax.random.split(jax.random.key(20), n), policy,

@@ -246,3 +246,41 @@ def test_cli_smoke_segzeros_ground_truth(tmp_path):
     results = pd.read_csv(tmp_path / "results.csv")
     assert len(results) == 4 * 2 and set(results["controller.name"]) == {"segzeros"}
     assert (tmp_path / "report.md").exists()
+
+
+def test_learned_weights_are_shared_params_of_one_policy(tmp_path):
+    """A learned-mask group: the checkpoint is loaded once and its weights are the shared part
+    of every cell's params; another checkpoint of the same architecture gets the same policy
+    (so the same compiled rollout) with other weights."""
+    from mjxrow import episode as E
+    from mjxrow.seg import checkpoint as ckpt
+    from mjxrow.seg import model as segmodel
+
+    module, va = segmodel.create("small", 0.25, jax.random.key(0), 32)
+    _, vb = segmodel.create("small", 0.25, jax.random.key(1), 32)
+    ckpt.save(tmp_path / "a", module, va)
+    ckpt.save(tmp_path / "b", module, vb)
+
+    def group(checkpoint):
+        raw = {**BASE, "field": {"d_rr": [1.6, 2.4]},
+               "perception": {"source": "learned", "checkpoint": str(tmp_path / checkpoint),
+                              "threshold": [0.5, 0.7]}}
+        groups = S.plan(C.from_dict(raw))
+        assert len(groups) == 1  # threshold and geometry are traced: one group, one compile
+        g = groups[0]
+        _, _, intr = S.static_configs(g.cfg, g.shape)
+        return g, S.make_policy(g.cfg, g.shape, intr)
+
+    g, (policy, params_of) = group("a")
+    params = [params_of(c.cfg) for c in g.cells]
+    axes = S.params_axes(g.cfg)
+    batch = E.stack_params(params, axes)
+    assert batch[0].variables is params[0][0].variables is params[-1][0].variables
+    np.testing.assert_allclose(batch[0].threshold, [0.5, 0.5, 0.7, 0.7])  # first axis slowest
+    assert batch[1].omega_gain.shape == (4,)
+    E.check_params(batch, axes, 4)
+    _, (policy_b, params_of_b) = group("b")
+    assert policy_b is policy
+    wa = jax.tree.leaves(params[0][0].variables)
+    wb = jax.tree.leaves(params_of_b(g.cells[0].cfg)[0].variables)
+    assert max(float(np.abs(a - b).max()) for a, b in zip(wa, wb, strict=True)) > 0

@@ -1,0 +1,128 @@
+"""Perception in the loop: render → (segment) → mask controller, as one `control.Policy`.
+
+The one implementation of the closed perception loop; `episode`'s CLI, `sweep` and the
+experiments build their policies here. Each control step the policy renders the robot's camera
+image of its field (`render.render`), takes the renderer's ground-truth plant mask
+(`source="ground_truth"`) or the learned segmenter's mask of the RGB image (`"learned"`:
+sigmoid(logit) > threshold), and hands mask and depth to SegZeros / SegMin.
+
+Static (part of the policy, so of the compile key): the controller, the field shape, the camera
+intrinsics, the source, the segmenter's architecture (its Flax module), the render config.
+Traced (the policy's params, so no recompile): the sky/lighting conditions, the threshold, the
+segmenter's WEIGHTS and the controller's gains. The params are the pair
+`(PerceptionParams, controller params)`; `PARAMS_AXES` vmaps them with the weights shared and
+everything else per episode, so a new checkpoint of the same architecture reuses the compiled
+rollout and the weights are never baked into the program.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from mjxrow import control
+from mjxrow import field as F
+
+SOURCES = ("ground_truth", "learned")
+
+
+@struct.dataclass
+class PerceptionParams:
+    """Traced params of the perception stage (one episode; add a [B] axis where batched)."""
+
+    cond: Any  # render.Conditions: sky / lighting of the rendered images
+    threshold: jax.Array  # float32 [], a pixel is a plant where sigmoid(logit) > threshold [-]
+    variables: Any = None  # the segmenter's variables {'params', 'batch_stats'}; None: no model
+
+
+# vmap axes of `(PerceptionParams, controller params)`: segmenter weights shared by the batch,
+# conditions, threshold and controller params per episode (a prefix pytree for episode.rollout).
+PARAMS_AXES = (PerceptionParams(cond=0, threshold=0, variables=None), 0)
+
+
+def perception_params(condition: Any = "sunny", threshold: float = 0.7,
+                      variables: Any = None) -> PerceptionParams:
+    """PerceptionParams of one episode. condition: a `render.CONDITIONS` name or a
+    `render.Conditions`; threshold in [0, 1]; variables: the segmenter's (learned source)."""
+    from mjxrow import render
+
+    if isinstance(condition, str):
+        condition = render.conditions(condition)
+    if not 0.0 <= float(threshold) <= 1.0:
+        raise ValueError(f"threshold: must lie in [0, 1], got {threshold}")
+    return PerceptionParams(cond=condition, threshold=jnp.float32(threshold),
+                            variables=variables)
+
+
+def perception_policy(controller: str, shape: F.FieldShape, intr, source: str = "ground_truth",
+                      segmenter=None, render_cfg=None,
+                      sensor_noise: bool = False) -> control.Policy:
+    """A mask controller ("segzeros", "segmin") fed by the renderer (pure policy; not jitted).
+
+    shape: the fields' static shape; intr: render.Intrinsics; source: "ground_truth" (the
+    renderer's plant mask) or "learned" (`segmenter`, a `seg.model.SegNet` module, segments
+    the rendered RGB; its variables come in the params); render_cfg: render.RenderConfig (None:
+    the default); sensor_noise: render with the step's PRNG key (sensor noise and exposure
+    jitter) instead of a deterministic image.
+
+    The policy's params are `(PerceptionParams, controller params)`. Cached: equal arguments
+    (a SegNet compares by its architecture) give the same Policy object, so `episode.rollout`
+    reuses its compiled function across calls and checkpoints."""
+    from mjxrow import render
+
+    if source not in SOURCES:
+        raise ValueError(f"source: unknown {source!r}; expected one of {SOURCES}")
+    if not control.get(controller).needs_mask:
+        raise ValueError(f"controller: {controller!r} takes no mask")
+    if (segmenter is None) != (source == "ground_truth"):
+        raise ValueError(f"segmenter: source {source!r} needs "
+                         f"{'a segmenter module' if source == 'learned' else 'none'}")
+    return _policy(controller, shape, intr, segmenter, render_cfg or render.RenderConfig(),
+                   bool(sensor_noise))
+
+
+@functools.lru_cache(maxsize=32)
+def _policy(controller: str, shape: F.FieldShape, intr, segmenter, rcfg,
+            sensor_noise: bool) -> control.Policy:
+    from mjxrow import render
+    from mjxrow.seg import model as seg_model
+
+    c = control.get(controller)
+    learned = segmenter is not None
+
+    def perceive(p: PerceptionParams, obs: control.Obs, key: jax.Array):
+        frame = render.render(obs.field, shape, obs.cam_pos, obs.cam_rot, intr, p.cond,
+                              key if sensor_noise else None, rcfg)
+        if not learned:
+            return frame.mask, frame.depth
+        mask = seg_model.predict_mask(segmenter, p.variables, frame.rgb[None], p.threshold)[0]
+        return mask, frame.depth
+
+    return control.with_perception(c, perceive)
+
+
+def load_segmenter(checkpoint: str, crop: str):
+    """(module, variables) of a checkpoint (seg.checkpoint.load): a crop name or directory;
+    '' means the crop's shipped one."""
+    from mjxrow.seg import checkpoint as ckpt
+
+    return ckpt.load(checkpoint or crop)
+
+
+def make(controller: str, shape: F.FieldShape, intr, source: str = "ground_truth",
+         checkpoint: str = "", condition: Any = "sunny", threshold: float = 0.7,
+         render_cfg=None, sensor_noise: bool = False
+         ) -> tuple[control.Policy, PerceptionParams]:
+    """(policy, perception params) of a mask controller on `source`; for "learned" the
+    segmenter is loaded from `checkpoint` (a crop name or checkpoint directory; '' = the
+    shape's crop). Pair the params with the controller's: `(perc_params, seg_params)`."""
+    module = variables = None
+    if source == "learned":
+        module, variables = load_segmenter(checkpoint, shape.crop)
+    policy = perception_policy(controller, shape, intr, source, module, render_cfg,
+                               sensor_noise)
+    return policy, perception_params(condition, threshold, variables)
