@@ -314,6 +314,9 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
             "results": f"`{out}/<controller>/<preset>/results.csv`"}
     if smoke:
         info["smoke"] = "tiny check run (--smoke): not the paper's scenario"
+    elif ref.seeds < 100:
+        info["note"] = (f"{ref.seeds} episodes per block, fewer than the 100 of the full table "
+                        "(`python experiments/table3_navigation.py`): wide intervals")
     md = document(stats, presets, controllers, info, left_out, timings)
     return md, stats
 
