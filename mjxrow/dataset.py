@@ -1,0 +1,340 @@
+"""The synthetic segmentation dataset: RGB images and binary plant masks rendered by `render.py`.
+
+CLI:
+    python -m mjxrow.dataset --crop zucchini --n 19456 --out DIR [--seed S] [--size 224]
+        [--test-frac F] [--batch B] [--workers W]
+    python -m mjxrow.dataset --crop zucchini --contact-sheet docs/contact_zucchini.png
+
+Layout of DIR: `index.csv` (columns rgb, mask, crop, condition, x, y, z, yaw, pitch, lateral,
+split; paths relative to DIR), images `<condition>/rgb/<crop>_<i:06d>.png` (RGB, 8-bit) and
+`<condition>/mask/<crop>_<i:06d>.png` (8-bit, 0 or 255), four sub-datasets by sky and lighting
+(`render.CONDITIONS`), sample i in condition i mod 4.
+
+Every sample is a function of (crop, seed, i) only: its own field (the crop's preset with
+geometry, terrain and obstacles varied), a camera pose in that field and randomised lighting.
+Hence a re-run with the same arguments resumes: finished pairs are skipped, never rewritten
+(files appear through temp file + rename), and the index is rebuilt identically. The test split
+is an exact fraction of each condition, drawn with the seed.
+
+Camera poses: the robot's view down a lane mostly — a random lane (lanes the robot fits in
+four times out of five), a lateral offset inside the lane's free width, anywhere along the row
+from 3 m before its start to 1 m past its end, heading along ±x with a few degrees of yaw noise,
+height 0.30-0.65 m and pitch about −10°; one sample in six looks from higher (0.65-1.5 m) and
+steeper, one in ten turns to any heading.
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as cf
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+from PIL import Image
+from tqdm.auto import tqdm
+
+from mjxrow import field as F
+from mjxrow import render as RD
+
+PAPER_N = {"zucchini": 19456, "lettuce": 4864, "chard": 4864, "pear": 4864, "vineyard": 4864}
+TEST_FRAC = {"zucchini": 0.30, "lettuce": 0.25, "chard": 0.25, "pear": 0.25, "vineyard": 0.25}
+COLUMNS = ("rgb", "mask", "crop", "condition", "x", "y", "z", "yaw", "pitch", "lateral", "split")
+
+# field variation around the preset: factor ranges, then absolute ranges
+_FACTORS = {"d_rr": (0.92, 1.12), "d_RR": (0.92, 1.15), "d_pp": (0.85, 1.2),
+            "plant_length": (0.8, 1.2), "plant_width": (0.8, 1.15), "plant_height": (0.75, 1.25),
+            "terrain_dh": (0.3, 1.5), "terrain_scale": (0.6, 1.6), "plant_jitter": (0.5, 2.0),
+            "stone_density": (0.0, 2.0), "branch_density": (0.0, 2.0)}
+_ABSOLUTE = {"p_missing": (0.0, 0.08), "plant_size_var": (0.04, 0.14),
+             "slope_x": (-0.03, 0.03), "slope_y": (-0.03, 0.03)}
+_MORE_WITH_LESS = ("d_rr", "d_RR", "d_pp")  # counts grow as these shrink
+
+
+def dataset_shape(crop: str) -> F.FieldShape:
+    """Static shape that holds every field the sampler can draw for `crop`."""
+    if crop not in F.CROPS:
+        raise ValueError(f"crop: unknown crop {crop!r}; expected one of {F.CROPS}")
+    pre = F.PRESETS[crop]
+    ext = {k: pre[k] * (lo if k in _MORE_WITH_LESS else hi) for k, (lo, hi) in _FACTORS.items()}
+    return F.fit_shape(F.make_params(crop, **ext), crop)
+
+
+def random_params(crop: str, key: jax.Array) -> F.FieldParams:
+    """The crop's preset with geometry, terrain and obstacle numbers drawn around it."""
+    pre = F.PRESETS[crop]
+    ks = jax.random.split(key, len(_FACTORS) + len(_ABSOLUTE))
+    vals = {}
+    for kk, (name, (lo, hi)) in zip(ks, _FACTORS.items(), strict=False):
+        vals[name] = pre[name] * jax.random.uniform(kk, (), minval=lo, maxval=hi)
+    for kk, (name, (lo, hi)) in zip(ks[len(_FACTORS):], _ABSOLUTE.items(), strict=True):
+        vals[name] = jax.random.uniform(kk, (), minval=lo, maxval=hi)
+    return F.make_params(crop, **vals)
+
+
+def sample_pose(field: F.Field, key: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """A camera pose in `field`: (cam_pos float32 [3], cam_rot float32 [3, 3],
+    meta float32 [6] = x, y, z [m], yaw, pitch [rad], lateral offset from the lane centre [m])."""
+    ks = jax.random.split(key, 10)
+    q = F._scaled(field.params)
+    free = field.lane_width - q["plant_width"]
+    fits = field.lane_active & (free >= F.ROBOT_WIDTH + F.LANE_CLEARANCE)
+    robot_lanes = jnp.any(fits)
+    pick_fit = (jax.random.uniform(ks[0]) < 0.8) & robot_lanes
+    pool = jnp.where(pick_fit, fits, field.lane_active)
+    logits = jnp.where(pool, 0.0, -jnp.inf)
+    lane = jax.random.categorical(ks[1], logits)
+    half_free = 0.5 * jnp.maximum(free[lane], 0.05)
+    lateral = jax.random.uniform(ks[2], (), minval=-0.6, maxval=0.6) * half_free
+    y = field.lane_y[lane] + lateral
+    x = jax.random.uniform(ks[3], (), minval=field.row_x[0] - 3.0, maxval=field.row_x[1] + 1.0)
+    backward = jax.random.uniform(ks[4]) < 0.5
+    yaw = jnp.where(backward, jnp.pi, 0.0) + jnp.deg2rad(6.0) * jax.random.normal(ks[5])
+    any_heading = jax.random.uniform(ks[6]) < 0.1
+    yaw = jnp.where(any_heading, jax.random.uniform(ks[7], (), maxval=2 * jnp.pi), yaw)
+    high = jax.random.uniform(ks[8]) < 1.0 / 6.0
+    kh, kp = jax.random.split(ks[9])
+    h_low = jax.random.uniform(kh, (), minval=0.30, maxval=0.65)
+    h_high = jax.random.uniform(kh, (), minval=0.65, maxval=1.5)
+    height = jnp.where(high, h_high, h_low)
+    p_low = jnp.deg2rad(jnp.clip(-10.0 + 5.0 * jax.random.normal(kp), -25.0, 3.0))
+    p_high = jnp.deg2rad(jax.random.uniform(kp, (), minval=-35.0, maxval=-12.0))
+    pitch = jnp.where(high, p_high, p_low)
+    z = F.terrain_height(field.terrain, field.terrain_size, x, y) + height
+    pos = jnp.stack([x, y, z]).astype(jnp.float32)
+    meta = jnp.stack([x, y, z, jnp.mod(yaw + jnp.pi, 2 * jnp.pi) - jnp.pi, pitch, lateral])
+    return pos, RD.camera_rot(yaw, pitch), meta.astype(jnp.float32)
+
+
+def sample(crop: str, shape: F.FieldShape, intr: RD.Intrinsics, key: jax.Array,
+           condition: jax.Array, augment: bool = True,
+           cfg: RD.RenderConfig = RD.DEFAULT_CONFIG):
+    """One sample (pure): its own field, pose and lighting from `key`; condition: int index
+    into render.CONDITIONS. Returns (rgb uint8 [H, W, 3], mask bool [H, W], meta float32 [6])."""
+    k_par, k_fld, k_pose, k_cond, k_img = jax.random.split(key, 5)
+    field = F.generate(random_params(crop, k_par), shape, k_fld)
+    pos, rot, meta = sample_pose(field, k_pose)
+    cond = RD.condition_by_index(condition, k_cond)
+    frame = RD.render(field, shape, pos, rot, intr, cond, k_img if augment else None, cfg)
+    return frame.rgb, frame.mask, meta
+
+
+def sample_meta(crop: str, shape: F.FieldShape, key: jax.Array) -> jax.Array:
+    """The pose meta of `sample` without rendering (same key ⇒ same numbers)."""
+    k_par, k_fld, k_pose, _, _ = jax.random.split(key, 5)
+    field = F.generate(random_params(crop, k_par), shape, k_fld)
+    return sample_pose(field, k_pose)[2]
+
+
+def make_batch_fn(crop: str, intr: RD.Intrinsics, augment: bool = True,
+                  cfg: RD.RenderConfig = RD.DEFAULT_CONFIG):
+    """On-the-fly training data: `fn(key, batch) -> (rgb uint8 [B, H, W, 3], mask bool [B, H, W])`
+    with `batch` a static int; fields, poses and conditions (uniform over the four) drawn from
+    `key`. Jittable: `jax.jit(fn, static_argnums=1)`."""
+    shape = dataset_shape(crop)
+
+    def fn(key: jax.Array, batch: int):
+        k_s, k_c = jax.random.split(key)
+        keys = jax.random.split(k_s, batch)
+        conds = jax.random.randint(k_c, (batch,), 0, len(RD.CONDITIONS))
+        rgb, mask, _ = jax.vmap(lambda k, c: sample(crop, shape, intr, k, c, augment, cfg))(
+            keys, conds)
+        return rgb, mask
+
+    return fn
+
+
+def sample_keys(seed: int, index: jax.Array) -> jax.Array:
+    """Key of sample `index` (int32 [B]) of a dataset with `seed`."""
+    base = jax.random.key(seed)
+    return jax.vmap(lambda i: jax.random.fold_in(base, i))(index)
+
+
+# ---------------------------------------------------------------------------------------------
+# Writing a dataset (host)
+
+
+def rel_paths(crop: str, i: int) -> tuple[str, str]:
+    cond = RD.CONDITIONS[i % len(RD.CONDITIONS)]
+    return f"{cond}/rgb/{crop}_{i:06d}.png", f"{cond}/mask/{crop}_{i:06d}.png"
+
+
+def splits(n: int, seed: int, test_frac: float) -> np.ndarray:
+    """'train' / 'test' per sample: round(test_frac · n_c) test samples in each condition."""
+    out = np.full(n, "train", dtype=object)
+    rng = np.random.default_rng(seed)
+    nc = len(RD.CONDITIONS)
+    for c in range(nc):
+        idx = np.arange(c, n, nc)
+        test = rng.permutation(idx)[: int(round(test_frac * len(idx)))]
+        out[test] = "test"
+    return out
+
+
+def _write_png(path: Path, img: np.ndarray) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp_", suffix=".png")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            Image.fromarray(img).save(f, format="PNG")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _batches(indices: np.ndarray, batch: int):
+    for s in range(0, len(indices), batch):
+        chunk = indices[s:s + batch]
+        pad = np.concatenate([chunk, np.full(batch - len(chunk), chunk[-1])])
+        yield chunk, pad.astype(np.int32)
+
+
+def write_dataset(crop: str, n: int, out: str | Path, seed: int = 0, size: int = 224,
+                  test_frac: float | None = None, batch: int = 64, workers: int = 4,
+                  cfg: RD.RenderConfig = RD.DEFAULT_CONFIG, progress: bool = True) -> Path:
+    """Render and write `n` samples of `crop` into `out` (resumable); returns the index path."""
+    out = Path(out)
+    test_frac = TEST_FRAC[crop] if test_frac is None else test_frac
+    shape = dataset_shape(crop)
+    intr = RD.Intrinsics(size, size, RD.Intrinsics().fovy)
+    for cond in RD.CONDITIONS:
+        (out / cond / "rgb").mkdir(parents=True, exist_ok=True)
+        (out / cond / "mask").mkdir(parents=True, exist_ok=True)
+
+    meta_fn = jax.jit(jax.vmap(lambda k: sample_meta(crop, shape, k)))
+    render_fn = jax.jit(jax.vmap(
+        lambda k, c: sample(crop, shape, intr, k, c, True, cfg)))
+    all_idx = np.arange(n)
+    metas = []
+    for chunk, pad in _batches(all_idx, min(batch * 8, max(n, 1))):
+        metas.append(np.asarray(meta_fn(sample_keys(seed, jnp.asarray(pad))))[: len(chunk)])
+    meta = np.concatenate(metas)
+
+    paths = [rel_paths(crop, i) for i in range(n)]
+    todo = np.array([i for i in range(n) if not ((out / paths[i][0]).exists()
+                                                and (out / paths[i][1]).exists())], np.int64)
+    bar = tqdm(total=n, initial=n - len(todo), desc=f"{crop} dataset", unit="img",
+               disable=not progress, smoothing=0.1)
+    with cf.ThreadPoolExecutor(max(1, workers)) as pool:
+        pending: list[cf.Future] = []
+        for chunk, pad in _batches(todo, batch) if len(todo) else ():
+            conds = jnp.asarray(pad % len(RD.CONDITIONS), jnp.int32)
+            rgb, mask, _ = render_fn(sample_keys(seed, jnp.asarray(pad)), conds)
+            rgb, mask = np.asarray(rgb), np.asarray(mask)
+            for done in pending:
+                done.result()
+            pending = []
+            for j, i in enumerate(chunk):
+                rgb_p, mask_p = (out / p for p in paths[i])
+                pending.append(pool.submit(_write_png, rgb_p, rgb[j]))
+                pending.append(pool.submit(_write_png, mask_p, mask[j].astype(np.uint8) * 255))
+            bar.update(len(chunk))
+        for done in pending:
+            done.result()
+    bar.close()
+
+    table = pd.DataFrame({
+        "rgb": [p[0] for p in paths], "mask": [p[1] for p in paths], "crop": crop,
+        "condition": [RD.CONDITIONS[i % len(RD.CONDITIONS)] for i in range(n)],
+        "x": meta[:, 0], "y": meta[:, 1], "z": meta[:, 2], "yaw": meta[:, 3],
+        "pitch": meta[:, 4], "lateral": meta[:, 5], "split": splits(n, seed, test_frac)})
+    text = table.to_csv(index=False, float_format="%.4f", columns=list(COLUMNS))
+    index = out / "index.csv"
+    if not index.exists() or index.read_text() != text:
+        fd, tmp = tempfile.mkstemp(dir=out, prefix=".tmp_", suffix=".csv")
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, index)
+    return index
+
+
+def contact_sheet(crop: str, path: str | Path, per_condition: int = 3, size: int = 192,
+                  seed: int = 0) -> Path:
+    """A PNG with `per_condition` samples of each condition (rows), RGB beside mask."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    shape = dataset_shape(crop)
+    intr = RD.Intrinsics(size, size, RD.Intrinsics().fovy)
+    nc = len(RD.CONDITIONS)
+    idx = np.array([c + nc * j for c in range(nc) for j in range(per_condition)], np.int32)
+    fn = jax.jit(jax.vmap(lambda k, c: sample(crop, shape, intr, k, c, True)))
+    rgb, mask, _ = fn(sample_keys(seed, jnp.asarray(idx)), jnp.asarray(idx % nc))
+    rgb, mask = np.asarray(rgb), np.asarray(mask)
+    fig, axes = plt.subplots(nc, 2 * per_condition, figsize=(2.0 * 2 * per_condition, 2.1 * nc))
+    for r in range(nc):
+        for j in range(per_condition):
+            s = r * per_condition + j
+            for col, (img, kw) in enumerate(((rgb[s], {}), (mask[s], {"cmap": "gray"}))):
+                ax = axes[r, 2 * j + col]
+                ax.imshow(img, vmin=0, vmax=1, **kw) if col else ax.imshow(img)
+                ax.set_xticks([])
+                ax.set_yticks([])
+            if j == 0:
+                axes[r, 0].set_ylabel(RD.CONDITIONS[r].replace("_", " "), fontsize=11)
+    fig.suptitle(f"{crop}: synthetic RGB and plant mask ({size}×{size})", fontsize=12)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def _check_writable(out: Path) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    with tempfile.NamedTemporaryFile(dir=out, prefix=".probe_"):
+        pass
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m mjxrow.dataset",
+                                 description=__doc__.split("\n")[0])
+    ap.add_argument("--crop", required=True, choices=F.CROPS)
+    ap.add_argument("--n", type=int, help=f"number of samples (paper: {PAPER_N})")
+    ap.add_argument("--out", help="output folder")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--size", type=int, default=224, help="image side [px]")
+    ap.add_argument("--test-frac", type=float, default=None,
+                    help="test fraction per condition (default 0.30 zucchini, 0.25 others)")
+    ap.add_argument("--batch", type=int, default=64, help="images rendered per call")
+    ap.add_argument("--workers", type=int, default=4, help="PNG-encoding threads")
+    ap.add_argument("--contact-sheet", metavar="PNG",
+                    help="write a contact sheet (a few samples per condition) and exit")
+    ap.add_argument("--per-condition", type=int, default=3)
+    args = ap.parse_args(argv)
+    if args.contact_sheet:
+        print(contact_sheet(args.crop, args.contact_sheet, args.per_condition,
+                            seed=args.seed))
+        return 0
+    if args.n is None or args.out is None:
+        ap.error("--n and --out are required (or give --contact-sheet)")
+    if args.n <= 0:
+        ap.error(f"--n: must be a positive number of samples, got {args.n}")
+    if args.size < 8:
+        ap.error(f"--size: images need at least 8 pixels a side, got {args.size}")
+    if args.test_frac is not None and not 0.0 <= args.test_frac < 1.0:
+        ap.error(f"--test-frac: must lie in [0, 1), got {args.test_frac}")
+    if args.batch < 1 or args.workers < 1:
+        ap.error("--batch and --workers must be at least 1")
+    try:
+        _check_writable(Path(args.out))
+    except OSError as e:
+        print(f"error: --out {args.out}: cannot write there ({e.strerror or e})",
+              file=sys.stderr)
+        return 2
+    index = write_dataset(args.crop, args.n, args.out, args.seed, args.size, args.test_frac,
+                          args.batch, args.workers)
+    print(f"{args.n} samples of {args.crop} in {args.out}; index: {index}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

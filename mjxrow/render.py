@@ -1,0 +1,228 @@
+"""Batched camera renderer: a pure JAX ray caster of one field from one camera.
+
+`render(field, shape, cam_pos, cam_rot, intr, cond, key=None) -> Frame` draws exactly what the
+exports (`worlds.to_mjcf`) draw: the heightfield terrain with MuJoCo's triangulation, each
+plant's primitives from `plants.plant_prims` (ellipsoids and capsules, intersected exactly),
+stones (spheres) and fallen branches (capsules). It is jittable and vmappable over worlds and
+cameras; jit/vmap are composed by the callers (episode, dataset, benchmarks), e.g.
+
+    frames = jax.jit(jax.vmap(lambda f, p, r, c: render(f, shape, p, r, intr, c)))(...)
+
+Camera convention (MuJoCo's): `cam_pos float32 [3]` (world) and `cam_rot float32 [3, 3]` whose
+columns are the camera's x (right), y (up) and z (backwards) axes, i.e. `data.cam_xpos` and
+`data.cam_xmat.reshape(3, 3)`; the camera looks along −z. `Intrinsics.fovy` is the vertical field
+of view in degrees; the horizontal one follows from width / height. Pixel (i, j) looks through
+the centre of the pixel, row 0 at the top.
+
+What is not drawn: plants beyond `RenderConfig.far` metres; the terrain's side walls; a plant
+whose primitive contains the camera. Per ray only the plants of the `rows` row slabs it
+enters first, `plants` plants per slab, are tested (see `render_geom`); a very grazing ray
+(nearly parallel to a row and reaching it far away) can pass a plant that lies further along
+its slab than that. Sky pixels have `depth = SKY_DEPTH`, `mask = False`, `classes = SKY`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from mjxrow import field as F
+from mjxrow import render_geom as G
+from mjxrow import render_shade as S
+from mjxrow.render_shade import CONDITIONS, Conditions, condition_by_index, conditions
+
+__all__ = ["CONDITIONS", "DEFAULT_CONFIG", "Conditions", "Frame", "Intrinsics", "RenderConfig",
+           "SKY_DEPTH",
+           "camera_rot", "condition_by_index", "conditions", "render"]
+
+SKY, SOIL, PLANT, OBSTACLE = 0, 1, 2, 3
+SKY_DEPTH = 1000.0  # m, depth of sky pixels (finite, larger than any field)
+
+
+@dataclasses.dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole camera (static). Defaults: the robot's camera (vertical fov 42°)."""
+
+    width: int = 128
+    height: int = 128
+    fovy: float = 42.0  # vertical field of view [deg]
+
+    def __post_init__(self):
+        if int(self.width) < 1 or int(self.height) < 1:
+            raise ValueError(f"intrinsics: width and height must be positive, got "
+                             f"{self.width}x{self.height}")
+        if not 0.0 < float(self.fovy) < 180.0:
+            raise ValueError(f"intrinsics.fovy: must lie in (0, 180) degrees, got {self.fovy}")
+
+
+@dataclasses.dataclass(frozen=True)
+class RenderConfig:
+    """Static knobs of the ray caster (speed against completeness)."""
+
+    blocks: int = 4  # blocks of plants per row whose box a camera ray tests (render_geom)
+    block_keep: int = 5  # blocks per camera ray whose plants' boxes are tested
+    keep: int = 8  # plants per camera ray intersected exactly (the first boxes entered)
+    shadow_blocks: int = 2  # the same for shadow rays
+    shadow_block_keep: int = 2
+    shadow_keep: int = 4
+    terrain_steps: int = 32  # march samples over the ray's part in the terrain's height band
+    terrain_refine: int = 6  # bisections of the first bracket before the exact triangle
+    obstacles: int = 8  # nearest obstacles (ahead of the camera) tested per frame
+    shadows: bool = True  # plants and obstacles cast sun shadows
+    near: float = 0.01  # m, nothing nearer the camera is drawn
+    far: float = 150.0  # m, nothing further is drawn
+
+    def __post_init__(self):
+        for name in ("blocks", "block_keep", "keep", "shadow_blocks",
+                     "shadow_block_keep", "shadow_keep", "terrain_steps",
+                     "obstacles"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"render.{name}: must be at least 1, got {getattr(self, name)}")
+        if not 0.0 < self.near < self.far:
+            raise ValueError(f"render.near/far: need 0 < near < far, got {self.near}, {self.far}")
+
+
+DEFAULT_CONFIG = RenderConfig()
+
+
+@struct.dataclass
+class Frame:
+    """One rendered image (add [B] in front for a batch)."""
+
+    rgb: jax.Array  # uint8 [H, W, 3]
+    depth: jax.Array  # float32 [H, W], metres along the optical axis; SKY_DEPTH for sky
+    mask: jax.Array  # bool [H, W], plant pixels (classes == PLANT)
+    classes: jax.Array  # uint8 [H, W]: 0 sky, 1 soil, 2 plant, 3 obstacle
+
+
+def camera_rot(yaw: jax.Array, pitch: jax.Array, roll: jax.Array = 0.0) -> jax.Array:
+    """cam_rot float32 [3, 3] (columns right, up, backwards) of a camera looking along heading
+    `yaw` (rad, about z from +x), tilted by `pitch` (rad, negative looks down) and rolled by
+    `roll` (rad, about the optical axis, positive turns the image clockwise)."""
+    cy, sy, cp, sp = jnp.cos(yaw), jnp.sin(yaw), jnp.cos(pitch), jnp.sin(pitch)
+    fwd = jnp.stack([cp * cy, cp * sy, sp])
+    right = jnp.stack([sy, -cy, jnp.zeros_like(cy)])
+    up = jnp.cross(right, fwd)
+    cr, sr = jnp.cos(roll), jnp.sin(roll)
+    right, up = cr * right - sr * up, sr * right + cr * up
+    return jnp.stack([right, up, -fwd], 1).astype(jnp.float32)
+
+
+def pixel_rays(intr: Intrinsics) -> np.ndarray:
+    """Camera-frame ray directions through the pixel centres, z = −1: float32 [H·W, 3]."""
+    ty = np.tan(np.deg2rad(intr.fovy) / 2)
+    tx = ty * intr.width / intr.height
+    j = (2 * (np.arange(intr.width) + 0.5) / intr.width - 1) * tx
+    i = (1 - 2 * (np.arange(intr.height) + 0.5) / intr.height) * ty
+    xx, yy = np.meshgrid(j, i)
+    return np.stack([xx, yy, -np.ones_like(xx)], -1).reshape(-1, 3).astype(np.float32)
+
+
+def _trace(field, shape, tab, obst, o, d, cfg):
+    """Nearest surface of each ray: (t, class, normal, plant, k, obstacle index)."""
+    n = o.shape[0]
+    t_min = jnp.full((n,), cfg.near, jnp.float32)
+    far = jnp.full((n,), cfg.far, jnp.float32)
+    t_ter, n_ter = G.trace_terrain(field.terrain, field.terrain_size, o, d, t_min, far,
+                                   cfg.terrain_steps, cfg.terrain_refine)
+    t_obs, n_obs, branch = G.trace_obstacles(obst, o, d, t_min)
+    t_far = jnp.minimum(jnp.minimum(t_ter, t_obs), far)
+    t_pl, plant, k = G.trace_plants(tab, shape.max_plants_per_row, o, d, t_min, t_far,
+                                    cfg.blocks, cfg.block_keep, cfg.keep)
+    cls = jnp.where(jnp.isfinite(t_pl), PLANT,
+                    jnp.where((t_obs < t_ter) & (t_obs < cfg.far), OBSTACLE,
+                              jnp.where(t_ter < cfg.far, SOIL, SKY)))
+    t = jnp.where(cls == PLANT, t_pl, jnp.where(cls == OBSTACLE, t_obs, t_ter))
+    t = jnp.where(cls == SKY, 0.0, t)
+    p = o + t[:, None] * d
+    n_pl = G.plant_normal(tab, plant, k, p)
+    normal = jnp.where((cls == PLANT)[:, None], n_pl,
+                       jnp.where((cls == OBSTACLE)[:, None], n_obs, n_ter))
+    return t, cls, p, normal, plant, k, branch
+
+
+def _shadow(field, shape, tab, obst, p, normal, cond, cfg):
+    """Visibility of the sun from surface points p [N, 3]: 1 lit, 0 in a plant's or obstacle's
+    shadow."""
+    n = p.shape[0]
+    l = jnp.broadcast_to(cond.sun_dir, p.shape)
+    o = p + 2e-3 * normal + 1e-3 * l
+    t_min = jnp.zeros((n,), jnp.float32)
+    t_far = jnp.full((n,), 60.0, jnp.float32)
+    t_pl, _, _ = G.trace_plants(tab, shape.max_plants_per_row, o, l, t_min, t_far,
+                                cfg.shadow_blocks, cfg.shadow_block_keep,
+                                cfg.shadow_keep)
+    t_ob, _, _ = G.trace_obstacles(obst, o, l, t_min)
+    return jnp.where(jnp.isfinite(t_pl) | jnp.isfinite(t_ob), 0.0, 1.0)
+
+
+def _ground_occlusion(tab, p):
+    """Ambient occlusion of the ground near the rows: 0.55 under a canopy line .. 1 in a lane."""
+    ok = tab.row_zhi > tab.row_zlo  # rows with plants
+    dist = jnp.min(jnp.where(ok, jnp.abs(p[:, 1:2] - tab.row_y), 1e3), axis=1)
+    s = jnp.clip((dist - 0.2 * tab.reach_y) / jnp.maximum(1.2 * tab.reach_y, 1e-3), 0.0, 1.0)
+    return 0.55 + 0.45 * s * s * (3 - 2 * s)
+
+
+def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax.Array,
+           intr: Intrinsics, cond: Conditions, key: jax.Array | None = None,
+           cfg: RenderConfig = DEFAULT_CONFIG) -> Frame:
+    """Render ONE field from ONE camera (pure; jit and vmap outside).
+
+    field: one `Field` (no batch axis); shape, intr, cfg: static. cam_pos float32 [3] [m],
+    cam_rot float32 [3, 3] (columns right, up, backwards). cond: `conditions(name)`. key: None
+    for a deterministic image, or a PRNG key for sensor noise and exposure variation
+    (augmentation). Returns a `Frame` of [H, W] images."""
+    H, W = intr.height, intr.width
+    # a terrain generated in the same jit must be in memory before the per-ray gathers
+    field = field.replace(terrain=G.materialise(field.terrain))
+    dc = jnp.asarray(pixel_rays(intr))
+    norm = jnp.linalg.norm(dc, axis=-1)
+    cam_pos = jnp.asarray(cam_pos, jnp.float32)
+    cam_rot = jnp.asarray(cam_rot, jnp.float32)
+    d = (dc / norm[:, None]) @ cam_rot.T
+    o = jnp.broadcast_to(cam_pos, d.shape)
+    tab = G.plant_table(field, shape)
+    obst = G.obstacle_table(field, cam_pos, -cam_rot[:, 2], min(cfg.obstacles,
+                                                                shape.obstacle_slots))
+    t, cls, p, normal, plant, k, is_branch = _trace(field, shape, tab, obst, o, d, cfg)
+    vis = (_shadow(field, shape, tab, obst, p, normal, cond, cfg) if cfg.shadows
+           else jnp.ones_like(t))
+
+    # albedo
+    material = jnp.asarray(tab.material)[k]
+    phase = tab.base[plant, 2]
+    a_plant = S.plant_albedo(shape.crop, material, p, phase, plant, k, cond)
+    a_soil = S.soil_albedo(p, cond)
+    a_obst = S.obstacle_albedo(is_branch, p)
+    albedo = jnp.where((cls == PLANT)[:, None], a_plant,
+                       jnp.where((cls == OBSTACLE)[:, None], a_obst, a_soil))
+    # light: sky ambient (occluded near plants and under canopies) + sun (shadowed)
+    ndl = normal @ cond.sun_dir
+    rel_h = jnp.clip((p[:, 2] - tab.base[plant, 0]) / jnp.maximum(tab.base[plant, 1], 1e-3),
+                     0.0, 1.0)
+    ao = jnp.where(cls == PLANT, 0.45 + 0.55 * jnp.sqrt(rel_h), _ground_occlusion(tab, p))
+    sun = jnp.maximum(ndl, 0.0) + jnp.where(cls == PLANT, 0.3 * jnp.maximum(-ndl, 0.0), 0.0)
+    light = ao[:, None] * cond.ambient + (vis * sun)[:, None] * cond.sun_rgb
+    radiance = albedo * light
+    fog = 1.0 - jnp.exp(-t / cond.haze)
+    radiance = radiance + (cond.sky_horizon - radiance) * fog[:, None]
+    radiance = jnp.where((cls == SKY)[:, None], S.sky(d, cond), radiance)
+
+    exposure = cond.exposure
+    if key is not None:
+        k_exp, k_noise, k_wb = jax.random.split(key, 3)
+        exposure = exposure * jnp.exp(0.15 * jax.random.normal(k_exp, ()))
+        radiance = radiance * (1.0 + 0.03 * jax.random.normal(k_wb, (3,)))
+    img = jnp.clip(radiance * exposure, 0.0, 1.0) ** (1.0 / 2.2)
+    if key is not None:
+        img = img + cond.noise * jax.random.normal(k_noise, img.shape)
+    rgb = jnp.clip(jnp.round(img * 255.0), 0, 255).astype(jnp.uint8)
+
+    depth = jnp.where(cls == SKY, SKY_DEPTH, t / norm)
+    return Frame(rgb=rgb.reshape(H, W, 3), depth=depth.reshape(H, W).astype(jnp.float32),
+                 mask=(cls == PLANT).reshape(H, W), classes=cls.astype(jnp.uint8).reshape(H, W))

@@ -1,0 +1,440 @@
+"""Ray casting against a field's geometry for `render.py`: the heightfield terrain, the plant
+primitives of `plants.plant_prims` and the obstacles. Pure jnp, one field, rays flattened to
+[N]; no jit here.
+
+Speed comes from the row structure. Plants stand on a grid (row r at `row_y[r]`, plant i at
+about `row_x[0] + i·d_pp`), so a ray needs only a few of them: for every row the ray's parameter
+interval inside the row's slab (|y − row_y| ≤ the plants' largest lateral reach, z inside the
+row's height band, x inside the row's length, t before the terrain) is computed in closed form;
+the `rows` slabs the ray enters first are kept, and in each the `plants` plants met first along
+the ray, starting where the ray enters the slab. Only those plants' primitives are intersected,
+exactly. Everything else is static-sized: no data-dependent shapes.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from mjxrow import field as F
+from mjxrow import plants as PL
+
+INF = jnp.inf
+BLOCK = 4  # plants per block of the first culling level
+_EPS_DIR = 1e-9  # |direction component| below this counts as parallel
+
+
+def _safe(d: jax.Array) -> jax.Array:
+    return jnp.where(d >= 0, jnp.maximum(d, _EPS_DIR), jnp.minimum(d, -_EPS_DIR))
+
+
+def _slab(o: jax.Array, d: jax.Array, lo: jax.Array, hi: jax.Array):
+    """Parameter interval (t0, t1) of o + t·d inside lo ≤ coordinate ≤ hi (broadcasting)."""
+    inv = 1.0 / _safe(d)
+    ta, tb = (lo - o) * inv, (hi - o) * inv
+    return jnp.minimum(ta, tb), jnp.maximum(ta, tb)
+
+
+def _dot(a: jax.Array, b: jax.Array) -> jax.Array:
+    return jnp.sum(a * b, -1)
+
+
+def materialise(tree):
+    """The same arrays, computed once into memory before any consumer runs.
+
+    Per-ray gathers from a table computed in the same jit (a plant table, a freshly generated
+    terrain) otherwise let XLA fuse the table's computation into the gather and redo it for
+    every gathered element; `lax.optimization_barrier` does not stop that on every backend.
+    A while loop whose trip count XLA cannot know is a fusion boundary everywhere: it runs once
+    (twice if the first value is NaN; the body is the identity on finite and non-finite values
+    alike)."""
+    leaves, treedef = jax.tree.flatten(tree)
+    kinds = [x.dtype for x in leaves]
+    nums = [x.astype(jnp.int8) if x.dtype == jnp.bool_ else x for x in leaves]
+    first = jnp.ravel(nums[0])[0]
+    n = 1 + jnp.isnan(first.astype(jnp.float32)).astype(jnp.int32)
+
+    def body(c):
+        i, ys = c
+        return i + 1, [y + y * 0 for y in ys]
+
+    _, nums = jax.lax.while_loop(lambda c: c[0] < n, body, (jnp.int32(0), nums))
+    out = [y.astype(k) if k == jnp.bool_ else y for y, k in zip(nums, kinds, strict=True)]
+    return jax.tree.unflatten(treedef, out)
+
+
+def _dot3(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _sub3(a, b):
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+def _xyz(v: jax.Array):
+    """[..., 3] → (x, y, z) components."""
+    return v[..., 0], v[..., 1], v[..., 2]
+
+
+# ---------------------------------------------------------------------------------------------
+# Primitives (exact). Vectors are (x, y, z) tuples of broadcastable arrays: on CPU and GPU the
+# component arrays vectorise far better than [..., 3] arrays.
+
+
+def ellipsoid_hit(o, d, c, A, t_min):
+    """Nearest t > t_min where o + t·d meets the ellipsoid {p : |A (p − c)| = 1}, else +inf.
+
+    o, d, c: (x, y, z) tuples; A: 9 components row-major (row i = axis_i / semi-axis_i)."""
+    r = _sub3(o, c)
+    oo = [A[3 * i] * r[0] + A[3 * i + 1] * r[1] + A[3 * i + 2] * r[2] for i in range(3)]
+    dd = [A[3 * i] * d[0] + A[3 * i + 1] * d[1] + A[3 * i + 2] * d[2] for i in range(3)]
+    a = jnp.maximum(_dot3(dd, dd), 1e-30)
+    tc = -_dot3(oo, dd) / a
+    q = [oo[i] + tc * dd[i] for i in range(3)]  # closest point to the centre, unit-sphere space
+    rest = 1.0 - _dot3(q, q)
+    t = tc - jnp.sqrt(jnp.maximum(rest, 0.0) / a)
+    return jnp.where((rest >= 0.0) & (t > t_min), t, INF)
+
+
+def capsule_hit(o, d, c, axis, radius, half, t_min):
+    """Nearest t > t_min where o + t·d meets the capsule (segment c ± half·axis, radius), else
+    +inf; a zero `half` is a sphere. o, d, c, axis: (x, y, z) tuples; |d| = |axis| = 1."""
+    oc = _sub3(o, c)
+    r2 = radius * radius
+    # infinite cylinder around the axis, then the segment's extent
+    bard, baoc = _dot3(axis, d), _dot3(axis, oc)
+    a = 1.0 - bard * bard
+    b = _dot3(d, oc) - baoc * bard
+    cc = _dot3(oc, oc) - baoc * baoc - r2
+    h = b * b - a * cc
+    ok_a = a > 1e-9
+    t_cyl = (-b - jnp.sqrt(jnp.maximum(h, 0.0))) / jnp.where(ok_a, a, 1.0)
+    y = baoc + t_cyl * bard  # position along the axis
+    cyl = ok_a & (h >= 0.0) & (jnp.abs(y) <= half) & (t_cyl > t_min)
+    # the two end spheres
+    t_caps = INF
+    for sgn in (-1.0, 1.0):
+        e = (oc[0] - sgn * half * axis[0], oc[1] - sgn * half * axis[1],
+             oc[2] - sgn * half * axis[2])
+        bs = _dot3(d, e)
+        hs = bs * bs - (_dot3(e, e) - r2)
+        ts = -bs - jnp.sqrt(jnp.maximum(hs, 0.0))
+        t_caps = jnp.minimum(t_caps, jnp.where((hs >= 0.0) & (ts > t_min), ts, INF))
+    return jnp.minimum(jnp.where(cyl, t_cyl, INF), t_caps)
+
+
+def capsule_normal(p, c, axis, half):
+    """Outward unit normal [N, 3] at p [N, 3] on a capsule's surface (c, axis [N, 3], half [N])."""
+    s = jnp.clip(_dot(p - c, axis), -half, half)
+    n = p - (c + s[..., None] * axis)
+    return n / jnp.maximum(jnp.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+
+
+# ---------------------------------------------------------------------------------------------
+# Plants
+
+
+@struct.dataclass
+class PlantTable:
+    """A field's plants prepared for ray casting (one field; R rows, P plants, K primitives).
+
+    `prim_t` holds 12 numbers per primitive, component-major (each component of all plants is
+    one contiguous row, so a per-ray gather of a component is a gather from one short row):
+    ellipsoid = centre (3), A (3×3 row-major, row i = axis_i / semi-axis_i); capsule = centre (3),
+    axis (3), radius, half length, 4 zeros. `box_t` is each plant's axis-aligned bounding box
+    (x lo, x hi, y lo, y hi, z lo, z hi); an inactive plant has an empty box. `block_t` holds
+    the boxes of blocks of BLOCK consecutive plants of a row."""
+
+    prim_t: jax.Array  # float32 [K·12, R·P]
+    box_t: jax.Array  # float32 [6, R·P] [m]
+    block_t: jax.Array  # float32 [6, R·NB] [m], boxes of BLOCK consecutive plants of a row
+    base: jax.Array  # float32 [R·P, 3]: base z [m], height [m], phase [0, 1)
+    row_y: jax.Array  # float32 [R], row centre lines [m]
+    row_zlo: jax.Array  # float32 [R], lowest point of any plant of the row [m]
+    row_zhi: jax.Array  # float32 [R], highest point of any plant of the row [m]
+    reach_y: jax.Array  # float32 [], largest lateral reach of a plant from its row line [m]
+    core_y: jax.Array  # float32 [], lateral reach most plants exceed [m]
+    reach_x: jax.Array  # float32 [], largest reach along x from the plant's nominal x [m]
+    x0: jax.Array  # float32 [], nominal x of plant 0 [m]
+    d_pp: jax.Array  # float32 [], nominal plant spacing [m]
+    kind: np.ndarray = struct.field(pytree_node=False)  # int [K], plants.ELLIPSOID / CAPSULE
+    material: np.ndarray = struct.field(pytree_node=False)  # int [K], plants.LEAF ...
+
+
+def plant_table(field: F.Field, shape: F.FieldShape) -> PlantTable:
+    """Primitive table, bounding boxes and row bounds of one field (pure; cost ~R·P·K,
+    negligible next to the rays). Every bound comes from the actual primitives, so culling
+    never drops a plant that reaches into a slab or box."""
+    pr = PL.plant_prims(field, shape)
+    R, P, K = pr.active.shape
+    rot, size, c = pr.rot, pr.size, pr.centre
+    is_caps = jnp.asarray(pr.kind == PL.CAPSULE)[None, None, :]
+    # ellipsoid A = diag(1/size) · rotᵀ ; capsule (axis, r, h)
+    A = jnp.swapaxes(rot, -1, -2) / jnp.maximum(size[..., :, None], 1e-6)
+    axis = rot[..., :, 2]
+    caps = jnp.concatenate([axis, size[..., :1], size[..., 2:3], jnp.zeros(size.shape[:-1] + (4,))],
+                           -1)
+    data = jnp.where(is_caps[..., None], caps, A.reshape(A.shape[:-2] + (9,)))
+    prim = jnp.concatenate([c, data], -1).reshape(R * P, K * 12)
+    # axis-aligned half extents of each primitive
+    ext_e = jnp.sqrt(jnp.sum((rot * size[..., None, :]) ** 2, -1))
+    ext_c = jnp.abs(axis) * size[..., 2:3] + size[..., :1]
+    ext = jnp.where(is_caps[..., None], ext_c, ext_e)  # [R, P, K, 3]
+    act = field.plant_active
+    q = F._scaled(field.params)
+    d_pp = q["d_pp"]
+    x0 = field.row_x[0]
+    x_nom = x0 + jnp.arange(P, dtype=jnp.float32) * d_pp
+    big = jnp.float32(1e9)
+    lo = jnp.where(act[..., None, None], jnp.min(c - ext, axis=2, keepdims=True), big)[:, :, 0]
+    hi = jnp.where(act[..., None, None], jnp.max(c + ext, axis=2, keepdims=True), -big)[:, :, 0]
+    box = jnp.stack([lo[..., 0], hi[..., 0], lo[..., 1], hi[..., 1], lo[..., 2], hi[..., 2]])
+    nb = -(-P // BLOCK)
+    pad = jnp.stack([jnp.full((R, nb * BLOCK - P), v) for v in (big, -big) * 3])
+    blk = jnp.concatenate([box, pad], -1).reshape(6, R, nb, BLOCK)
+    blk = jnp.concatenate([jnp.min(blk[0::2], -1), jnp.max(blk[1::2], -1)])[jnp.array(
+        [0, 3, 1, 4, 2, 5])]
+    lat = jnp.maximum(hi[..., 1] - field.row_y[:, None], field.row_y[:, None] - lo[..., 1])
+    reach_y = jnp.max(jnp.where(act, lat, 0.0))
+    n_act = jnp.maximum(jnp.sum(act), 1)
+    mean = jnp.sum(jnp.where(act, lat, 0.0)) / n_act
+    std = jnp.sqrt(jnp.sum(jnp.where(act, (lat - mean) ** 2, 0.0)) / n_act)
+    core_y = jnp.clip(mean - std, 0.0, reach_y)
+    reach_x = jnp.max(jnp.where(act, jnp.maximum(hi[..., 0] - x_nom, x_nom - lo[..., 0]), 0.0))
+    base = jnp.stack([field.plant_pos[..., 2], field.plant_size[..., 2], field.plant_phase], -1)
+    prim_t, box_t, block_t, base = materialise(
+        (prim.T, box.reshape(6, R * P), blk.reshape(6, R * nb), base.reshape(R * P, 3)))
+    return PlantTable(prim_t=prim_t, box_t=box_t, block_t=block_t, base=base, row_y=field.row_y,
+                      row_zlo=jnp.min(lo[..., 2], axis=1), row_zhi=jnp.max(hi[..., 2], axis=1),
+                      reach_y=reach_y, core_y=core_y, reach_x=reach_x, x0=x0, d_pp=d_pp,
+                      kind=np.asarray(pr.kind), material=np.asarray(pr.material))
+
+
+def _box_entry(o, d, box, t_min, t_max):
+    """Entry t of rays into boxes (+inf if missed or empty). o, d: [N, 3]; box: 6 arrays of
+    [N, C] (x lo, x hi, y lo, y hi, z lo, z hi); t_min, t_max: [N, 1]."""
+    x0, x1 = _slab(o[:, 0:1], d[:, 0:1], box[0], box[1])
+    y0, y1 = _slab(o[:, 1:2], d[:, 1:2], box[2], box[3])
+    z0, z1 = _slab(o[:, 2:3], d[:, 2:3], box[4], box[5])
+    t_in = jnp.maximum(jnp.maximum(x0, y0), jnp.maximum(z0, t_min))
+    t_out = jnp.minimum(jnp.minimum(x1, y1), jnp.minimum(z1, t_max))
+    return jnp.where((box[0] <= box[1]) & (t_in <= t_out), t_in, INF)
+
+
+def _first(key, ids, n: int):
+    """The `n` ids with the smallest keys per row: (ids [N, n], finite bool [N, n])."""
+    neg, j = jax.lax.top_k(-key, min(n, key.shape[1]))
+    return jnp.take_along_axis(ids, j, 1), jnp.isfinite(neg)
+
+
+def candidates(tab: PlantTable, n_plants: int, o, d, t_min, t_far, blocks: int,
+               block_keep: int, keep: int):
+    """Plants each ray must test exactly, found through the row structure in three levels.
+    (1) Every row: where the ray crosses the row's slab (|y − row_y| ≤ reach, z in the row's
+    band, x along the row, t before t_far), the `blocks` blocks of BLOCK plants met first
+    along the ray, from the one where it reaches the row's core (backed off by one), are tested
+    against their boxes. (2) The plants of the `block_keep` blocks entered first are tested
+    against their own boxes. (3) The `keep` plant boxes entered first are kept.
+    o, d: [N, 3]; t_min, t_far: [N]. Returns (flat plant index int32 [N, keep],
+    valid bool [N, keep])."""
+    R = tab.row_y.shape[0]
+    P = n_plants
+    nb = tab.block_t.shape[1] // R
+    n = o.shape[0]
+    tmin, tmax = t_min[:, None], t_far[:, None]
+    ty0, ty1 = _slab(o[:, 1:2], d[:, 1:2], tab.row_y - tab.reach_y, tab.row_y + tab.reach_y)
+    tz0, tz1 = _slab(o[:, 2:3], d[:, 2:3], tab.row_zlo, tab.row_zhi)
+    x_lo = tab.x0 - tab.reach_x
+    x_hi = tab.x0 + (P - 1) * tab.d_pp + tab.reach_x
+    tx0, tx1 = _slab(o[:, 0:1], d[:, 0:1], x_lo, x_hi)
+    t_lo = jnp.maximum(jnp.maximum(ty0, tz0), jnp.maximum(tx0, tmin))
+    t_hi = jnp.minimum(jnp.minimum(ty1, tz1), jnp.minimum(tx1, tmax))
+    ok = t_lo <= t_hi  # [N, R]
+    # the window starts where the ray reaches the row's core (most plants' foliage)
+    tc0, _ = _slab(o[:, 1:2], d[:, 1:2], tab.row_y - tab.core_y, tab.row_y + tab.core_y)
+    xs = o[:, 0:1] + jnp.where(ok, jnp.clip(tc0, t_lo, t_hi), 0.0) * d[:, 0:1]
+    step = jnp.where(d[:, 0:1] >= 0, 1.0, -1.0)
+    b0 = jnp.floor((xs - tab.x0) / (tab.d_pp * BLOCK) + 0.5) - step  # start one block back
+    b = b0[..., None] + step[..., None] * jnp.arange(blocks, dtype=jnp.float32)
+    valid = ok[..., None] & (b >= 0) & (b <= nb - 1)  # [N, R, blocks]
+    bid = jnp.arange(R, dtype=jnp.int32)[:, None] * nb + jnp.clip(b, 0, nb - 1).astype(jnp.int32)
+    bid, valid = bid.reshape(n, -1), valid.reshape(n, -1)
+    key = _box_entry(o, d, [tab.block_t[j][bid] for j in range(6)], tmin, tmax)
+    bsel, bhit = _first(jnp.where(valid, key, INF), bid, block_keep)
+    # plants of those blocks
+    r, blk = bsel // nb, bsel % nb
+    i = blk[..., None] * BLOCK + jnp.arange(BLOCK)  # [N, KB, BLOCK]
+    pvalid = bhit[..., None] & (i < P)
+    flat = (r[..., None] * P + jnp.minimum(i, P - 1)).reshape(n, -1)
+    key = _box_entry(o, d, [tab.box_t[j][flat] for j in range(6)], tmin, tmax)
+    return _first(jnp.where(pvalid.reshape(n, -1), key, INF), flat, keep)
+
+
+def _unroll() -> bool:
+    """Unroll loops over primitives on accelerators (speed); keep them rolled on CPU, where
+    compile time dominates the small batches it runs."""
+    return jax.default_backend() != "cpu"
+
+
+def nearest_prim(tab: PlantTable, flat, o, d, t_min, t_max):
+    """Nearest primitive hit of each candidate plant `flat` (int32 [N, C] indices into the
+    table). o, d: (x, y, z) tuples of [N, 1]; t_min, t_max: [N, 1].
+    Returns (t [N, C] (+inf: none in (t_min, t_max)), k int32 [N, C])."""
+    K = len(tab.kind)
+    table = tab.prim_t.reshape(K, 12, -1)
+    t_best = jnp.full(flat.shape, INF)
+    k_best = jnp.zeros(flat.shape, jnp.int32)
+    for kd in (PL.ELLIPSOID, PL.CAPSULE):
+        ks = np.flatnonzero(tab.kind == kd)
+        if len(ks) == 0:
+            continue
+
+        def body(carry, x, kd=kd):
+            t_b, k_b = carry
+            rows, k = x
+            p = [rows[i][flat] for i in range(12)]  # 12 × [N, C]
+            if kd == PL.CAPSULE:
+                t = capsule_hit(o, d, p[0:3], p[3:6], p[6], p[7], t_min)
+            else:
+                t = ellipsoid_hit(o, d, p[0:3], p[3:12], t_min)
+            better = t < jnp.minimum(t_b, t_max)
+            return (jnp.where(better, t, t_b), jnp.where(better, k, k_b)), None
+
+        xs = (table[ks], jnp.asarray(ks, jnp.int32))
+        (t_best, k_best), _ = jax.lax.scan(body, (t_best, k_best), xs,
+                                           unroll=len(ks) if _unroll() else 1)
+    return t_best, k_best
+
+
+def trace_plants(tab: PlantTable, n_plants: int, o, d, t_min, t_far, blocks: int,
+                 block_keep: int, keep: int):
+    """Nearest plant hit of each ray (see `candidates` for which plants are tested).
+    o, d: [N, 3] (|d| = 1); t_min, t_far: [N].
+    Returns (t [N] (+inf: none before t_far), plant flat index int32 [N], primitive k [N])."""
+    flat, valid = candidates(tab, n_plants, o, d, t_min, t_far, blocks, block_keep, keep)
+    oc = tuple(x[:, None] for x in _xyz(o))
+    dc = tuple(x[:, None] for x in _xyz(d))
+    t, k = nearest_prim(tab, flat, oc, dc, t_min[:, None], t_far[:, None])  # [N, C]
+    t = jnp.where(valid, t, INF)
+    best = jnp.argmin(t, axis=1)[:, None]
+    t_best = jnp.take_along_axis(t, best, 1)[:, 0]
+    plant = jnp.take_along_axis(flat, best, 1)[:, 0]
+    return t_best, plant, jnp.take_along_axis(k, best, 1)[:, 0]
+
+
+def plant_normal(tab: PlantTable, plant, k, p):
+    """Outward unit normal [N, 3] at hit points p [N, 3] of primitive k [N] of plant [N]."""
+    col = k[:, None] * 12 + jnp.arange(12)  # [N, 12]
+    row = tab.prim_t[col, plant[:, None]]  # [N, 12]
+    c = row[:, :3]
+    A = row[:, 3:12].reshape(-1, 3, 3)
+    r = p - c
+    u = jnp.sum(A * r[:, None, :], -1)  # A r
+    n_e = jnp.sum(A * u[:, :, None], 1)  # Aᵀ A r
+    n_e = n_e / jnp.maximum(jnp.linalg.norm(n_e, axis=-1, keepdims=True), 1e-12)
+    n_c = capsule_normal(p, c, row[:, 3:6], row[:, 7])
+    is_caps = jnp.asarray(tab.kind == PL.CAPSULE)[k]
+    return jnp.where(is_caps[:, None], n_c, n_e)
+
+
+# ---------------------------------------------------------------------------------------------
+# Obstacles (stones = capsules of zero length, branches = horizontal capsules)
+
+
+def obstacle_table(field: F.Field, cam_pos, forward, n: int):
+    """The `n` active obstacles nearest the camera and not behind it: (centre [n, 3],
+    axis [n, 3], radius [n], half length [n], ok bool [n], is_branch bool [n])."""
+    rel = field.obst_pos - cam_pos
+    dist = jnp.linalg.norm(rel, axis=-1)
+    ahead = _dot(rel, forward) > -field.obst_size[:, 1] - field.obst_size[:, 0] - 0.5
+    score = jnp.where(field.obst_active & ahead, dist, INF)
+    _, idx = jax.lax.top_k(-score, n)
+    yaw = field.obst_yaw[idx]
+    axis = jnp.stack([jnp.cos(yaw), jnp.sin(yaw), jnp.zeros_like(yaw)], -1)
+    half = jnp.where(field.obst_kind[idx] == F.BRANCH, field.obst_size[idx, 1], 0.0)
+    return (field.obst_pos[idx], axis, field.obst_size[idx, 0], half, jnp.isfinite(score[idx]),
+            field.obst_kind[idx] == F.BRANCH)
+
+
+def trace_obstacles(obst, o, d, t_min):
+    """Nearest obstacle hit: (t [N] (+inf: none), normal [N, 3], is_branch bool [N])."""
+    c, axis, rad, half, ok, branch = obst
+    oc = tuple(x[:, None] for x in _xyz(o))
+    dc = tuple(x[:, None] for x in _xyz(d))
+    t = capsule_hit(oc, dc, _xyz(c), _xyz(axis), rad, half, t_min[:, None])  # [N, n]
+    t = jnp.where(ok, t, INF)
+    j = jnp.argmin(t, axis=1)
+    t_best = jnp.take_along_axis(t, j[:, None], 1)[:, 0]
+    p = o + jnp.where(jnp.isfinite(t_best), t_best, 0.0)[:, None] * d
+    return t_best, capsule_normal(p, c[j], axis[j], half[j]), branch[j]
+
+
+# ---------------------------------------------------------------------------------------------
+# Terrain (MuJoCo's heightfield triangulation, as field.terrain_height)
+
+
+def terrain_eval(terrain, size, x, y):
+    """Height h [m] and slopes dh/dx, dh/dy of the triangle under (x, y) (any shape)."""
+    ny, nx = terrain.shape
+    sx, sy = (nx - 1) / size[0], (ny - 1) / size[1]
+    u = jnp.clip((x / size[0] + 0.5) * (nx - 1), 0.0, nx - 1 - 1e-4)
+    v = jnp.clip((y / size[1] + 0.5) * (ny - 1), 0.0, ny - 1 - 1e-4)
+    i = jnp.floor(u).astype(jnp.int32)
+    j = jnp.floor(v).astype(jnp.int32)
+    fu, fv = u - i, v - j
+    flat = terrain.reshape(-1)
+    base = j * nx + i
+    h00, h10 = flat[base], flat[base + 1]
+    h01, h11 = flat[base + nx], flat[base + nx + 1]
+    low = fu >= fv  # triangle (00, 10, 11)
+    gu = jnp.where(low, h10 - h00, h11 - h01)
+    gv = jnp.where(low, h11 - h10, h01 - h00)
+    return h00 + fu * gu + fv * gv, gu * sx, gv * sy
+
+
+def trace_terrain(terrain, size, o, d, t_min, t_max, steps: int, refine: int):
+    """First hit of each ray with the heightfield (inside its rectangle): a march of `steps`
+    uniform samples over the ray's part inside the terrain's height band, `refine` bisections
+    of the first bracket, then the exact plane of the triangle there. Features thinner than a
+    march step can be stepped over (far, grazing rays).
+    o, d: [N, 3]; t_min, t_max: [N]. Returns (t [N] (+inf: none), unit normal [N, 3])."""
+    zmin, zmax = jnp.min(terrain), jnp.max(terrain)
+    tx0, tx1 = _slab(o[:, 0], d[:, 0], -0.5 * size[0], 0.5 * size[0])
+    ty0, ty1 = _slab(o[:, 1], d[:, 1], -0.5 * size[1], 0.5 * size[1])
+    tz0, tz1 = _slab(o[:, 2], d[:, 2], zmin - 1e-4, zmax + 1e-4)
+    t0 = jnp.maximum(jnp.maximum(tx0, ty0), jnp.maximum(tz0, t_min))
+    t1 = jnp.minimum(jnp.minimum(tx1, ty1), jnp.minimum(tz1, t_max))
+    live = t0 < t1
+    t1 = jnp.where(live, t1, t0)
+
+    def f(t):  # height of the ray above the terrain at t [N, S]
+        p = o[:, None, :] + t[..., None] * d[:, None, :]
+        return p[..., 2] - terrain_eval(terrain, size, p[..., 0], p[..., 1])[0]
+
+    frac = jnp.arange(0, steps + 1, dtype=jnp.float32) / steps
+    ts = t0[:, None] + (t1 - t0)[:, None] * frac  # [N, S + 1]
+    below = f(ts) <= 0.0
+    found = live & jnp.any(below, axis=1)
+    first = jnp.argmax(below, axis=1)
+    b = jnp.take_along_axis(ts, first[:, None], 1)[:, 0]
+    a = jnp.where(first > 0, jnp.take_along_axis(ts, jnp.maximum(first - 1, 0)[:, None], 1)[:, 0],
+                  t0)
+    def bisect(_, ab):
+        a, b = ab
+        m = 0.5 * (a + b)
+        above = f(m[:, None])[:, 0] > 0.0
+        return jnp.where(above, m, a), jnp.where(above, b, m)
+
+    a, b = jax.lax.fori_loop(0, refine, bisect, (a, b), unroll=refine if _unroll() else 1)
+    m = 0.5 * (a + b)
+    pm = o + m[:, None] * d
+    h, gx, gy = terrain_eval(terrain, size, pm[:, 0], pm[:, 1])
+    den = d[:, 2] - gx * d[:, 0] - gy * d[:, 1]
+    num = h + gx * (o[:, 0] - pm[:, 0]) + gy * (o[:, 1] - pm[:, 1]) - o[:, 2]
+    t_plane = num / jnp.where(den < -1e-9, den, -1e-9)
+    t = jnp.where(den < -1e-9, jnp.clip(t_plane, a, b), m)
+    n = jnp.stack([-gx, -gy, jnp.ones_like(gx)], -1)
+    n = n / jnp.linalg.norm(n, axis=-1, keepdims=True)
+    return jnp.where(found, t, INF), n

@@ -1,0 +1,213 @@
+"""Lighting conditions, procedural colour and sky for `render.py` (pure jnp, no jit).
+
+Colours are linear RGB; `render.py` applies exposure and the sRGB-like gamma at the end.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from mjxrow import plants as PL
+
+CONDITIONS = ("sunny", "cloudy", "crepuscular", "long_shadows")
+
+
+@struct.dataclass
+class Conditions:
+    """Sky and lighting of one frame (add a leading [B] axis for a batch). Linear RGB."""
+
+    sun_dir: jax.Array  # float32 [3], unit vector toward the sun (world frame)
+    sun_rgb: jax.Array  # float32 [3], direct sun irradiance on a surface facing it
+    ambient: jax.Array  # float32 [3], sky light on an unoccluded surface
+    sky_zenith: jax.Array  # float32 [3], sky radiance straight up
+    sky_horizon: jax.Array  # float32 [3], sky radiance at the horizon (also the haze colour)
+    cloud: jax.Array  # float32 [], cloud cover of the sky texture, 0 (clear) .. 1 (overcast)
+    haze: jax.Array  # float32 [], distance at which 63 % of a surface's colour is haze [m]
+    soil_tint: jax.Array  # float32 [3], factor on the soil albedo
+    leaf_tint: jax.Array  # float32 [3], factor on the plant albedo
+    exposure: jax.Array  # float32 [], factor on the radiance before the gamma
+    noise: jax.Array  # float32 [], sensor noise std in 8-bit units / 255 (used with a key)
+
+
+# name: (sun elevation range [deg], sun rgb, ambient, zenith, horizon, cloud, haze [m], noise)
+_TABLE = {
+    "sunny": ((35.0, 70.0), (1.00, 0.96, 0.88), (0.30, 0.34, 0.42), (0.16, 0.33, 0.75),
+              (0.62, 0.74, 0.90), 0.15, 220.0, 0.010),
+    "cloudy": ((25.0, 70.0), (0.10, 0.10, 0.10), (0.72, 0.74, 0.78), (0.45, 0.48, 0.53),
+               (0.70, 0.72, 0.75), 0.90, 90.0, 0.012),
+    "crepuscular": ((2.0, 9.0), (1.25, 0.55, 0.22), (0.16, 0.14, 0.20), (0.10, 0.13, 0.30),
+                    (0.95, 0.48, 0.22), 0.30, 120.0, 0.020),
+    "long_shadows": ((9.0, 20.0), (1.20, 1.05, 0.85), (0.24, 0.28, 0.38), (0.15, 0.30, 0.68),
+                     (0.70, 0.72, 0.78), 0.10, 180.0, 0.012),
+}
+_SUN_AZIMUTH_DEG = 35.0  # nominal sun azimuth (from +x toward +y)
+
+
+def _vec(x) -> jax.Array:
+    return jnp.asarray(x, jnp.float32)
+
+
+def conditions(name: str, key: jax.Array | None = None) -> Conditions:
+    """Nominal conditions of `name` (one of CONDITIONS), or, with a key, a random variant of
+    them: sun azimuth anywhere, elevation inside the condition's range, colours, haze, soil and
+    leaf tints and exposure jittered. Jittable (name is static)."""
+    if name not in _TABLE:
+        raise ValueError(f"condition: unknown condition {name!r}; expected one of {CONDITIONS}")
+    (e_lo, e_hi), sun, amb, zen, hor, cloud, haze, noise = _TABLE[name]
+    if key is None:
+        az, el = np.deg2rad(_SUN_AZIMUTH_DEG), np.deg2rad(0.5 * (e_lo + e_hi))
+        j3 = lambda: jnp.ones(3)  # noqa: E731
+        jitter = jnp.ones(())
+        soil = leaf = jnp.ones(3)
+        exposure = jnp.ones(())
+    else:
+        ks = jax.random.split(key, 9)
+        az = jax.random.uniform(ks[0], (), maxval=2 * jnp.pi)
+        el = jnp.deg2rad(jax.random.uniform(ks[1], (), minval=e_lo, maxval=e_hi))
+        it = iter(jax.random.split(ks[2], 4))
+        j3 = lambda: 1.0 + 0.06 * jax.random.normal(next(it), (3,))  # noqa: E731
+        jitter = jnp.exp(0.25 * jax.random.normal(ks[3], ()))
+        # soil: darker/wetter .. lighter/drier, redder .. greyer; leaves: yellower .. bluer
+        soil = jnp.exp(0.22 * jax.random.normal(ks[4], ())) * (
+            1.0 + jnp.array([0.08, 0.0, -0.08]) * jax.random.normal(ks[5], ()))
+        leaf = jnp.exp(0.12 * jax.random.normal(ks[6], ())) * (
+            1.0 + jnp.array([0.15, 0.02, -0.10]) * jax.random.normal(ks[7], ()))
+        exposure = jnp.exp(0.10 * jax.random.normal(ks[8], ()))
+    sun_dir = jnp.stack([jnp.cos(el) * jnp.cos(az), jnp.cos(el) * jnp.sin(az), jnp.sin(el)])
+    return Conditions(
+        sun_dir=sun_dir.astype(jnp.float32), sun_rgb=_vec(sun) * j3(), ambient=_vec(amb) * j3(),
+        sky_zenith=_vec(zen) * j3(), sky_horizon=_vec(hor) * j3(), cloud=_vec(cloud),
+        haze=_vec(haze) * jitter, soil_tint=_vec(soil), leaf_tint=_vec(leaf),
+        exposure=_vec(exposure), noise=_vec(noise))
+
+
+def condition_by_index(index: jax.Array, key: jax.Array | None = None) -> Conditions:
+    """`conditions(CONDITIONS[index], key)` for a traced int index (vmappable)."""
+    all_c = [conditions(n, key) for n in CONDITIONS]
+    return jax.tree.map(lambda *xs: jnp.stack(xs)[index], *all_c)
+
+
+# ---------------------------------------------------------------------------------------------
+# Value noise (integer hash; identical on CPU and GPU)
+
+
+def _hash(*ints: jax.Array, seed: int = 0) -> jax.Array:
+    h = jnp.uint32((0x9E3779B9 + 0x632BE5AB * seed) & 0xFFFFFFFF)
+    for i, x in enumerate(ints):
+        x = (x + (1 << 22)).astype(jnp.uint32)
+        h = (h ^ (x * jnp.uint32((0x85EBCA77, 0xC2B2AE3D, 0x27D4EB2F)[i]))) * jnp.uint32(0x165667B1)
+        h = h ^ (h >> 15)
+    h = (h ^ (h >> 16)) * jnp.uint32(0x7FEB352D)
+    h = (h ^ (h >> 15)) * jnp.uint32(0x846CA68B)
+    h = h ^ (h >> 16)
+    return (h >> 8).astype(jnp.float32) * (1.0 / (1 << 24))
+
+
+def hash01(*ints: jax.Array, seed: int = 0) -> jax.Array:
+    """Uniform [0, 1) from integer arrays (same shapes)."""
+    return _hash(*(jnp.asarray(x, jnp.int32) for x in ints), seed=seed)
+
+
+def value_noise2(x: jax.Array, y: jax.Array, seed: int = 0) -> jax.Array:
+    """Smooth value noise in [0, 1) with unit lattice spacing."""
+    fx, fy = jnp.floor(x), jnp.floor(y)
+    ix, iy = fx.astype(jnp.int32), fy.astype(jnp.int32)
+    u, v = x - fx, y - fy
+    u, v = u * u * (3 - 2 * u), v * v * (3 - 2 * v)
+    a, b = _hash(ix, iy, seed=seed), _hash(ix + 1, iy, seed=seed)
+    c, d = _hash(ix, iy + 1, seed=seed), _hash(ix + 1, iy + 1, seed=seed)
+    return a + (b - a) * u + (c - a) * v + (a - b - c + d) * u * v
+
+
+def fbm2(x: jax.Array, y: jax.Array, octaves: int, seed: int = 0) -> jax.Array:
+    """Sum of `octaves` value-noise octaves (lacunarity 2, gain 0.5), normalised to [0, 1)."""
+    total, amp, norm = 0.0, 1.0, 0.0
+    for o in range(octaves):
+        total = total + amp * value_noise2(x, y, seed + 17 * o)
+        norm += amp
+        x, y = 2.03 * x + 5.1, 2.03 * y - 3.7
+        amp *= 0.5
+    return total / norm
+
+
+# ---------------------------------------------------------------------------------------------
+# Colours (sRGB albedo, converted to linear)
+
+_SOIL = (0.43, 0.32, 0.22)
+_STONE, _BRANCH = (0.55, 0.53, 0.50), (0.42, 0.31, 0.20)
+# per crop: material → sRGB albedo (LEAF, STEM, TRUNK, CANOPY, FRUIT)
+_PALETTE = {
+    "zucchini": ((0.20, 0.42, 0.13), (0.42, 0.55, 0.22), (0.36, 0.27, 0.18), (0.2, 0.4, 0.13),
+                 (0.85, 0.72, 0.20)),
+    "lettuce": ((0.45, 0.66, 0.22), (0.62, 0.78, 0.36), (0.36, 0.27, 0.18), (0.4, 0.6, 0.2),
+                (0.85, 0.72, 0.20)),
+    "chard": ((0.14, 0.34, 0.11), (0.70, 0.22, 0.20), (0.36, 0.27, 0.18), (0.15, 0.35, 0.1),
+              (0.85, 0.72, 0.20)),
+    "pear": ((0.22, 0.42, 0.14), (0.40, 0.52, 0.22), (0.33, 0.25, 0.18), (0.21, 0.40, 0.13),
+             (0.75, 0.72, 0.25)),
+    "vineyard": ((0.27, 0.45, 0.15), (0.40, 0.52, 0.22), (0.40, 0.30, 0.21), (0.26, 0.44, 0.14),
+                 (0.30, 0.20, 0.35)),
+}
+
+
+def _lin(rgb) -> jax.Array:
+    return jnp.asarray(rgb, jnp.float32) ** 2.2
+
+
+def soil_albedo(p: jax.Array, cond: Conditions) -> jax.Array:
+    """Soil albedo (linear) at world points p [N, 3]: large damp/dry patches, clods, grit."""
+    x, y = p[:, 0], p[:, 1]
+    patches = fbm2(x * 0.45, y * 0.45, 3, seed=1)
+    clods = value_noise2(x * 9.0, y * 9.0, seed=2)
+    grit = value_noise2(x * 40.0, y * 40.0, seed=3)
+    f = (0.62 + 0.75 * patches) * (0.82 + 0.36 * clods) * (0.9 + 0.2 * grit)
+    warm = 1.0 + 0.10 * (patches - 0.5)[:, None] * jnp.array([1.0, 0.2, -0.8])
+    return _lin(_SOIL) * cond.soil_tint * f[:, None] * warm
+
+
+def plant_albedo(crop: str, material: jax.Array, p: jax.Array, phase: jax.Array,
+                 plant: jax.Array, k: jax.Array, cond: Conditions) -> jax.Array:
+    """Plant albedo (linear) at hit points p [N, 3]: the crop's material colour, varied per plant
+    (phase [N]), per primitive (plant, k [N] ints) and by fine mottling over the surface."""
+    pal = _lin(_PALETTE[crop])  # [5, 3]
+    base = pal[material]
+    per_plant = 0.80 + 0.40 * phase
+    yellow = 1.0 + 0.18 * (phase - 0.5)[:, None] * jnp.array([1.0, 0.3, -1.0])
+    per_prim = 0.85 + 0.30 * hash01(plant, k, seed=5)
+    s = 14.0 if crop in ("zucchini", "lettuce", "chard") else 6.0
+    mottle = value_noise2(s * (p[:, 0] + p[:, 2]), s * (p[:, 1] - 0.7 * p[:, 2]), seed=6)
+    fine = 0.75 + 0.5 * mottle
+    if crop == "zucchini":  # pale mottled patches on the leaf blades
+        silver = jnp.clip((value_noise2(30 * p[:, 0], 30 * p[:, 1], seed=7) - 0.62) * 4, 0, 1)
+        fine = fine + 0.8 * silver * (material == PL.LEAF)
+    f = (per_plant * per_prim * fine)[:, None]
+    return base * cond.leaf_tint * yellow * f
+
+
+def obstacle_albedo(is_branch: jax.Array, p: jax.Array) -> jax.Array:
+    n = 0.8 + 0.4 * value_noise2(25 * p[:, 0] + 3 * p[:, 2], 25 * p[:, 1], seed=8)
+    return jnp.where(is_branch[:, None], _lin(_BRANCH), _lin(_STONE)) * n[:, None]
+
+
+def sky(d: jax.Array, cond: Conditions) -> jax.Array:
+    """Sky radiance (linear) for unit view directions d [N, 3]: zenith-horizon gradient, sun disk
+    and glow, a cloud layer textured with value noise."""
+    up = jnp.clip(d[:, 2], 0.0, 1.0)
+    grad = cond.sky_horizon + (cond.sky_zenith - cond.sky_horizon) * (up ** 0.45)[:, None]
+    cos_sun = jnp.clip(d @ cond.sun_dir, 0.0, 1.0)
+    glow = (0.9 * cos_sun ** 900 + 0.12 * cos_sun ** 10)[:, None] * cond.sun_rgb
+    # clouds on a plane 1 unit above: coordinates d_xy / d_z
+    h = jnp.maximum(d[:, 2], 0.03)
+    cx, cy = d[:, 0] / h, d[:, 1] / h
+    c = fbm2(1.7 * cx, 1.7 * cy, 4, seed=11)
+    cover = jnp.clip((c - (1.0 - cond.cloud)) * 3.0 + cond.cloud ** 3, 0.0, 1.0)
+    cover = cover * jnp.clip(d[:, 2] * 6.0, 0.0, 1.0)
+    cloud_rgb = (0.65 * cond.sky_horizon + 0.35 * cond.sun_rgb + 0.4 * cond.ambient) * (
+        0.75 + 0.35 * c)[:, None]
+    out = grad * (1.0 - cover[:, None]) + cloud_rgb * cover[:, None]
+    below = d[:, 2] < 0  # under the horizon with nothing hit: haze
+    out = jnp.where(below[:, None], cond.sky_horizon * 0.85, out)
+    return out + glow * (1.0 - cover[:, None])
