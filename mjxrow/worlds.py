@@ -10,6 +10,7 @@ obstacles 2. Plants never collide (contype = conaffinity = 0).
 from __future__ import annotations
 
 import argparse
+import gzip
 import io
 import sys
 from pathlib import Path
@@ -324,17 +325,21 @@ def lanes_table(field: F.Field) -> pd.DataFrame:
 
 
 def export(field: F.Field, shape: F.FieldShape, out_dir: str | Path, name: str,
-           sdf_collisions: str = "footprint") -> dict[str, Path]:
-    """Write `<name>.xml` (+ `<name>_terrain.bin`), `<name>.sdf` (+ heightmap and soil PNGs),
-    `<name>_plants.csv` and `<name>_lanes.csv` into `out_dir`. Returns {what: path} with keys
-    xml, sdf, plants, lanes and every asset file name."""
+           sdf_collisions: str = "footprint", gzip_sdf: bool = False) -> dict[str, Path]:
+    """Write `<name>.xml` (+ `<name>_terrain.bin`), `<name>.sdf` (+ heightmap and soil PNGs;
+    `<name>.sdf.gz` with `gzip_sdf`), `<name>_plants.csv` and `<name>_lanes.csv` into `out_dir`.
+    Returns {what: path} with keys xml, sdf, plants, lanes and every asset file name."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths: dict[str, Path] = {}
     for key, (text, assets) in (("xml", to_mjcf(field, shape, name)),
                                 ("sdf", to_sdf(field, shape, name, sdf_collisions))):
         paths[key] = out / f"{name}.{key}"
-        paths[key].write_text(text)
+        if key == "sdf" and gzip_sdf:
+            paths[key] = out / f"{name}.sdf.gz"
+            paths[key].write_bytes(gzip.compress(text.encode(), mtime=0))
+        else:
+            paths[key].write_text(text)
         for fname, data in assets.items():
             paths[fname] = out / fname
             paths[fname].write_bytes(data)
@@ -384,6 +389,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="override a field parameter (repeatable), e.g. --set d_rr=2.0")
     ap.add_argument("--sdf-collisions", choices=SDF_COLLISIONS, default="footprint",
                     help="plant collisions in the SDF (see to_sdf)")
+    ap.add_argument("--gzip-sdf", action="store_true",
+                    help="write <preset>.sdf.gz (gunzip before opening in Gazebo)")
     ap.add_argument("--picture", metavar="PNG", help="also render the `eye` view (one preset)")
     args = ap.parse_args(argv)
     if args.picture and args.all:
@@ -401,7 +408,7 @@ def main(argv: list[str] | None = None) -> int:
     for preset, (params, shape) in tqdm(resolved.items(), desc="export",
                                         disable=len(resolved) < 2):
         fld = generate(params, shape, jax.random.key(args.seed))
-        paths = export(fld, shape, args.out, preset, args.sdf_collisions)
+        paths = export(fld, shape, args.out, preset, args.sdf_collisions, args.gzip_sdf)
         kb = sum(p.stat().st_size for p in paths.values()) / 1024
         tqdm.write(f"{preset}: {int(fld.plant_active.sum())} plants in {int(fld.n_rows)} rows, "
                    f"{len(paths)} files, {kb:.0f} KiB → {Path(args.out) / preset}.xml")
