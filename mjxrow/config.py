@@ -60,11 +60,10 @@ class EpisodeSection:
                           static=True)
     goal_tolerance: float = _k(0.40, "goal reached within this distance", "m", "positive",
                                static=True)
-    start_offset_std: float = _k(0.0, "std of the start's lateral offset from the lane centre "
-                                 "(one value per batch, so a group key)", "m", "nonneg",
-                                 static=True)
-    start_yaw_std: float = _k(0.0, "std of the start heading about the row direction (one "
-                              "value per batch, so a group key)", "deg", "nonneg", static=True)
+    start_offset_std: float = _k(0.0, "std of the start's lateral offset from the lane "
+                                 "centre", "m", "nonneg")
+    start_yaw_std: float = _k(0.0, "std of the start heading about the row direction", "deg",
+                              "nonneg")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -101,8 +100,9 @@ class PerceptionSection:
     source: str = _k("learned", "mask from the learned segmenter or the renderer's ground "
                      "truth", static=True, choices=SOURCES, kind=str)
     checkpoint: str = _k("shipped", "'shipped' (mjxrow/checkpoints/<crop>/) or a checkpoint "
-                         "directory (relative to the working directory or the YAML file)",
-                         static=True, kind=str)
+                         "directory (relative to the working directory or the YAML file); one "
+                         "group per checkpoint, but the weights are traced, so checkpoints of "
+                         "one architecture share one compile", static=True, kind=str)
     threshold: float = _k(0.7, "segmenter output threshold", "-", "unit")
     condition: str = _k("sunny", "sky / lighting condition of the renderer", static=False,
                         choices=CONDITIONS, kind=str)

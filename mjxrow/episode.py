@@ -2,8 +2,10 @@
 
 `episode(...)` runs ONE world for `cfg.n_steps` control steps in a `lax.scan` (pure, not
 jitted); `rollout(...)` vmaps it over B fields and keys and jits it, once per (policy, static
-config): fields, lanes, keys, pose noise and the policy's params are traced arrays, so new
-FieldParams never retrace. `TRACES` counts the traces.
+config, policy-params axes): fields, lanes, keys, per-episode start-pose noise and the policy's
+params (per episode or shared, `params_axes`) are traced arrays, so new FieldParams, gains,
+noise or segmenter weights never retrace. `TRACES` counts the traces. Perception policies
+(render → segment → SegZeros) come from `closed_loop`.
 
 An episode starts at rest `sim_cfg.path_length` before the end of its lane (sim.reset), the goal
 is the lane's end point (row end x, lane centre y). Each step: observation → policy → one
@@ -57,8 +59,6 @@ class EpisodeConfig:
     goal_radius: float = 0.40  # m, goal reached within this distance
     stuck_window: int = 45  # control steps between stuck checks (3 s at 15 Hz)
     stuck_dist: float = 0.05  # m, moving less than this over a window is stuck
-    lateral_std: float = 0.0  # m, std of the start's lateral offset (traced, not a compile key)
-    heading_std: float = 0.0  # rad, std of the start heading (traced, not a compile key)
     collision_window: int = 4  # plants checked each side along a row (metrics.collides)
     end_off_patch: bool = True  # end an episode that leaves the terrain patch as off_patch
     sim: sim.SimConfig = sim.SimConfig()
@@ -72,9 +72,6 @@ class EpisodeConfig:
         for name in ("goal_radius", "stuck_dist"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: must be positive, got {getattr(self, name)}")
-        for name in ("lateral_std", "heading_std"):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"{name}: must be non-negative, got {getattr(self, name)}")
 
     @property
     def control_dt(self) -> float:
@@ -97,7 +94,8 @@ def episode(mx, field: F.Field, lane: jax.Array, key: jax.Array, noise: sim.Pose
     """One world's episode (pure; not jitted: `rollout` composes jit and vmap).
 
     mx: the shape's MJX model (sim.make_model); field: one Field; lane: int32 [] lane index;
-    key: PRNG key (start-pose noise and the policy's per-step keys); noise: start-pose noise;
+    key: PRNG key (start-pose noise and the policy's per-step keys); noise: this episode's
+    start-pose noise (sim.PoseNoise of scalars);
     policy: `control.Policy` (or any callable `(params, state, obs, key) -> (state, cmd)`,
     stateless: its state is None); cfg: static settings. Returns the Log ([T] per step)."""
     global TRACES
@@ -166,7 +164,7 @@ def canonical_axes(params_axes: Any) -> tuple:
 
 def compiled(policy, cfg: EpisodeConfig, params_axes: Any = None):
     """jit(vmap(episode)) for one policy, static config and policy-params axes: a function
-    `(mx, fields [B], lanes [B], keys [B], noise, policy_params) -> Log [B]`. params_axes:
+    `(mx, fields [B], lanes [B], keys [B], noise [B], policy_params) -> Log [B]`. params_axes:
     vmap in_axes prefix of the policy params (None: all shared, 0: all per episode, or a
     pytree such as `((None, 0), 0)`). Cached, so equal (policy, cfg, axes) reuse one compiled
     function."""
@@ -180,12 +178,8 @@ def _compiled(policy, cfg: EpisodeConfig, axes: tuple):
     def one(mx, field, lane, key, noise, params):
         return episode(mx, field, lane, key, noise, policy, params, cfg)
 
-    in_axes = (None, 0, 0, 0, None, jax.tree.unflatten(treedef, leaves))
+    in_axes = (None, 0, 0, 0, 0, jax.tree.unflatten(treedef, leaves))
     return jax.jit(jax.vmap(one, in_axes=in_axes))
-
-
-def _static(cfg: EpisodeConfig) -> EpisodeConfig:
-    return dataclasses.replace(cfg, lateral_std=0.0, heading_std=0.0)
 
 
 def _split_params(policy_params: Any, params_axes: Any) -> list[tuple[tuple, Any, Any]]:
@@ -228,10 +222,26 @@ def stack_params(trees: list, params_axes: Any = 0) -> Any:
     return treedef.unflatten(out)
 
 
+def batch_noise(noise: sim.PoseNoise | None, batch: int) -> sim.PoseNoise:
+    """Start-pose noise of every episode: float32 [batch] stds, from scalars (the same for
+    all), [batch] arrays or None (no noise). ValueError for negative or non-finite stds."""
+    noise = noise if noise is not None else sim.pose_noise()
+    out = {}
+    for name in ("lateral_std", "heading_std"):
+        x = jnp.asarray(getattr(noise, name), jnp.float32)
+        if x.ndim > 1 or (x.ndim == 1 and x.shape[0] != batch):
+            raise ValueError(f"noise.{name}: expected a scalar or shape ({batch},), got "
+                             f"{x.shape}")
+        if not np.all(np.isfinite(np.asarray(x)) & (np.asarray(x) >= 0)):
+            raise ValueError(f"noise.{name}: must be finite and non-negative, got {x}")
+        out[name] = jnp.broadcast_to(x, (batch,))
+    return sim.PoseNoise(**out)
+
+
 def rollout_args(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array,
-                 cfg: EpisodeConfig, policy_params: Any = None, params_axes: Any = None
-                 ) -> tuple:
-    """Checked arguments of the compiled function (host): (mx, fields, lanes, keys, noise,
+                 policy_params: Any = None, params_axes: Any = None,
+                 noise: sim.PoseNoise | None = None) -> tuple:
+    """Checked arguments of the compiled function (host): (mx, fields, lanes, keys, noise [B],
     policy_params)."""
     valid = np.asarray(fields.valid)
     if valid.ndim != 1:
@@ -248,13 +258,14 @@ def rollout_args(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array,
     lanes = jnp.asarray(lanes, jnp.int32)
     if lanes.shape != (B,):
         raise ValueError(f"lanes: expected shape ({B},), got {lanes.shape}")
-    noise = sim.pose_noise(cfg.lateral_std, cfg.heading_std)
+    noise = batch_noise(noise, B)
     check_params(policy_params, params_axes, B)
     return mx, fields, lanes, keys, noise, policy_params
 
 
 def rollout(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array, policy,
-            policy_params: Any, ep_cfg: EpisodeConfig, params_axes: Any = None) -> Log:
+            policy_params: Any, ep_cfg: EpisodeConfig, params_axes: Any = None,
+            noise: sim.PoseNoise | None = None) -> Log:
     """B episodes in one compiled call: jit(vmap(scan)).
 
     mx: MJX model of the fields' static shape (sim.make_model); fields: Field with a leading
@@ -265,10 +276,12 @@ def rollout(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array, polic
     are per episode (a vmap in_axes prefix pytree): None (default) shares them all, 0 gives
     every leaf a leading [B] axis, and a pytree mixes the two, e.g. `((None, 0), 0)` for
     `((segmenter weights, conditions), controller gains)`: weights shared, the rest per
-    episode. New values of any of them never recompile; other axes do. Returns a Log with a
-    leading [B] axis."""
-    args = rollout_args(mx, fields, lanes, keys, ep_cfg, policy_params, params_axes)
-    return compiled(policy, _static(ep_cfg), params_axes)(*args)
+    episode. New values of any of them never recompile; other axes do. noise: start-pose
+    noise (sim.PoseNoise: lateral std [m], heading std [rad]), scalars for all episodes or
+    [B] arrays, one per episode (traced: any values, one compile); None: start on the lane
+    centre line, heading +x. Returns a Log with a leading [B] axis."""
+    args = rollout_args(mx, fields, lanes, keys, policy_params, params_axes, noise)
+    return compiled(policy, ep_cfg, params_axes)(*args)
 
 
 def summarise(log: Log, ep_cfg: EpisodeConfig) -> dict[str, jax.Array]:
@@ -377,6 +390,10 @@ def run_cli(args: argparse.Namespace) -> pd.DataFrame:
         raise ValueError(f"--n: must be at least 1, got {args.n}")
     if args.seed < 0:
         raise ValueError(f"--seed: must be non-negative, got {args.seed}")
+    for flag, v in (("--lateral-std", args.lateral_std),
+                    ("--heading-std-deg", args.heading_std_deg)):
+        if not (math.isfinite(v) and v >= 0):
+            raise ValueError(f"{flag}: must be finite and non-negative, got {v}")
     sets = parse_sets(args.set)
     params = F.make_params(args.preset, **sets)
     params = jax.tree.map(lambda x: jnp.broadcast_to(x, (args.n,)), params)
@@ -389,8 +406,6 @@ def run_cli(args: argparse.Namespace) -> pd.DataFrame:
         raise ValueError(f"--path-length: {args.path_length} m is longer than the rows "
                          f"({row_len:g} m)")
     cfg = EpisodeConfig(crop=args.preset, n_steps=args.steps, goal_radius=args.goal_radius,
-                        lateral_std=args.lateral_std,
-                        heading_std=math.radians(args.heading_std_deg),
                         sim=sim.SimConfig(path_length=args.path_length))
     policy, pparams, axes = make_policy(args.controller, shape, args)
     seeds = args.seed + np.arange(args.n)
@@ -400,8 +415,9 @@ def run_cli(args: argparse.Namespace) -> pd.DataFrame:
         gen = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)
         fields = jax.block_until_ready(gen(params, shape, keys[:, 0]))
         _, mx = sim.make_model(shape, cfg.sim)
-    call_args = rollout_args(mx, fields, None, keys[:, 1], cfg, pparams, axes)
-    fn = compiled(policy, _static(cfg), axes)
+    noise = sim.pose_noise(args.lateral_std, math.radians(args.heading_std_deg))
+    call_args = rollout_args(mx, fields, None, keys[:, 1], pparams, axes, noise)
+    fn = compiled(policy, cfg, axes)
     t0 = time.perf_counter()
     with _ticker("compiling", show):
         exe = fn.lower(*call_args).compile()

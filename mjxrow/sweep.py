@@ -170,10 +170,17 @@ def static_configs(cfg: C.SweepConfig, shape: F.FieldShape):
                               cam_pitch_deg=cam.pitch, cam_fovy=cam.fovy)
     sim_cfg = sim.SimConfig(control_hz=ep.control_hz, path_length=ep.path_length)
     ep_cfg = E.EpisodeConfig(crop=shape.crop, n_steps=math.ceil(ep.max_time * ep.control_hz - 1e-9),
-                             goal_radius=ep.goal_tolerance, lateral_std=ep.start_offset_std,
-                             heading_std=math.radians(ep.start_yaw_std), sim=sim_cfg)
+                             goal_radius=ep.goal_tolerance, sim=sim_cfg)
     intr = render.Intrinsics(width=cam.width, height=cam.height, fovy=cam.fovy)
     return robot_cfg, ep_cfg, intr
+
+
+def start_noise(cfg: C.SweepConfig):
+    """The start-pose noise of one cell (sim.PoseNoise of jax scalars: traced, per episode)."""
+    from mjxrow import sim
+
+    ep = cfg.episode
+    return sim.pose_noise(ep.start_offset_std, math.radians(ep.start_yaw_std))
 
 
 def controller_params(cfg: C.SweepConfig):
@@ -260,6 +267,7 @@ def evaluate_group(group: Group, cfg: C.SweepConfig,
     by_cell = {c.index: c.cfg for c in group.cells}
     fparams = {i: F.make_params(c.preset, **C.field_values(c)) for i, c in by_cell.items()}
     pparams = {i: params_of(c) for i, c in by_cell.items()}
+    noise = {i: start_noise(c) for i, c in by_cell.items()}
     out = []
     for start in range(0, len(group.episodes), B):
         real = list(group.episodes[start:start + B])
@@ -272,7 +280,7 @@ def evaluate_group(group: Group, cfg: C.SweepConfig,
         pol = _put_params(E.stack_params([pparams[c] for c, _ in eps], axes), axes, batched,
                           replicated)
         log = E.rollout(mx, fields, lanes, put(keys[:, 1]), policy, pol, ep_cfg,
-                        params_axes=axes)
+                        params_axes=axes, noise=put(_stack([noise[c] for c, _ in eps])))
         k = len(real)
         met = {name: np.asarray(v)[:k] for name, v in E.summarise(log, ep_cfg).items()}
         rows = pd.DataFrame({"cell": [c for c, _ in real], "episode": [e for _, e in real],

@@ -119,7 +119,7 @@ def test_rollout_takes_weights_as_shared_arguments(world):
         perc = E.stack_params([CL.perception_params(c, 0.5, w) for c in ("sunny", "cloudy")],
                               CL.PARAMS_AXES[0])
         assert perc.variables is w and perc.threshold.shape == (N,)  # shared, not stacked
-        args = E.rollout_args(mx, fields, None, keys, cfg, (perc, gains), CL.PARAMS_AXES)
+        args = E.rollout_args(mx, fields, None, keys, (perc, gains), CL.PARAMS_AXES)
         texts.append(fn.lower(*args).as_text())
     assert E.TRACES == traces0 + 1
     assert texts[0] == texts[1]

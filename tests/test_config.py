@@ -165,6 +165,10 @@ def test_hashes_and_static_keys():
     assert C.static_key(a[0].cfg) == C.static_key(a[1].cfg)
     w = C.expand(cfg_of({"camera": {"width": [16, 32]}}))
     assert C.static_key(w[0].cfg) != C.static_key(w[1].cfg)
+    # start-pose noise is per episode: an axis of it is one group
+    n = C.expand(cfg_of({"episode": {"start_offset_std": [0.0, 0.1], "start_yaw_std": [0, 5]}}))
+    assert len(n) == 4 and len({C.static_key(c.cfg) for c in n}) == 1
+    assert not C.is_static("episode.start_offset_std") and not C.is_static("episode.start_yaw_std")
 
 
 def test_docs_list_every_key():

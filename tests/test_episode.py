@@ -113,6 +113,32 @@ def test_new_shared_params_do_not_retrace(setup):
     assert ((driven > 15.5) & (driven < 16.0)).all(), driven
 
 
+def test_start_noise_per_episode(setup):
+    """Per-episode start-pose noise in the same compiled call: with one key for every episode
+    the draws are equal, so the start offsets scale with each episode's std exactly."""
+    mx, fields, _, _ = setup
+    lat = np.array([0.0, 0.05, 0.1, 0.2, 0.0, 0.0, 0.0, 0.1], np.float32)
+    yaw = np.array([0.0, 0.0, 0.0, 0.0, 0.05, 0.1, 0.2, 0.1], np.float32)
+    keys = jnp.stack([jax.random.key(7)] * B)
+    traces0 = E.TRACES
+    log = jax.tree.map(np.asarray, E.rollout(mx, fields, None, keys, POLICY, policy_params(0),
+                                             CFG, params_axes=AXES,
+                                             noise=sim.PoseNoise(jnp.asarray(lat),
+                                                                 jnp.asarray(yaw))))
+    assert E.TRACES == traces0
+    dy, dyaw = log.start[:, 1] - log.lane_y, log.start[:, 2]
+    z_lat, z_yaw = dy[3] / 0.2, dyaw[6] / 0.2
+    assert abs(z_lat) > 0.05 and abs(z_yaw) > 0.05, (z_lat, z_yaw)
+    np.testing.assert_allclose(dy, lat * z_lat, atol=2e-5)
+    np.testing.assert_allclose(dyaw, yaw * z_yaw, atol=2e-5)
+    assert (log.reason == M.GOAL).all(), log.reason  # the oracle recovers from every start
+    with pytest.raises(ValueError, match="noise.lateral_std: must be finite and non-negative"):
+        E.batch_noise(sim.pose_noise(-0.1, 0.0), B)
+    with pytest.raises(ValueError, match=r"noise.heading_std: expected a scalar or shape \(8,\)"):
+        E.batch_noise(sim.PoseNoise(jnp.float32(0.0), jnp.zeros(3)), B)
+    assert E.batch_noise(None, B).lateral_std.tolist() == [0.0] * B
+
+
 def test_params_axes_are_checked():
     params = ({"w": jnp.ones(3)}, {"g": jnp.ones(B)})
     E.check_params(params, (None, 0), B)
@@ -226,15 +252,15 @@ def test_segzeros_on_rendered_masks_steers_back():
     params = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,)), params)
     fields = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)(
         params, SHAPE, jax.random.split(jax.random.key(0), n))
-    cfg = E.EpisodeConfig(crop="vineyard", n_steps=200, lateral_std=0.3,
-                          sim=sim.SimConfig(path_length=6.0))
+    cfg = E.EpisodeConfig(crop="vineyard", n_steps=200, sim=sim.SimConfig(path_length=6.0))
     _, mx = sim.make_model(SHAPE, cfg.sim)
     intr = render.Intrinsics(48, 32, 42.0)
     policy, pparams = closed_loop.make("segzeros", SHAPE, intr)
     cparams = C.seg_params("zeros", image_hw=(32, 48))
     log = jax.tree.map(np.asarray, E.rollout(mx, fields, None,
                                              jax.random.split(jax.random.key(20), n), policy,
-                                             (pparams, cparams), cfg))
+                                             (pparams, cparams), cfg,
+                                             noise=sim.pose_noise(0.3, 0.0)))
     dev0 = log.start[:, 1] - log.lane_y
     assert dev0[0] > 0.15 and dev0[1] < -0.15, dev0  # these keys start left, then right
     off0 = np.abs(dev0)

@@ -144,6 +144,9 @@ def test_groups_by_static_values(tmp_path):
     groups = S.plan(C.from_dict({**BASE, "field": {"d_pp": [0.3, 0.7], "row_length": [20, 50]}}))
     assert len(groups) == 1
     assert groups[0].shape.max_plants_per_row >= 50 / 0.3 + 1
+    # start-pose noise axes are traced: one group
+    assert len(S.plan(C.from_dict({**BASE, "episode": {"start_offset_std": [0.0, 0.1],
+                                                       "start_yaw_std": [0.0, 3.0]}}))) == 1
     # presets differ in crop: one group each
     assert len(S.plan(C.from_dict({**BASE, "field": {}, "preset": ["zucchini", "pear"]}))) == 2
 
@@ -195,9 +198,10 @@ def test_cli_smoke_with_fake_evaluator(tmp_path, monkeypatch):
 
 REAL = {"name": "real", "seeds": 2, "batch_size": 4, "controller": {"name": "oracle"},
         "perception": {"source": "ground_truth"},
-        "field": {"d_rr": [1.6, 2.4], "terrain_dh": [0.0, 0.2], "row_length": 6.0,
+        "field": {"d_rr": [1.6, 2.4], "terrain_dh": 0.0, "row_length": 6.0,
                   "terrain_length": 10.0, "terrain_width": 10.0, "rows_per_group": 2},
-        "episode": {"path_length": 1.5, "max_time": 4.0}, "camera": {"width": 16, "height": 16}}
+        "episode": {"path_length": 1.5, "max_time": 4.0, "start_offset_std": [0.0, 0.1]},
+        "camera": {"width": 16, "height": 16}}
 
 
 @pytest.fixture(scope="module")
@@ -217,6 +221,11 @@ def test_real_sweep_compiles_once_and_writes_results(real_run):
     assert len(results) == 4 * 2
     assert results["success"].all(), results[["cell", "reason"]]
     assert (results["mae"] < 0.1).all() and (results["time"] < 4.0).all()
+    # start-pose noise per episode in the same batch: on flat ground the oracle stays on the
+    # centre line from a centred start and deviates from a noisy one
+    noisy = results["episode.start_offset_std"] == 0.1
+    assert noisy.sum() == 4 and (results.loc[~noisy, "max_offset"] < 1e-3).all()
+    assert (results.loc[noisy, "max_offset"] > 1e-3).all(), results["max_offset"]
     assert results["lane"].nunique() >= 1 and (out / "success.png").exists()
     assert "![mae](mae.png)" in (out / "report.md").read_text()
 
