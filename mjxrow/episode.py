@@ -182,8 +182,9 @@ def _compiled(policy, cfg: EpisodeConfig, axes: tuple):
     return jax.jit(jax.vmap(one, in_axes=in_axes))
 
 
-def _split_params(policy_params: Any, params_axes: Any) -> list[tuple[tuple, Any, Any]]:
-    """(path, axis, part) triples of the policy params cut along the axes prefix pytree."""
+def check_params(policy_params: Any, params_axes: Any, batch: int) -> None:
+    """ValueError unless `params_axes` is a prefix of the policy params' structure and every
+    per-episode leaf has a leading [batch] axis; the message names the leaf's path."""
     treedef, leaves = canonical_axes(params_axes)
     axes_tree = jax.tree.unflatten(treedef, leaves)
     paths = [p for p, _ in jax.tree_util.tree_flatten_with_path(
@@ -193,15 +194,8 @@ def _split_params(policy_params: Any, params_axes: Any) -> list[tuple[tuple, Any
     except (ValueError, TypeError) as e:
         raise ValueError(f"params_axes: {axes_tree!r} is not a prefix of the policy params' "
                          f"structure ({e})") from None
-    return list(zip(paths, leaves, parts, strict=True))
-
-
-def check_params(policy_params: Any, params_axes: Any, batch: int) -> None:
-    """ValueError unless every per-episode leaf of the policy params has a leading [batch]."""
-    for prefix, axis, part in _split_params(policy_params, params_axes):
-        if axis is None:
-            continue
-        for path, x in jax.tree_util.tree_leaves_with_path(part):
+    for prefix, axis, part in zip(paths, leaves, parts, strict=True):
+        for path, x in jax.tree_util.tree_leaves_with_path(part) if axis is not None else ():
             shape = np.shape(x)
             if not shape or shape[0] != batch:
                 raise ValueError(f"policy_params{jax.tree_util.keystr(tuple(prefix) + path)}: "

@@ -233,14 +233,21 @@ def _stack(trees):
     return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *trees)
 
 
-def _put_params(params, axes, batched, replicated):
-    """device_put of policy params: per-episode parts sharded on the batch, shared replicated."""
+def _put_params(params, axes, batched, replicated, placed: dict):
+    """device_put of policy params: per-episode parts sharded on the batch, shared parts
+    replicated, each shared object once (`placed`: id → its placed copy, kept by the caller)."""
     from mjxrow import episode as E
 
     treedef, leaves = E.canonical_axes(axes)
-    parts = treedef.flatten_up_to(params)
-    return treedef.unflatten([jax.device_put(x, replicated if a is None else batched)
-                              for a, x in zip(leaves, parts, strict=True)])
+    out = []
+    for a, x in zip(leaves, treedef.flatten_up_to(params), strict=True):
+        if a is not None:
+            out.append(jax.device_put(x, batched))
+            continue
+        if id(x) not in placed:
+            placed[id(x)] = (x, jax.device_put(x, replicated))
+        out.append(placed[id(x)][1])
+    return treedef.unflatten(out)
 
 
 def evaluate_group(group: Group, cfg: C.SweepConfig,
@@ -268,6 +275,7 @@ def evaluate_group(group: Group, cfg: C.SweepConfig,
     fparams = {i: F.make_params(c.preset, **C.field_values(c)) for i, c in by_cell.items()}
     pparams = {i: params_of(c) for i, c in by_cell.items()}
     noise = {i: start_noise(c) for i, c in by_cell.items()}
+    placed: dict[int, Any] = {}
     out = []
     for start in range(0, len(group.episodes), B):
         real = list(group.episodes[start:start + B])
@@ -278,7 +286,7 @@ def evaluate_group(group: Group, cfg: C.SweepConfig,
         fields = _generate_fn()(params, shape, put(keys[:, 0]))
         lanes = jax.vmap(F.robot_lane)(fields)
         pol = _put_params(E.stack_params([pparams[c] for c, _ in eps], axes), axes, batched,
-                          replicated)
+                          replicated, placed)
         log = E.rollout(mx, fields, lanes, put(keys[:, 1]), policy, pol, ep_cfg,
                         params_axes=axes, noise=put(_stack([noise[c] for c, _ in eps])))
         k = len(real)

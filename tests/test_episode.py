@@ -197,6 +197,7 @@ def test_termination_reasons(setup):
 def test_cli_rejects_bad_input(tmp_path, capsys):
     cases = [["--set", "d_rr=-1"], ["--set", "nope=1"], ["--set", "d_rr=abc"],
              ["--path-length", "80"], ["--n", "0"], ["--controller", "segzeros", "--image", "64"],
+             ["--lateral-std", "-0.1"], ["--heading-std-deg", "nan"],
              ["--controller", "segmin", "--perception", "learned", "--checkpoint",
               str(tmp_path / "no_such_checkpoint")]]
     for extra in cases:
