@@ -15,7 +15,7 @@ if [ "$mode" = bench ]; then
   if [ -f mjxrow/bench/render.py ]; then log render; $py -m mjxrow.bench render $b; fi
   log closed_loop; $py -m mjxrow.bench closed_loop --batch 256 1024 --image 64 --steps 150 $b
   log sweep;    t0=$(date +%s.%N)
-  $py -m mjxrow.sweep sweeps.yaml --out "$out/sweep" --no-progress | tail -25
+  $py -m mjxrow.sweep sweeps.yaml --set batch_size=216 --out "$out/sweep" --no-progress | tail -25
   t1=$(date +%s.%N)
   $py - "$out" "$t0" "$t1" <<'PY'
 import json, sys, datetime, subprocess
@@ -23,7 +23,7 @@ out, t0, t1 = sys.argv[1], float(sys.argv[2]), float(sys.argv[3])
 dev = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"], capture_output=True, text=True).stdout.strip().splitlines()[0]
 row = {"date": datetime.date.today().isoformat(), "device": dev, "stage": "closed_loop",
        "config": "python -m mjxrow.sweep sweeps.yaml (all cells, compile included)", "batch": 216,
-       "value": t1 - t0, "unit": "s wall", "command": "python -m mjxrow.sweep sweeps.yaml"}
+       "value": t1 - t0, "unit": "s wall", "command": "python -m mjxrow.sweep sweeps.yaml --set batch_size=216"}
 open(f"{out}/benchmarks.jsonl", "a").write(json.dumps(row) + "\n")
 print(f"sweeps.yaml wall time {t1 - t0:.1f} s")
 PY
