@@ -7,8 +7,8 @@ One MuJoCo model per static configuration, every world's data written into model
 - `world_model(mx, field, lane, sim_cfg) -> mjx.Model`: this world's patch heights
   (`hfield_data`), the patch's placement and the obstacles near the lane (`geom_pos`,
   `geom_quat`, `geom_size`) written into the model (pure; vmap it with a batched `field`).
-- `refresh_contacts(mx, xy)`: the contact slots filled with the obstacles nearest the robot
-  (`step` does this every control period).
+- `refresh_contacts(mx, points)`: the contact slots filled with the obstacles nearest the
+  robot's wheels (`step` does this every control period).
 - `model_axes(mx)`: `in_axes` for a model batched by `world_model` under vmap.
 - `reset(mx, field, lane, key, sim_cfg, noise) -> SimState`, `step(mx, state, cmd, sim_cfg)`,
   `pose`, `velocity`, `camera_pose`, `is_bad`, `is_flipped`, `off_patch`.
@@ -31,12 +31,15 @@ field's active obstacles that lie on the patch, nearest the lane's centre line f
 are left out: `obstacles_dropped` counts them); unused ones are parked 100 m below the patch.
 These geoms do not collide: MJX has no broadphase, so every colliding pair costs every step
 (4 contacts per wheel on the terrain, 1 per wheel and obstacle, 4 constraint rows each), and
-obstacles made the solver 2.3× slower at 6 slots. Instead J = sim_cfg.obstacle_slots colliding
-`contact_{j}` geoms are filled, at the start of every control period, with copies of the J
-obstacles nearest the chassis (`refresh_contacts`); in one period the robot moves ≤ 3.5 cm, so
-this is exact unless more than J obstacles touch the robot at once (default J = 2). Contacts are
-only wheel↔terrain and wheel↔obstacle (plus chassis↔both with `chassis_contacts`); plants take
-no part in physics.
+6 colliding obstacle geoms made a step 2.3× slower than 1. Instead J = sim_cfg.obstacle_slots
+colliding `contact_{j}` geoms are filled, at the start of every control period, with copies of
+the J obstacles nearest to any wheel (`refresh_contacts`); in one period the robot moves
+≤ 3.5 cm, so this is exact unless more than J obstacles are within a wheel's reach in the same
+period (two obstacles under two wheels at once). Default J = 1 (J = 2 cost 1.45× on CPU); set
+`obstacle_slots=2` for fields dense with obstacles. Contacts are
+only wheel↔terrain and wheel↔obstacle (plus chassis↔both with `chassis_contacts`, off by
+default: a stone taller than the chassis' 6 cm clearance between the wheels passes through it);
+plants take no part in physics.
 
 Time. The physics step is `sim_cfg.dt` rounded DOWN so that a control period holds a whole number
 of steps: substeps = ceil(1 / (control_hz · dt)), physics_dt = 1 / (control_hz · substeps). With
@@ -95,7 +98,7 @@ class SimConfig:
     patch_width: float = 6.0  # m, patch extent across the lane (y), centred on the lane
     patch_cell: float = 0.2  # m, largest heightfield cell
     patch_z: float = 4.0  # m, heightfield height range (static), must hold the patch's relief
-    obstacle_slots: int = 2  # colliding obstacle slots, refilled near the robot every period
+    obstacle_slots: int = 1  # colliding obstacle slots, refilled near the wheels every period
     obstacle_candidates: int = 16  # obstacles per world on the patch (≤ shape.obstacle_slots)
     chassis_contacts: bool = False  # chassis box collides with terrain and obstacles
     max_speed: float = 20.0  # m/s or rad/s: any faster velocity counts as exploded (is_bad)
@@ -253,6 +256,10 @@ def _geom_ids(mx: mjx.Model | mujoco.MjModel) -> tuple[int, np.ndarray, np.ndarr
     return mjx.name2id(mx, mujoco.mjtObj.mjOBJ_GEOM, TERRAIN), series("obst"), series("contact")
 
 
+def _wheel_body_ids(mx: mjx.Model | mujoco.MjModel) -> np.ndarray:
+    return np.array([mjx.name2id(mx, mujoco.mjtObj.mjOBJ_BODY, f"wheel_{n}") for n in R.WHEELS])
+
+
 # arrays world_model writes: batched along axis 0 by model_axes
 WORLD_FIELDS = ("hfield_data", "geom_pos", "geom_quat", "geom_size")
 
@@ -307,11 +314,7 @@ def _select_obstacles(field: F.Field, centre: jax.Array, sim_cfg: SimConfig, k: 
     d = field.obst_pos[:, :2] - centre
     on_patch = field.obst_active & (jnp.abs(d[:, 0]) < 0.5 * lx) & (jnp.abs(d[:, 1]) < 0.5 * ly)
     score = jnp.where(on_patch, jnp.abs(d[:, 1]), jnp.inf)
-    neg, idx = jax.lax.top_k(-score, min(k, score.shape[0]))
-    if idx.shape[0] < k:  # fewer field obstacles than slots
-        pad = k - idx.shape[0]
-        idx = jnp.concatenate([idx, jnp.zeros(pad, idx.dtype)])
-        neg = jnp.concatenate([neg, jnp.full(pad, -jnp.inf)])
+    neg, idx = jax.lax.top_k(-score, k)  # k ≤ shape.obstacle_slots (_obstacle_counts)
     used = jnp.isfinite(neg)
     dropped = jnp.sum(on_patch) - jnp.sum(used)
     return idx, used, dropped
@@ -365,11 +368,12 @@ def world_model(mx: mjx.Model, field: F.Field, lane: jax.Array, sim_cfg: SimConf
     return refresh_contacts(mx, start)
 
 
-def refresh_contacts(mx: mjx.Model, xy: jax.Array) -> mjx.Model:
+def refresh_contacts(mx: mjx.Model, points: jax.Array) -> mjx.Model:
     """`mx` with its colliding `contact_{j}` slots holding copies of the J obstacle geoms nearest
-    to the point xy float [2] (world, m): nearest by the horizontal distance from xy to the
-    obstacle's segment minus its radius; parked obstacles rank last (pure, jittable).
-    `step` calls it with the chassis position at the start of every control period."""
+    to `points` float [P, 2] or [2] (world xy, m): ranked by the least horizontal distance from
+    a point to the obstacle's segment, minus its radius; parked obstacles rank last (pure,
+    jittable). `step` calls it with the four wheel centres at the start of every control period;
+    `world_model` with the start point."""
     _, obst_ids, slot_ids = _geom_ids(mx)
     j = slot_ids.shape[0]
     if j == 0:
@@ -377,10 +381,10 @@ def refresh_contacts(mx: mjx.Model, xy: jax.Array) -> mjx.Model:
     pos, quat, size = mx.geom_pos[obst_ids], mx.geom_quat[obst_ids], mx.geom_size[obst_ids]
     w, x, y, z = quat[:, 0], quat[:, 1], quat[:, 2], quat[:, 3]
     axis = jnp.stack([2 * (x * z + w * y), 2 * (y * z - w * x)], -1)  # local z in world, xy
-    rel = xy - pos[:, :2]
+    rel = jnp.reshape(points, (-1, 1, 2)) - pos[:, :2]  # [P, K, 2]
     t = jnp.clip(jnp.sum(rel * axis, -1) / jnp.maximum(jnp.sum(axis * axis, -1), 1e-9),
                  -size[:, 1], size[:, 1])
-    dist = jnp.linalg.norm(rel - t[:, None] * axis, axis=-1) - size[:, 0]
+    dist = jnp.min(jnp.linalg.norm(rel - t[..., None] * axis, axis=-1), 0) - size[:, 0]
     parked = pos[:, 2] < mx.geom_pos[_geom_ids(mx)[0], 2] - 0.5 * _PARK_DEPTH
     _, idx = jax.lax.top_k(-jnp.where(parked, jnp.inf, dist), j)
     return mx.tree_replace({"geom_pos": mx.geom_pos.at[slot_ids].set(pos[idx]),
@@ -461,7 +465,7 @@ def step(mx: mjx.Model, state: SimState, cmd: jax.Array, sim_cfg: SimConfig) -> 
     qpos, so `camera_pose` and `pose` describe the same instant. mx: the world's model."""
     ctrl = R.wheel_speeds(cmd, robot_numbers(mx))
     d = state.data.replace(ctrl=ctrl.astype(state.data.ctrl.dtype))
-    mx = refresh_contacts(mx, d.qpos[:2])
+    mx = refresh_contacts(mx, d.xpos[_wheel_body_ids(mx), :2])
 
     def body(d, _):
         return mjx.step(mx, d), None

@@ -190,6 +190,7 @@ def test_mjx_agrees_with_mujoco_c(setup):
     s0, (q, _, _, _) = setup["out"]
     q0 = s0.data.qpos
     refresh = jax.jit(S.refresh_contacts)
+    wheels = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"wheel_{n}") for n in R.WHEELS]
     rn = S.robot_numbers(mx)
     for i in range(len(WORLDS)):
         mw = setup["world"](_world(fields, i))
@@ -199,7 +200,8 @@ def test_mjx_agrees_with_mujoco_c(setup):
         d.ctrl[:] = np.asarray(R.wheel_speeds(jnp.asarray(CMDS[i]), rn))
         qc = []
         for _ in range(T):
-            slots = refresh(mw, jnp.asarray(d.qpos[:2], jnp.float32))
+            mujoco.mj_kinematics(mc, d)  # wheel centres at the current qpos, as sim.step has
+            slots = refresh(mw, jnp.asarray(d.xpos[wheels, :2], jnp.float32))
             for name in ("geom_pos", "geom_quat", "geom_size"):
                 getattr(mc, name)[:] = np.asarray(getattr(slots, name))
             for _ in range(CFG.substeps):
@@ -248,3 +250,30 @@ def test_bad_and_flipped_states_are_detected(setup):
     assert not bool(S.off_patch(mw, s, CFG))
     away = s.replace(data=s.data.replace(qpos=s.data.qpos.at[1].add(3.0)))
     assert bool(S.off_patch(mw, away, CFG))
+
+
+def test_contact_slot_takes_the_obstacle_nearest_a_wheel(setup):
+    """World 3 with a second obstacle: a branch 3 m further on, across the right wheels' path."""
+    f = _world(setup["fields"], 3)
+    stone = np.asarray(f.obst_pos[0])
+    branch = stone + np.array([3.0, -0.376, 0.0])
+    f = f.replace(obst_pos=f.obst_pos.at[1].set(jnp.asarray(branch)),
+                  obst_size=f.obst_size.at[1].set(jnp.array([0.03, 0.5])),
+                  obst_kind=f.obst_kind.at[1].set(F.BRANCH),
+                  obst_yaw=f.obst_yaw.at[1].set(np.pi / 2),  # lying along y
+                  obst_active=f.obst_active.at[1].set(True))
+    mw = setup["world"](f)
+    slot = S._geom_ids(mw)[2][0]
+    near_stone = S.refresh_contacts(mw, jnp.asarray([stone[:2] + [-0.5, 0.0]]))
+    np.testing.assert_allclose(near_stone.geom_pos[slot], stone, atol=1e-6)
+    np.testing.assert_allclose(near_stone.geom_size[slot, 0], STONE_R, atol=1e-6)
+    # wheels 0.6-0.9 m before the branch, 2 m past the stone: the branch is nearer
+    wheels = jnp.asarray(branch[:2] + np.array([[-0.6, 0.5], [-0.6, 0.1], [-0.9, 0.5],
+                                                [-0.9, 0.1]]))
+    near_branch = S.refresh_contacts(mw, wheels)
+    np.testing.assert_allclose(near_branch.geom_pos[slot], branch, atol=1e-6)
+    np.testing.assert_allclose(near_branch.geom_size[slot, :2], [0.03, 0.5], atol=1e-6)
+    # its axis (local z) lies along y
+    q = np.asarray(near_branch.geom_quat[slot])
+    axis_y = 2 * (q[2] * q[3] - q[0] * q[1])
+    assert abs(abs(axis_y) - 1.0) < 1e-5
