@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
+import functools
 import os
 import sys
 import tempfile
@@ -135,18 +136,32 @@ def make_batch_fn(crop: str, intr: RD.Intrinsics, augment: bool = True,
                   cfg: RD.RenderConfig = RD.DEFAULT_CONFIG):
     """On-the-fly training data: `fn(key, batch) -> (rgb uint8 [B, H, W, 3], mask bool [B, H, W])`
     with `batch` a static int; fields, poses and conditions (uniform over the four) drawn from
-    `key`. Jittable: `jax.jit(fn, static_argnums=1)`."""
-    shape = dataset_shape(crop)
+    `key`. Jittable (`jax.jit(fn, static_argnums=1)`); called as is, it runs one compiled
+    renderer per (crop, intr, augment, cfg) that `write_dataset` shares."""
+    core = _render_fn(crop, intr, augment, cfg)
 
     def fn(key: jax.Array, batch: int):
         k_s, k_c = jax.random.split(key)
         keys = jax.random.split(k_s, batch)
         conds = jax.random.randint(k_c, (batch,), 0, len(RD.CONDITIONS))
-        rgb, mask, _ = jax.vmap(lambda k, c: sample(crop, shape, intr, k, c, augment, cfg))(
-            keys, conds)
+        rgb, mask, _ = core(keys, conds)
         return rgb, mask
 
     return fn
+
+
+@functools.lru_cache(maxsize=16)
+def _render_fn(crop: str, intr: RD.Intrinsics, augment: bool, cfg: RD.RenderConfig):
+    """jit(vmap(sample)): (keys [B], conditions int [B]) -> (rgb, mask, meta), one compile per
+    argument set (and batch size)."""
+    shape = dataset_shape(crop)
+    return jax.jit(jax.vmap(lambda k, c: sample(crop, shape, intr, k, c, augment, cfg)))
+
+
+@functools.lru_cache(maxsize=16)
+def _meta_fn(crop: str):
+    shape = dataset_shape(crop)
+    return jax.jit(jax.vmap(lambda k: sample_meta(crop, shape, k)))
 
 
 def sample_keys(seed: int, index: jax.Array) -> jax.Array:
@@ -200,18 +215,15 @@ def write_dataset(crop: str, n: int, out: str | Path, seed: int = 0, size: int =
     """Render and write `n` samples of `crop` into `out` (resumable); returns the index path."""
     out = Path(out)
     test_frac = TEST_FRAC[crop] if test_frac is None else test_frac
-    shape = dataset_shape(crop)
-    intr = RD.Intrinsics(size, size, RD.Intrinsics().fovy)
     for cond in RD.CONDITIONS:
         (out / cond / "rgb").mkdir(parents=True, exist_ok=True)
         (out / cond / "mask").mkdir(parents=True, exist_ok=True)
-
-    meta_fn = jax.jit(jax.vmap(lambda k: sample_meta(crop, shape, k)))
-    render_fn = jax.jit(jax.vmap(
-        lambda k, c: sample(crop, shape, intr, k, c, True, cfg)))
+    meta_fn = _meta_fn(crop)
+    render_fn = _render_fn(crop, RD.Intrinsics(size, size, RD.Intrinsics().fovy), True, cfg)
+    batch = min(batch, n)
     all_idx = np.arange(n)
     metas = []
-    for chunk, pad in _batches(all_idx, min(batch * 8, max(n, 1))):
+    for chunk, pad in _batches(all_idx, min(512, 1 << (n - 1).bit_length())):
         metas.append(np.asarray(meta_fn(sample_keys(seed, jnp.asarray(pad))))[: len(chunk)])
     meta = np.concatenate(metas)
 
@@ -229,10 +241,13 @@ def write_dataset(crop: str, n: int, out: str | Path, seed: int = 0, size: int =
             for done in pending:
                 done.result()
             pending = []
-            for j, i in enumerate(chunk):
+            for j, i in enumerate(chunk):  # only the missing file(s) of each pair
                 rgb_p, mask_p = (out / p for p in paths[i])
-                pending.append(pool.submit(_write_png, rgb_p, rgb[j]))
-                pending.append(pool.submit(_write_png, mask_p, mask[j].astype(np.uint8) * 255))
+                if not rgb_p.exists():
+                    pending.append(pool.submit(_write_png, rgb_p, rgb[j]))
+                if not mask_p.exists():
+                    pending.append(pool.submit(_write_png, mask_p,
+                                               mask[j].astype(np.uint8) * 255))
             bar.update(len(chunk))
         for done in pending:
             done.result()
@@ -261,11 +276,10 @@ def contact_sheet(crop: str, path: str | Path, per_condition: int = 3, size: int
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    shape = dataset_shape(crop)
     intr = RD.Intrinsics(size, size, RD.Intrinsics().fovy)
     nc = len(RD.CONDITIONS)
     idx = np.array([c + nc * j for c in range(nc) for j in range(per_condition)], np.int32)
-    fn = jax.jit(jax.vmap(lambda k, c: sample(crop, shape, intr, k, c, True)))
+    fn = _render_fn(crop, intr, True, RD.DEFAULT_CONFIG)
     rgb, mask, _ = fn(sample_keys(seed, jnp.asarray(idx)), jnp.asarray(idx % nc))
     rgb, mask = np.asarray(rgb), np.asarray(mask)
     fig, axes = plt.subplots(nc, 2 * per_condition, figsize=(2.0 * 2 * per_condition, 2.1 * nc))

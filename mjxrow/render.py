@@ -36,7 +36,7 @@ from mjxrow import render_shade as S
 from mjxrow.render_shade import CONDITIONS, Conditions, condition_by_index, conditions
 
 __all__ = ["CONDITIONS", "DEFAULT_CONFIG", "Conditions", "Frame", "Intrinsics", "RenderConfig",
-           "SKY_DEPTH",
+           "SKY_DEPTH", "geometry",
            "camera_rot", "condition_by_index", "conditions", "render"]
 
 SKY, SOIL, PLANT, OBSTACLE = 0, 1, 2, 3
@@ -168,6 +168,32 @@ def _ground_occlusion(tab, p):
     return 0.55 + 0.45 * s * s * (3 - 2 * s)
 
 
+def _setup(field, shape, cam_pos, cam_rot, intr, cfg):
+    # a terrain generated in the same jit must be in memory before the per-ray gathers
+    field = field.replace(terrain=G.materialise(field.terrain))
+    dc = jnp.asarray(pixel_rays(intr))
+    norm = jnp.linalg.norm(dc, axis=-1)
+    cam_pos = jnp.asarray(cam_pos, jnp.float32)
+    cam_rot = jnp.asarray(cam_rot, jnp.float32)
+    d = (dc / norm[:, None]) @ cam_rot.T
+    o = jnp.broadcast_to(cam_pos, d.shape)
+    tab = G.plant_table(field, shape)
+    obst = G.obstacle_table(field, cam_pos, -cam_rot[:, 2],
+                            min(cfg.obstacles, shape.obstacle_slots))
+    return field, tab, obst, o, d, norm
+
+
+def geometry(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax.Array,
+             intr: Intrinsics, cfg: RenderConfig = DEFAULT_CONFIG) -> tuple[jax.Array, jax.Array]:
+    """What `render` sees, without shading: (depth float32 [H, W] (metres along the optical
+    axis, SKY_DEPTH for sky), classes uint8 [H, W]). Same arguments as `render`."""
+    field, tab, obst, o, d, norm = _setup(field, shape, cam_pos, cam_rot, intr, cfg)
+    t, cls, *_ = _trace(field, shape, tab, obst, o, d, cfg)
+    depth = jnp.where(cls == SKY, SKY_DEPTH, t / norm).astype(jnp.float32)
+    return (depth.reshape(intr.height, intr.width),
+            cls.astype(jnp.uint8).reshape(intr.height, intr.width))
+
+
 def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax.Array,
            intr: Intrinsics, cond: Conditions, key: jax.Array | None = None,
            cfg: RenderConfig = DEFAULT_CONFIG) -> Frame:
@@ -178,17 +204,7 @@ def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax
     for a deterministic image, or a PRNG key for sensor noise and exposure variation
     (augmentation). Returns a `Frame` of [H, W] images."""
     H, W = intr.height, intr.width
-    # a terrain generated in the same jit must be in memory before the per-ray gathers
-    field = field.replace(terrain=G.materialise(field.terrain))
-    dc = jnp.asarray(pixel_rays(intr))
-    norm = jnp.linalg.norm(dc, axis=-1)
-    cam_pos = jnp.asarray(cam_pos, jnp.float32)
-    cam_rot = jnp.asarray(cam_rot, jnp.float32)
-    d = (dc / norm[:, None]) @ cam_rot.T
-    o = jnp.broadcast_to(cam_pos, d.shape)
-    tab = G.plant_table(field, shape)
-    obst = G.obstacle_table(field, cam_pos, -cam_rot[:, 2], min(cfg.obstacles,
-                                                                shape.obstacle_slots))
+    field, tab, obst, o, d, norm = _setup(field, shape, cam_pos, cam_rot, intr, cfg)
     t, cls, p, normal, plant, k, is_branch = _trace(field, shape, tab, obst, o, d, cfg)
     vis = (_shadow(field, shape, tab, obst, p, normal, cond, cfg) if cfg.shadows
            else jnp.ones_like(t))

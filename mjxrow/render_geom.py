@@ -377,6 +377,7 @@ def trace_obstacles(obst, o, d, t_min):
 
 def terrain_eval(terrain, size, x, y):
     """Height h [m] and slopes dh/dx, dh/dy of the triangle under (x, y) (any shape)."""
+    terrain = jnp.asarray(terrain)
     ny, nx = terrain.shape
     sx, sy = (nx - 1) / size[0], (ny - 1) / size[1]
     u = jnp.clip((x / size[0] + 0.5) * (nx - 1), 0.0, nx - 1 - 1e-4)

@@ -1,0 +1,310 @@
+"""The ray caster against MuJoCo's own renderer and against brute force: plant masks, depth,
+sky, shadows, determinism. Tiny fields and images; one compile per function and preset."""
+
+import dataclasses
+import functools
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjxrow import field as F
+from mjxrow import render as RD
+from mjxrow import render_geom as G
+from mjxrow import worlds as WD
+
+H, W = 48, 64
+INTR = RD.Intrinsics(W, H, 45.0)
+SMALL = dict(terrain_length=14.0, row_length=10.0, terrain_width=14.0)
+SIZES = {"pear": dict(terrain_length=20.0, row_length=16.0, terrain_width=22.0),
+         "vineyard": dict(terrain_length=16.0, row_length=12.0, terrain_width=14.0)}
+
+
+generate = jax.jit(F.generate, static_argnums=1)
+
+
+@functools.cache
+def geometry_fn(shape):
+    """Depth and classes of one field seen from a batch of cameras (one compile per shape)."""
+    return jax.jit(jax.vmap(lambda f, p, r: RD.geometry(f, shape, p, r, INTR),
+                            in_axes=(None, 0, 0)))
+
+
+# one static shape holds every tiny field (generation does not depend on the crop), so the
+# generator compiles once; rendering takes the shape with the crop's name
+COMMON = F.FieldShape(crop="zucchini", max_rows=16, max_plants_per_row=40,
+                      terrain_cells=(96, 88), obstacle_slots=8)
+
+
+def tiny_field(crop, seed=1, **kw):
+    params = F.make_params(crop, **{**SIZES.get(crop, SMALL), **kw})
+    F.validate(params, COMMON)
+    fld = jax.tree.map(np.asarray, generate(params, COMMON, jax.random.key(seed)))
+    assert bool(fld.valid)
+    return fld, dataclasses.replace(COMMON, crop=crop)
+
+
+def lane_poses(fld):
+    """Four cameras: at the lane start, mid-lane looking back, high and steep, past the end."""
+    lane = int(F.robot_lane(fld))
+    y = float(fld.lane_y[lane])
+    x0, x1 = (float(v) for v in fld.row_x)
+    out = []
+    for x, dy, h, yaw, pitch in [(x0 - 1.0, 0.0, 0.45, 0.0, -10.0), (0.0, 0.15, 0.4, np.pi, -8.0),
+                                 (x0 + 2.0, -0.2, 1.2, 0.25, -25.0),
+                                 (x1 + 0.5, 0.0, 0.7, np.pi - 0.2, -15.0)]:
+        z = float(F.terrain_height(fld.terrain, fld.terrain_size, x, y + dy)) + h
+        out.append((np.array([x, y + dy, z], np.float32),
+                    np.asarray(RD.camera_rot(yaw, np.deg2rad(pitch)))))
+    pos, rot = zip(*out, strict=True)
+    return np.stack(pos), np.stack(rot)
+
+
+# ---------------------------------------------------------------------------------------------
+# MuJoCo reference (rendered in a subprocess: MuJoCo picks its GL backend at import time, and
+# another test module may have imported it before MUJOCO_GL could be set)
+
+_MJ_SCRIPT = textwrap.dedent("""
+    import json, os, sys
+    os.environ["MUJOCO_GL"] = "osmesa"
+    import mujoco, numpy as np
+    job = json.load(open(sys.argv[1]))
+    out = {}
+    for crop, item in job.items():
+        assets = {k: bytes.fromhex(v) for k, v in item["assets"].items()}
+        m = mujoco.MjModel.from_xml_string(item["xml"], assets)
+        d = mujoco.MjData(m)
+        cam = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, "eye")
+        names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, i) or "" for i in range(m.ngeom)]
+        plant = np.array([n.startswith("plant_") for n in names] + [False])
+        obst = np.array([n.startswith(("stone_", "branch_")) for n in names] + [False])
+        r = mujoco.Renderer(m, item["h"], item["w"])
+        for j, (pos, rot) in enumerate(zip(item["pos"], item["rot"])):
+            q = np.zeros(4)
+            mujoco.mju_mat2Quat(q, np.asarray(rot, np.float64).ravel())
+            m.cam_pos[cam], m.cam_quat[cam], m.cam_fovy[cam] = pos, q, item["fovy"]
+            mujoco.mj_forward(m, d)
+            r.enable_segmentation_rendering()
+            r.update_scene(d, camera=cam)
+            seg = r.render()
+            r.disable_segmentation_rendering()
+            r.enable_depth_rendering()
+            r.update_scene(d, camera=cam)
+            depth = r.render()
+            r.disable_depth_rendering()
+            gid = np.where(seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM), seg[..., 0], -1)
+            out[f"{crop}_{j}_plant"] = plant[gid]
+            out[f"{crop}_{j}_obst"] = obst[gid]
+            out[f"{crop}_{j}_sky"] = seg[..., 0] < 0
+            out[f"{crop}_{j}_depth"] = depth
+        r.close()
+    np.savez(sys.argv[2], **out)
+""")
+
+
+@pytest.fixture(scope="module")
+def mujoco_scenes(tmp_path_factory):
+    """Per preset: tiny field, shape, camera poses, and MuJoCo's plant/obstacle/sky masks and
+    depth for every pose."""
+    tmp = tmp_path_factory.mktemp("mj")
+    scenes, job = {}, {}
+    for crop in F.CROPS:
+        fld, shape = tiny_field(crop)
+        pos, rot = lane_poses(fld)
+        xml, assets = WD.to_mjcf(fld, shape, crop)
+        scenes[crop] = (fld, shape, pos, rot)
+        job[crop] = dict(xml=xml, assets={k: v.hex() for k, v in assets.items()},
+                         pos=pos.tolist(), rot=rot.tolist(), h=H, w=W, fovy=INTR.fovy)
+    (tmp / "job.json").write_text(json.dumps(job))
+    env = {**os.environ, "MUJOCO_GL": "osmesa"}
+    res = subprocess.run([sys.executable, "-c", _MJ_SCRIPT, str(tmp / "job.json"),
+                          str(tmp / "out.npz")], capture_output=True, text=True, env=env,
+                         timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    ref = dict(np.load(tmp / "out.npz"))
+    return scenes, ref
+
+
+@pytest.mark.parametrize("crop", F.CROPS)
+def test_agrees_with_mujoco(mujoco_scenes, crop):
+    scenes, ref = mujoco_scenes
+    fld, shape, pos, rot = scenes[crop]
+    depth, cls = (np.asarray(x) for x in geometry_fn(shape)(fld, pos, rot))
+    for j in range(len(pos)):
+        mj_plant, mj_sky = ref[f"{crop}_{j}_plant"], ref[f"{crop}_{j}_sky"]
+        mask = cls[j] == RD.PLANT
+        assert mj_plant.sum() > 40, "the pose should see plants"
+        iou = (mask & mj_plant).sum() / (mask | mj_plant).sum()
+        assert iou >= 0.9, f"{crop} pose {j}: plant-mask IoU {iou:.3f}"
+        # depth over terrain and plant pixels (both renderers agree it is one of them)
+        ours = (cls[j] == RD.SOIL) | (cls[j] == RD.PLANT)
+        theirs = ~mj_sky & ~ref[f"{crop}_{j}_obst"]
+        both = ours & theirs
+        assert both.mean() > 0.4
+        err = np.median(np.abs(depth[j] - ref[f"{crop}_{j}_depth"])[both])
+        assert err <= 0.05, f"{crop} pose {j}: median |depth error| {err:.3f} m"
+        # sky where MuJoCo draws none of the world, within a few edge pixels
+        assert np.sum((cls[j] == RD.SKY) != mj_sky) <= 0.01 * H * W
+
+
+# ---------------------------------------------------------------------------------------------
+# One zucchini scene for the rest: flat terrain and no obstacles where shadows are compared
+
+
+@pytest.fixture(scope="module")
+def scene():
+    fld, shape = tiny_field("zucchini", seed=3, p_missing=0.0, terrain_dh=0.0,
+                            stone_density=0.0, branch_density=0.0)
+    render = jax.jit(lambda f, p, r, c: RD.render(f, shape, p, r, INTR, c))
+    return fld, shape, render
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def brute_force(fld, shape, pos, rot, sun):
+    """Every plant, obstacle and a dense terrain march: (t [N], class [N]) of each pixel of the
+    camera, and whether each pixel's surface point sees the sun `sun` [3] past every plant."""
+    dc = RD.pixel_rays(INTR)
+    d = jnp.asarray(dc / np.linalg.norm(dc, axis=-1, keepdims=True) @ rot.T)
+    o = jnp.broadcast_to(jnp.asarray(pos), d.shape)
+    n = d.shape[0]
+    tab = G.plant_table(fld, shape)
+    sun = jnp.asarray(sun)
+    RP = tab.box_t.shape[1]
+    flat = jnp.broadcast_to(jnp.arange(RP), (n, RP))
+    ok = tab.box_t[0][flat] <= tab.box_t[1][flat]  # active plants
+    tmin, far = jnp.full((n,), 0.01), jnp.full((n,), 150.0)
+
+    def plants(o, d, tmax):
+        xyz = lambda v: tuple(v[:, i:i + 1] for i in range(3))  # noqa: E731
+        t, _ = G.nearest_prim(tab, flat, xyz(o), xyz(d), tmin[:, None] * 0, tmax[:, None])
+        return jnp.min(jnp.where(ok, t, jnp.inf), axis=1)
+
+    t_ter, _ = G.trace_terrain(fld.terrain, fld.terrain_size, o, d, tmin, far, 2000, 12)
+    obst = G.obstacle_table(fld, jnp.asarray(pos), -jnp.asarray(rot[:, 2]),
+                            shape.obstacle_slots)
+    t_obs, _, _ = G.trace_obstacles(obst, o, d, tmin)
+    t_pl = plants(o, d, jnp.minimum(jnp.minimum(t_ter, t_obs), far))
+    t = jnp.minimum(jnp.minimum(t_pl, t_obs), t_ter)
+    cls = jnp.where(~jnp.isfinite(t), RD.SKY, jnp.where(t == t_pl, RD.PLANT,
+                                                      jnp.where(t == t_obs, RD.OBSTACLE,
+                                                                RD.SOIL)))
+    p = o + jnp.where(jnp.isfinite(t), t, 0.0)[:, None] * d
+    lit = ~jnp.isfinite(plants(p + 1e-3 * sun, jnp.broadcast_to(sun, p.shape),
+                               jnp.full((n,), 60.0)))
+    return t, cls, lit
+
+
+def test_mask_is_the_nearest_surface(scene):
+    fld, shape, render = scene
+    pos, rot = lane_poses(fld)
+    for j in range(len(pos)):
+        fr = render(fld, pos[j], rot[j], RD.conditions("sunny"))
+        mask, cls = np.asarray(fr.mask), np.asarray(fr.classes)
+        assert np.array_equal(mask, cls == RD.PLANT)
+        t_ref, cls_ref, _ = brute_force(fld, shape, pos[j], rot[j], _sun(0.0))
+        t_ref, cls_ref = np.asarray(t_ref), np.asarray(cls_ref).reshape(H, W)
+        assert np.mean(cls == cls_ref) >= 0.995, f"pose {j}"
+        plant = mask & (cls_ref == RD.PLANT)
+        norm = np.linalg.norm(RD.pixel_rays(INTR), axis=-1).reshape(H, W)
+        depth_ref = t_ref.reshape(H, W) / norm
+        assert np.allclose(np.asarray(fr.depth)[plant], depth_ref[plant], atol=1e-3)
+
+
+def test_sky_camera_sees_no_plant(scene):
+    fld, shape, render = scene
+    pos, _ = lane_poses(fld)
+    fr = render(fld, pos[0], RD.camera_rot(0.3, np.deg2rad(80.0)), RD.conditions("sunny"))
+    assert not np.asarray(fr.mask).any()
+    assert (np.asarray(fr.classes) == RD.SKY).all()
+    assert (np.asarray(fr.depth) == RD.SKY_DEPTH).all()
+    rgb = np.asarray(fr.rgb, np.float32)
+    assert rgb[..., 2].mean() > rgb[..., 0].mean() + 20  # a blue sky
+
+
+def _sun(azimuth_deg, elevation_deg=35.0):
+    a, e = np.deg2rad(azimuth_deg), np.deg2rad(elevation_deg)
+    return np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], np.float32)
+
+
+def test_plants_cast_shadows_away_from_the_sun(scene):
+    fld, shape, render = scene
+    lane = int(F.robot_lane(fld))
+    pos = np.array([0.0, float(fld.lane_y[lane]), 1.6], np.float32)
+    rot = np.asarray(RD.camera_rot(0.0, np.deg2rad(-65.0)))
+    soil = np.asarray(render(fld, pos, rot, RD.conditions("sunny")).classes) == RD.SOIL
+    frames, lit = [], []
+    for az in (90.0, -90.0):  # sun toward +y, then toward −y: mirrored shadows, same n·l
+        sun = _sun(az)
+        cond = RD.conditions("sunny").replace(sun_dir=jnp.asarray(sun))
+        frames.append(np.asarray(render(fld, pos, rot, cond).rgb, np.float32).mean(-1))
+        lit.append(np.asarray(brute_force(fld, shape, pos, rot, sun)[2]).reshape(H, W))
+    shade_a = soil & ~lit[0] & lit[1]  # shadowed under sun A only
+    both = soil & lit[0] & lit[1]
+    assert shade_a.sum() > 30 and both.sum() > 30
+    assert frames[0][shade_a].mean() < 0.7 * frames[1][shade_a].mean()
+    ratio = frames[0][both].mean() / frames[1][both].mean()
+    assert 0.95 < ratio < 1.05
+
+
+def test_same_inputs_same_images(scene):
+    fld, shape, render = scene
+    pos, rot = lane_poses(fld)
+    cond = RD.conditions("crepuscular")
+    a = render(fld, pos[1], rot[1], cond)
+    b = render(jax.tree.map(np.copy, fld), pos[1].copy(), rot[1].copy(), cond)
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+        assert np.array_equal(np.asarray(x), np.asarray(y))
+    # the geometry-only path sees exactly what the renderer draws
+    depth, cls = geometry_fn(shape)(fld, pos[1:2], rot[1:2])
+    assert np.array_equal(np.asarray(cls[0]), np.asarray(a.classes))
+    assert np.array_equal(np.asarray(depth[0]), np.asarray(a.depth))
+    other = render(fld, pos[1], rot[1], RD.conditions("sunny"))
+    assert np.array_equal(np.asarray(other.mask), np.asarray(a.mask))
+    assert np.abs(np.asarray(other.rgb, float) - np.asarray(a.rgb, float)).mean() > 10
+
+
+def test_conditions_differ_and_validate():
+    names = RD.CONDITIONS
+    assert names == ("sunny", "cloudy", "crepuscular", "long_shadows")
+    elev = {n: float(np.degrees(np.arcsin(RD.conditions(n).sun_dir[2]))) for n in names}
+    assert elev["crepuscular"] < elev["long_shadows"] < elev["sunny"]
+    warm = RD.conditions("crepuscular").sun_rgb
+    assert warm[0] > 2 * warm[2]  # low warm sun
+    assert RD.conditions("cloudy").sun_rgb.max() < 0.3 * RD.conditions("sunny").sun_rgb.max()
+    k = jax.random.key(0)
+    varied = RD.conditions("long_shadows", k)
+    e = float(np.degrees(np.arcsin(varied.sun_dir[2])))
+    assert 9.0 <= e <= 20.0
+    by_index = RD.condition_by_index(jnp.int32(2), k)
+    assert np.allclose(by_index.sun_dir, RD.conditions("crepuscular", k).sun_dir)
+    with pytest.raises(ValueError, match="condition"):
+        RD.conditions("foggy")
+    with pytest.raises(ValueError, match="fovy"):
+        RD.Intrinsics(64, 64, 190.0)
+    with pytest.raises(ValueError, match="keep"):
+        RD.RenderConfig(keep=0)
+
+
+def test_camera_rot_convention():
+    rot = np.asarray(RD.camera_rot(0.0, 0.0))
+    # looking along +x: right = −y, up = +z, backwards = −x (MuJoCo: the camera looks along −z)
+    assert np.allclose(rot, [[0, 0, -1], [-1, 0, 0], [0, 1, 0]], atol=1e-6)
+    rot = np.asarray(RD.camera_rot(np.pi / 2, np.deg2rad(-30.0)))
+    assert np.allclose(-rot[:, 2], [0.0, np.cos(np.pi / 6), -0.5], atol=1e-6)
+    assert np.allclose(rot.T @ rot, np.eye(3), atol=1e-6) and np.linalg.det(rot) > 0
+
+
+def test_terrain_eval_matches_field():
+    fld, _ = tiny_field("lettuce", terrain_dh=0.3)
+    rng = np.random.default_rng(0)
+    x = rng.uniform(-7, 7, 500).astype(np.float32)
+    y = rng.uniform(-7, 7, 500).astype(np.float32)
+    h, _, _ = G.terrain_eval(fld.terrain, fld.terrain_size, x, y)
+    ref = F.terrain_height(fld.terrain, fld.terrain_size, x, y)
+    assert np.allclose(np.asarray(h), np.asarray(ref), atol=1e-5)
