@@ -8,7 +8,9 @@ joints about the chassis y axis, each driven by a velocity actuator (torque = kv
 wheel speed), optionally clipped to ±`wheel_torque`). The chassis is a box that takes no part
 in contacts unless `SimConfig.chassis_contacts` is set (sim.py). Stability notes: light wheels
 need joint armature (0.05 kg·m²) and the `implicitfast` integrator, which also treats the
-actuators' velocity gain implicitly.
+actuators' velocity gain implicitly. Wheels sit at a Jackal's track (0.376 m) so that they touch
+the ground where a Jackal's do; being spheres they reach 0.286 m sideways, beyond the 0.430 m
+footprint, which matters only for obstacle contacts (plant collisions use the footprint).
 
 Skid steer: a commanded (v, ω) is clipped to the limits, then mapped to wheel speeds
 v_left/right = v ∓ ω·(track·turn_factor)/2, divided by the wheel radius. Skid-steer vehicles turn

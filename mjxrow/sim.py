@@ -333,8 +333,9 @@ def world_model(mx: mjx.Model, field: F.Field, lane: jax.Array, sim_cfg: SimConf
 
     - `hfield_data` float32 [NY·NX]: patch heights normalised by `patch_z` (see module doc);
     - `geom_pos` / `geom_quat` / `geom_size` [ngeom, 3|4|3]: terrain geom at (patch centre,
-      h_min); obstacle slots with this field's stones (capsule of ~0 length) and branches
-      (capsule lying along its yaw) nearest the lane; unused slots parked below the patch.
+      h_min); `obst_{i}` geoms with this field's stones (capsule of ~0 length) and branches
+      (capsule lying along its yaw) nearest the lane, unused ones parked below the patch; the
+      contact slots filled for the start point (`refresh_contacts`).
 
     field: one Field (no batch axis); lane: int32 [] lane index (e.g. `field.robot_lane`)."""
     terrain_id, obst_ids, _ = _geom_ids(mx)
@@ -397,7 +398,10 @@ def world_mjmodel(m: mujoco.MjModel, mx_world: mjx.Model) -> mujoco.MjModel:
     back: for MuJoCo C comparisons, its viewer and its renderer (host). C's midphase is
     disabled: its bounding-volume tree of the world body was built for the compile-time geom
     positions, which `world_model` moves (MJX has no midphase); and no geom is marked as sharing
-    its body's frame (C would then ignore the moved `geom_pos`)."""
+    its body's frame (C would then ignore the moved `geom_pos`). Obstacle geoms were compiled
+    with C bounding boxes for radius 0.1 m and half length 1 m (fields at scale ≤ 1.4 fit).
+    To step C like `step`, write `refresh_contacts(mx_world, wheel xy)`'s geom arrays into the
+    copy at the start of every control period (tests/test_sim.py does)."""
     out = copy.deepcopy(m)
     out.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_MIDPHASE
     out.geom_sameframe[:] = 0
