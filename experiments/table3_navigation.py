@@ -252,13 +252,30 @@ def document(stats: dict[tuple[str, str], dict], presets: list[str], controllers
     if left_out:
         parts += ["## Blocks left out", ""] + [f"- {x}" for x in left_out] + [""]
     if timings:
-        parts += ["## Run time per block (wall clock on this device, compilation included)", ""]
+        parts += ["## Run time per block (wall clock, compilation included)", ""]
         parts += [f"- {t}" for t in timings] + [""]
     return "\n".join(parts)
 
 
 # ---------------------------------------------------------------------------------------------
 # Driver
+
+
+def block_timing(folder: Path, cell_hash: str, ran: int, wall: float, device: str) -> str:
+    """One line on a block's run time. A run that ran episodes records it in
+    `folder/timing_<cell_hash>.json`; a resumed run (nothing left to run) reports that record,
+    so the page keeps the time of the run that produced its numbers."""
+    path = folder / f"timing_{cell_hash}.json"
+    if ran:
+        rec = {"episodes": ran, "wall_s": round(wall, 1), "device": device,
+               "date": datetime.datetime.now().isoformat(timespec="seconds")}
+        path.write_text(json.dumps(rec) + "\n")
+        return f"{ran} episodes in {wall:.1f} s on {device}"
+    if path.is_file():
+        rec = json.loads(path.read_text())
+        return (f"{rec['episodes']} episodes in {rec['wall_s']:.1f} s on {rec['device']} "
+                f"({rec['date']}; reused now)")
+    return "finished cells reused (no timing recorded)"
 
 
 def run_table(presets: list[str], controllers: list[str], episodes: int, out: str | Path,
@@ -274,6 +291,8 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
 
     out = Path(out)
     base = base if base is not None else load_base()
+    devs = jax.devices()
+    device = f"{len(devs)} × {devs[0].device_kind}"
     stats: dict[tuple[str, str], dict] = {}
     left_out, timings = [], []
     blocks = [(c, p) for c in controllers for p in presets]
@@ -292,15 +311,20 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
         wall = time.perf_counter() - t0
         results = pd.read_csv(res["files"]["results"])
         stats[(c, p)] = block_stats(results)
-        timings.append(f"{p}, {CONTROLLERS[c][0]}: {res['ran']} episodes run in {wall:.1f} s"
-                       + (" (resumed: finished cells reused)" if res["skipped"] else ""))
+        timings.append(f"{p}, {CONTROLLERS[c][0]}: " + block_timing(
+            out / c / p, res["groups"][0].hashes[0], res["ran"], wall, device))
     bar.close()
+    for c in CONTROLLERS:
+        if c not in controllers:
+            missing = [p for p in presets if c == "segzeros_learned" and checkpoint_missing(p)]
+            left_out.append(f"{CONTROLLERS[c][0]}: not run (not in --controllers)" + (
+                f"; no segmenter checkpoint is shipped for {', '.join(missing)}" if missing
+                else ""))
     ref = cfg or build_config(controllers[0], presets[0], episodes, image, base, batch_size,
                               seed, smoke)
-    devs = jax.devices()
     info = {"date": datetime.datetime.now().isoformat(timespec="seconds"),
             "command": f"`{command}`" if command else "(API call)",
-            "device": f"{len(devs)} × {devs[0].device_kind}",
+            "device": device,
             "episodes per block": ref.seeds,
             "episode": f"{ref.episode.path_length:g} m path, timeout {ref.episode.max_time:g} s, "
                        f"start offset std {ref.episode.start_offset_std:g} m, start heading std "

@@ -98,6 +98,8 @@ def test_run_table_resumes_and_leaves_out_missing_checkpoints(tmp_path, monkeypa
     assert "| chard | ours: SegZeros, learned segmenter" not in md
     again, _ = T3.run_table(*args, evaluate=fake, progress=False)
     assert fake.calls == 4  # every cell finished: nothing runs again
+    assert "- chard, oracle pure pursuit: 3 episodes in " in md
+    assert "- chard, oracle pure pursuit: 3 episodes in " in again and "reused now" in again
     table = [line for line in md.splitlines() if line.startswith("| ")]
     assert [line for line in again.splitlines() if line.startswith("| ")] == table
 
