@@ -33,6 +33,7 @@ from flax import struct
 from mjxrow import field as F
 from mjxrow import render_geom as G
 from mjxrow import render_shade as S
+from mjxrow import render_terrain as T
 from mjxrow.render_shade import CONDITIONS, Conditions, condition_by_index, conditions
 
 __all__ = ["CONDITIONS", "DEFAULT_CONFIG", "Conditions", "Frame", "Intrinsics", "RenderConfig",
@@ -123,11 +124,12 @@ def pixel_rays(intr: Intrinsics) -> np.ndarray:
 
 
 def _trace(field, shape, tab, obst, o, d, cfg):
-    """Nearest surface of each ray: (t, class, normal, plant, k, obstacle index)."""
+    """Nearest surface of each ray: (t, class, point, normal, plant, primitive k, is_branch,
+    point in the plant primitive's frame)."""
     n = o.shape[0]
     t_min = jnp.full((n,), cfg.near, jnp.float32)
     far = jnp.full((n,), cfg.far, jnp.float32)
-    t_ter, n_ter = G.trace_terrain(field.terrain, field.terrain_size, o, d, t_min, far,
+    t_ter, n_ter = T.trace_terrain(field.terrain, field.terrain_size, o, d, t_min, far,
                                    cfg.terrain_steps, cfg.terrain_refine)
     t_obs, n_obs, branch = G.trace_obstacles(obst, o, d, t_min)
     t_far = jnp.minimum(jnp.minimum(t_ter, t_obs), far)
@@ -139,10 +141,10 @@ def _trace(field, shape, tab, obst, o, d, cfg):
     t = jnp.where(cls == PLANT, t_pl, jnp.where(cls == OBSTACLE, t_obs, t_ter))
     t = jnp.where(cls == SKY, 0.0, t)
     p = o + t[:, None] * d
-    n_pl = G.plant_normal(tab, plant, k, p)
+    n_pl, local = G.plant_normal(tab, plant, k, p)
     normal = jnp.where((cls == PLANT)[:, None], n_pl,
                        jnp.where((cls == OBSTACLE)[:, None], n_obs, n_ter))
-    return t, cls, p, normal, plant, k, branch
+    return t, cls, p, normal, plant, k, branch, local
 
 
 def _shadow(field, shape, tab, obst, p, normal, cond, cfg):
@@ -205,14 +207,15 @@ def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax
     (augmentation). Returns a `Frame` of [H, W] images."""
     H, W = intr.height, intr.width
     field, tab, obst, o, d, norm = _setup(field, shape, cam_pos, cam_rot, intr, cfg)
-    t, cls, p, normal, plant, k, is_branch = _trace(field, shape, tab, obst, o, d, cfg)
+    t, cls, p, normal, plant, k, is_branch, local = _trace(field, shape, tab, obst, o, d, cfg)
     vis = (_shadow(field, shape, tab, obst, p, normal, cond, cfg) if cfg.shadows
            else jnp.ones_like(t))
 
     # albedo
     material = jnp.asarray(tab.material)[k]
     phase = tab.base[plant, 2]
-    a_plant = S.plant_albedo(shape.crop, material, p, phase, plant, k, cond)
+    a_plant = S.plant_albedo(shape.crop, material, p, local, phase, plant, k, cond)
+    normal = jnp.where((cls == PLANT)[:, None], S.leaf_normal(normal, p, material), normal)
     a_soil = S.soil_albedo(p, cond)
     a_obst = S.obstacle_albedo(is_branch, p)
     albedo = jnp.where((cls == PLANT)[:, None], a_plant,

@@ -1,14 +1,14 @@
-"""Ray casting against a field's geometry for `render.py`: the heightfield terrain, the plant
-primitives of `plants.plant_prims` and the obstacles. Pure jnp, one field, rays flattened to
-[N]; no jit here.
+"""Ray casting against a field's plants and obstacles for `render.py` (the terrain is in
+`render_terrain.py`). Pure jnp, one field, rays flattened to [N]; no jit here.
 
 Speed comes from the row structure. Plants stand on a grid (row r at `row_y[r]`, plant i at
-about `row_x[0] + i·d_pp`), so a ray needs only a few of them: for every row the ray's parameter
-interval inside the row's slab (|y − row_y| ≤ the plants' largest lateral reach, z inside the
-row's height band, x inside the row's length, t before the terrain) is computed in closed form;
-the `rows` slabs the ray enters first are kept, and in each the `plants` plants met first along
-the ray, starting where the ray enters the slab. Only those plants' primitives are intersected,
-exactly. Everything else is static-sized: no data-dependent shapes.
+about `row_x[0] + i·d_pp`), so a ray needs only a few of them. In closed form per row, the
+ray's stretch inside the row's slab (|y − row_y| ≤ the plants' largest lateral reach, z in the
+row's height band, x along the row, t before the terrain) gives the blocks of BLOCK plants it
+can meet; the boxes of a few blocks per row, then of the plants of the blocks entered first,
+narrow each ray down to `keep` plants whose primitives are intersected exactly. Every count is
+static: no data-dependent shapes, no per-pixel gathers from big arrays (a field's tables are a
+few hundred kB).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ def _safe(d: jax.Array) -> jax.Array:
     return jnp.where(d >= 0, jnp.maximum(d, _EPS_DIR), jnp.minimum(d, -_EPS_DIR))
 
 
-def _slab(o: jax.Array, d: jax.Array, lo: jax.Array, hi: jax.Array):
+def slab(o: jax.Array, d: jax.Array, lo: jax.Array, hi: jax.Array):
     """Parameter interval (t0, t1) of o + t·d inside lo ≤ coordinate ≤ hi (broadcasting)."""
     inv = 1.0 / _safe(d)
     ta, tb = (lo - o) * inv, (hi - o) * inv
@@ -215,9 +215,9 @@ def plant_table(field: F.Field, shape: F.FieldShape) -> PlantTable:
 def _box_entry(o, d, box, t_min, t_max):
     """Entry t of rays into boxes (+inf if missed or empty). o, d: [N, 3]; box: 6 arrays of
     [N, C] (x lo, x hi, y lo, y hi, z lo, z hi); t_min, t_max: [N, 1]."""
-    x0, x1 = _slab(o[:, 0:1], d[:, 0:1], box[0], box[1])
-    y0, y1 = _slab(o[:, 1:2], d[:, 1:2], box[2], box[3])
-    z0, z1 = _slab(o[:, 2:3], d[:, 2:3], box[4], box[5])
+    x0, x1 = slab(o[:, 0:1], d[:, 0:1], box[0], box[1])
+    y0, y1 = slab(o[:, 1:2], d[:, 1:2], box[2], box[3])
+    z0, z1 = slab(o[:, 2:3], d[:, 2:3], box[4], box[5])
     t_in = jnp.maximum(jnp.maximum(x0, y0), jnp.maximum(z0, t_min))
     t_out = jnp.minimum(jnp.minimum(x1, y1), jnp.minimum(z1, t_max))
     return jnp.where((box[0] <= box[1]) & (t_in <= t_out), t_in, INF)
@@ -244,16 +244,16 @@ def candidates(tab: PlantTable, n_plants: int, o, d, t_min, t_far, blocks: int,
     nb = tab.block_t.shape[1] // R
     n = o.shape[0]
     tmin, tmax = t_min[:, None], t_far[:, None]
-    ty0, ty1 = _slab(o[:, 1:2], d[:, 1:2], tab.row_y - tab.reach_y, tab.row_y + tab.reach_y)
-    tz0, tz1 = _slab(o[:, 2:3], d[:, 2:3], tab.row_zlo, tab.row_zhi)
+    ty0, ty1 = slab(o[:, 1:2], d[:, 1:2], tab.row_y - tab.reach_y, tab.row_y + tab.reach_y)
+    tz0, tz1 = slab(o[:, 2:3], d[:, 2:3], tab.row_zlo, tab.row_zhi)
     x_lo = tab.x0 - tab.reach_x
     x_hi = tab.x0 + (P - 1) * tab.d_pp + tab.reach_x
-    tx0, tx1 = _slab(o[:, 0:1], d[:, 0:1], x_lo, x_hi)
+    tx0, tx1 = slab(o[:, 0:1], d[:, 0:1], x_lo, x_hi)
     t_lo = jnp.maximum(jnp.maximum(ty0, tz0), jnp.maximum(tx0, tmin))
     t_hi = jnp.minimum(jnp.minimum(ty1, tz1), jnp.minimum(tx1, tmax))
     ok = t_lo <= t_hi  # [N, R]
     # the window starts where the ray reaches the row's core (most plants' foliage)
-    tc0, _ = _slab(o[:, 1:2], d[:, 1:2], tab.row_y - tab.core_y, tab.row_y + tab.core_y)
+    tc0, _ = slab(o[:, 1:2], d[:, 1:2], tab.row_y - tab.core_y, tab.row_y + tab.core_y)
     xs = o[:, 0:1] + jnp.where(ok, jnp.clip(tc0, t_lo, t_hi), 0.0) * d[:, 0:1]
     step = jnp.where(d[:, 0:1] >= 0, 1.0, -1.0)
     b0 = jnp.floor((xs - tab.x0) / (tab.d_pp * BLOCK) + 0.5) - step  # start one block back
@@ -272,7 +272,7 @@ def candidates(tab: PlantTable, n_plants: int, o, d, t_min, t_far, blocks: int,
     return _first(jnp.where(pvalid.reshape(n, -1), key, INF), flat, keep)
 
 
-def _unroll() -> bool:
+def unroll() -> bool:
     """Unroll loops over primitives on accelerators (speed); keep them rolled on CPU, where
     compile time dominates the small batches it runs."""
     return jax.default_backend() != "cpu"
@@ -304,7 +304,7 @@ def nearest_prim(tab: PlantTable, flat, o, d, t_min, t_max):
 
         xs = (table[ks], jnp.asarray(ks, jnp.int32))
         (t_best, k_best), _ = jax.lax.scan(body, (t_best, k_best), xs,
-                                           unroll=len(ks) if _unroll() else 1)
+                                           unroll=len(ks) if unroll() else 1)
     return t_best, k_best
 
 
@@ -325,7 +325,9 @@ def trace_plants(tab: PlantTable, n_plants: int, o, d, t_min, t_far, blocks: int
 
 
 def plant_normal(tab: PlantTable, plant, k, p):
-    """Outward unit normal [N, 3] at hit points p [N, 3] of primitive k [N] of plant [N]."""
+    """At hit points p [N, 3] of primitive k [N] of plant [N]: (outward unit normal [N, 3],
+    the point in the primitive's own frame [N, 3]: on an ellipsoid the unit-sphere point
+    (semi-axis units), on a capsule (0, 0, position along the axis / half length))."""
     col = k[:, None] * 12 + jnp.arange(12)  # [N, 12]
     row = tab.prim_t[col, plant[:, None]]  # [N, 12]
     c = row[:, :3]
@@ -336,7 +338,9 @@ def plant_normal(tab: PlantTable, plant, k, p):
     n_e = n_e / jnp.maximum(jnp.linalg.norm(n_e, axis=-1, keepdims=True), 1e-12)
     n_c = capsule_normal(p, c, row[:, 3:6], row[:, 7])
     is_caps = jnp.asarray(tab.kind == PL.CAPSULE)[k]
-    return jnp.where(is_caps[:, None], n_c, n_e)
+    along = _dot(r, row[:, 3:6]) / jnp.maximum(row[:, 7], 1e-6)
+    u_c = jnp.stack([jnp.zeros_like(along), jnp.zeros_like(along), along], -1)
+    return (jnp.where(is_caps[:, None], n_c, n_e), jnp.where(is_caps[:, None], u_c, u))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -369,73 +373,3 @@ def trace_obstacles(obst, o, d, t_min):
     t_best = jnp.take_along_axis(t, j[:, None], 1)[:, 0]
     p = o + jnp.where(jnp.isfinite(t_best), t_best, 0.0)[:, None] * d
     return t_best, capsule_normal(p, c[j], axis[j], half[j]), branch[j]
-
-
-# ---------------------------------------------------------------------------------------------
-# Terrain (MuJoCo's heightfield triangulation, as field.terrain_height)
-
-
-def terrain_eval(terrain, size, x, y):
-    """Height h [m] and slopes dh/dx, dh/dy of the triangle under (x, y) (any shape)."""
-    terrain = jnp.asarray(terrain)
-    ny, nx = terrain.shape
-    sx, sy = (nx - 1) / size[0], (ny - 1) / size[1]
-    u = jnp.clip((x / size[0] + 0.5) * (nx - 1), 0.0, nx - 1 - 1e-4)
-    v = jnp.clip((y / size[1] + 0.5) * (ny - 1), 0.0, ny - 1 - 1e-4)
-    i = jnp.floor(u).astype(jnp.int32)
-    j = jnp.floor(v).astype(jnp.int32)
-    fu, fv = u - i, v - j
-    flat = terrain.reshape(-1)
-    base = j * nx + i
-    h00, h10 = flat[base], flat[base + 1]
-    h01, h11 = flat[base + nx], flat[base + nx + 1]
-    low = fu >= fv  # triangle (00, 10, 11)
-    gu = jnp.where(low, h10 - h00, h11 - h01)
-    gv = jnp.where(low, h11 - h10, h01 - h00)
-    return h00 + fu * gu + fv * gv, gu * sx, gv * sy
-
-
-def trace_terrain(terrain, size, o, d, t_min, t_max, steps: int, refine: int):
-    """First hit of each ray with the heightfield (inside its rectangle): a march of `steps`
-    uniform samples over the ray's part inside the terrain's height band, `refine` bisections
-    of the first bracket, then the exact plane of the triangle there. Features thinner than a
-    march step can be stepped over (far, grazing rays).
-    o, d: [N, 3]; t_min, t_max: [N]. Returns (t [N] (+inf: none), unit normal [N, 3])."""
-    zmin, zmax = jnp.min(terrain), jnp.max(terrain)
-    tx0, tx1 = _slab(o[:, 0], d[:, 0], -0.5 * size[0], 0.5 * size[0])
-    ty0, ty1 = _slab(o[:, 1], d[:, 1], -0.5 * size[1], 0.5 * size[1])
-    tz0, tz1 = _slab(o[:, 2], d[:, 2], zmin - 1e-4, zmax + 1e-4)
-    t0 = jnp.maximum(jnp.maximum(tx0, ty0), jnp.maximum(tz0, t_min))
-    t1 = jnp.minimum(jnp.minimum(tx1, ty1), jnp.minimum(tz1, t_max))
-    live = t0 < t1
-    t1 = jnp.where(live, t1, t0)
-
-    def f(t):  # height of the ray above the terrain at t [N, S]
-        p = o[:, None, :] + t[..., None] * d[:, None, :]
-        return p[..., 2] - terrain_eval(terrain, size, p[..., 0], p[..., 1])[0]
-
-    frac = jnp.arange(0, steps + 1, dtype=jnp.float32) / steps
-    ts = t0[:, None] + (t1 - t0)[:, None] * frac  # [N, S + 1]
-    below = f(ts) <= 0.0
-    found = live & jnp.any(below, axis=1)
-    first = jnp.argmax(below, axis=1)
-    b = jnp.take_along_axis(ts, first[:, None], 1)[:, 0]
-    a = jnp.where(first > 0, jnp.take_along_axis(ts, jnp.maximum(first - 1, 0)[:, None], 1)[:, 0],
-                  t0)
-    def bisect(_, ab):
-        a, b = ab
-        m = 0.5 * (a + b)
-        above = f(m[:, None])[:, 0] > 0.0
-        return jnp.where(above, m, a), jnp.where(above, b, m)
-
-    a, b = jax.lax.fori_loop(0, refine, bisect, (a, b), unroll=refine if _unroll() else 1)
-    m = 0.5 * (a + b)
-    pm = o + m[:, None] * d
-    h, gx, gy = terrain_eval(terrain, size, pm[:, 0], pm[:, 1])
-    den = d[:, 2] - gx * d[:, 0] - gy * d[:, 1]
-    num = h + gx * (o[:, 0] - pm[:, 0]) + gy * (o[:, 1] - pm[:, 1]) - o[:, 2]
-    t_plane = num / jnp.where(den < -1e-9, den, -1e-9)
-    t = jnp.where(den < -1e-9, jnp.clip(t_plane, a, b), m)
-    n = jnp.stack([-gx, -gy, jnp.ones_like(gx)], -1)
-    n = n / jnp.linalg.norm(n, axis=-1, keepdims=True)
-    return jnp.where(found, t, INF), n

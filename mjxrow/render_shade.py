@@ -67,8 +67,8 @@ def conditions(name: str, key: jax.Array | None = None) -> Conditions:
         ks = jax.random.split(key, 9)
         az = jax.random.uniform(ks[0], (), maxval=2 * jnp.pi)
         el = jnp.deg2rad(jax.random.uniform(ks[1], (), minval=e_lo, maxval=e_hi))
-        it = iter(jax.random.split(ks[2], 4))
-        j3 = lambda: 1.0 + 0.06 * jax.random.normal(next(it), (3,))  # noqa: E731
+        it = iter(jax.random.split(ks[2], 3))
+        j3 = lambda: 1.0 + 0.05 * jax.random.normal(next(it), (3,))  # noqa: E731
         jitter = jnp.exp(0.25 * jax.random.normal(ks[3], ()))
         # soil: darker/wetter .. lighter/drier, redder .. greyer; leaves: yellower .. bluer
         soil = jnp.exp(0.22 * jax.random.normal(ks[4], ())) * (
@@ -77,9 +77,10 @@ def conditions(name: str, key: jax.Array | None = None) -> Conditions:
             1.0 + jnp.array([0.15, 0.02, -0.10]) * jax.random.normal(ks[7], ()))
         exposure = jnp.exp(0.10 * jax.random.normal(ks[8], ()))
     sun_dir = jnp.stack([jnp.cos(el) * jnp.cos(az), jnp.cos(el) * jnp.sin(az), jnp.sin(el)])
+    sky_j = j3()  # one tint for the whole sky keeps its hue plausible
     return Conditions(
         sun_dir=sun_dir.astype(jnp.float32), sun_rgb=_vec(sun) * j3(), ambient=_vec(amb) * j3(),
-        sky_zenith=_vec(zen) * j3(), sky_horizon=_vec(hor) * j3(), cloud=_vec(cloud),
+        sky_zenith=_vec(zen) * sky_j, sky_horizon=_vec(hor) * sky_j, cloud=_vec(cloud),
         haze=_vec(haze) * jitter, soil_tint=_vec(soil), leaf_tint=_vec(leaf),
         exposure=_vec(exposure), noise=_vec(noise))
 
@@ -168,23 +169,51 @@ def soil_albedo(p: jax.Array, cond: Conditions) -> jax.Array:
     return _lin(_SOIL) * cond.soil_tint * f[:, None] * warm
 
 
-def plant_albedo(crop: str, material: jax.Array, p: jax.Array, phase: jax.Array,
-                 plant: jax.Array, k: jax.Array, cond: Conditions) -> jax.Array:
-    """Plant albedo (linear) at hit points p [N, 3]: the crop's material colour, varied per plant
-    (phase [N]), per primitive (plant, k [N] ints) and by fine mottling over the surface."""
+def plant_albedo(crop: str, material: jax.Array, p: jax.Array, local: jax.Array,
+                 phase: jax.Array, plant: jax.Array, k: jax.Array,
+                 cond: Conditions) -> jax.Array:
+    """Plant albedo (linear) at hit points p [N, 3] (local [N, 3]: the point in its primitive's
+    frame): the crop's material colour, varied per plant (phase [N]) and per primitive (plant,
+    k [N] ints), leaf veins (a pale midrib along the leaf's long axis and lateral veins),
+    clumps of foliage on canopies, bark streaks on trunks."""
     pal = _lin(_PALETTE[crop])  # [5, 3]
     base = pal[material]
     per_plant = 0.80 + 0.40 * phase
     yellow = 1.0 + 0.18 * (phase - 0.5)[:, None] * jnp.array([1.0, 0.3, -1.0])
     per_prim = 0.85 + 0.30 * hash01(plant, k, seed=5)
-    s = 14.0 if crop in ("zucchini", "lettuce", "chard") else 6.0
-    mottle = value_noise2(s * (p[:, 0] + p[:, 2]), s * (p[:, 1] - 0.7 * p[:, 2]), seed=6)
-    fine = 0.75 + 0.5 * mottle
-    if crop == "zucchini":  # pale mottled patches on the leaf blades
-        silver = jnp.clip((value_noise2(30 * p[:, 0], 30 * p[:, 1], seed=7) - 0.62) * 4, 0, 1)
-        fine = fine + 0.8 * silver * (material == PL.LEAF)
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    mottle = value_noise2(14.0 * (x + z), 14.0 * (y - 0.7 * z), seed=6)
+    leaf = material == PL.LEAF
+    u0, u1 = local[:, 0], local[:, 1]
+    midrib = jnp.exp(-((u1 / 0.07) ** 2)) * (u0 > -0.9)
+    lateral = jnp.clip((jnp.cos(2 * jnp.pi * (3.5 * u0 - 2.2 * jnp.abs(u1))) - 0.8) * 5, 0, 1)
+    veins = jnp.clip(midrib + 0.6 * lateral * (jnp.abs(u1) < 0.8), 0, 1)
+    rim = jnp.clip((u0 * u0 + u1 * u1 - 0.55) * 2.5, 0, 1)  # darker towards the blade's edge
+    f_leaf = (0.8 + 0.4 * mottle) * (1.0 + 0.45 * veins) * (1.0 - 0.25 * rim)
+    if crop == "zucchini":  # pale mottled patches on the blades
+        silver = jnp.clip((value_noise2(30 * x, 30 * y, seed=7) - 0.62) * 4, 0, 1)
+        f_leaf = f_leaf + 0.6 * silver
+    clumps = fbm2(9.0 * (x + 0.5 * z), 9.0 * (y - 0.5 * z), 2, seed=9)
+    f_canopy = 0.55 + 0.9 * clumps * (0.8 + 0.4 * mottle)
+    bark = value_noise2(40.0 * (x + y), 3.0 * z, seed=10)
+    f_trunk = 0.7 + 0.6 * bark
+    fine = jnp.where(leaf, f_leaf, jnp.where(material == PL.CANOPY, f_canopy,
+                                              jnp.where(material == PL.TRUNK, f_trunk,
+                                                        0.8 + 0.4 * mottle)))
     f = (per_plant * per_prim * fine)[:, None]
     return base * cond.leaf_tint * yellow * f
+
+
+def leaf_normal(n: jax.Array, p: jax.Array, material: jax.Array) -> jax.Array:
+    """Normals n [N, 3] of plant surfaces perturbed by value noise (bumpy foliage, ruffled
+    leaves); stronger on canopies."""
+    s = 12.0
+    bump = jnp.stack([value_noise2(s * (p[:, 0] + p[:, 2]), s * p[:, 1], seed=12),
+                      value_noise2(s * (p[:, 1] + p[:, 2]), s * p[:, 0], seed=13),
+                      value_noise2(s * (p[:, 0] - p[:, 1]), s * p[:, 2], seed=14)], -1) - 0.5
+    amp = jnp.where(material == PL.CANOPY, 1.1, 0.35)[:, None]
+    m = n + amp * bump
+    return m / jnp.maximum(jnp.linalg.norm(m, axis=-1, keepdims=True), 1e-6)
 
 
 def obstacle_albedo(is_branch: jax.Array, p: jax.Array) -> jax.Array:

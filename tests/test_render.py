@@ -17,6 +17,7 @@ import pytest
 from mjxrow import field as F
 from mjxrow import render as RD
 from mjxrow import render_geom as G
+from mjxrow import render_terrain as T
 from mjxrow import worlds as WD
 
 H, W = 48, 64
@@ -185,7 +186,7 @@ def brute_force(fld, shape, pos, rot, sun):
         t, _ = G.nearest_prim(tab, flat, xyz(o), xyz(d), tmin[:, None] * 0, tmax[:, None])
         return jnp.min(jnp.where(ok, t, jnp.inf), axis=1)
 
-    t_ter, _ = G.trace_terrain(fld.terrain, fld.terrain_size, o, d, tmin, far, 2000, 12)
+    t_ter, _ = T.trace_terrain(fld.terrain, fld.terrain_size, o, d, tmin, far, 2000, 12)
     obst = G.obstacle_table(fld, jnp.asarray(pos), -jnp.asarray(rot[:, 2]),
                             shape.obstacle_slots)
     t_obs, _, _ = G.trace_obstacles(obst, o, d, tmin)
@@ -305,6 +306,6 @@ def test_terrain_eval_matches_field():
     rng = np.random.default_rng(0)
     x = rng.uniform(-7, 7, 500).astype(np.float32)
     y = rng.uniform(-7, 7, 500).astype(np.float32)
-    h, _, _ = G.terrain_eval(fld.terrain, fld.terrain_size, x, y)
+    h, _, _ = T.terrain_eval(fld.terrain, fld.terrain_size, x, y)
     ref = F.terrain_height(fld.terrain, fld.terrain_size, x, y)
     assert np.allclose(np.asarray(h), np.asarray(ref), atol=1e-5)

@@ -1,0 +1,76 @@
+"""Camera frames rendered per second: one jit(vmap(render)) call over B worlds, each with its own
+field (the preset varied as in the dataset), camera pose and lighting condition."""
+
+from __future__ import annotations
+
+import argparse
+
+import jax
+import jax.numpy as jnp
+
+from mjxrow import dataset as DS
+from mjxrow import field as F
+from mjxrow import render as RD
+from mjxrow.bench import time_call
+
+MAX_RAYS = 1 << 24  # rays per vmapped chunk when --chunk is 0 (bounds the [rays, ...] buffers)
+
+
+def add_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--preset", default="zucchini", choices=F.CROPS)
+    p.add_argument("--batch", type=int, nargs="+", default=[1024], help="worlds per call")
+    p.add_argument("--res", type=int, nargs="+", default=[64, 128, 224],
+                   help="square image sides [px]")
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--no-shadows", action="store_true", help="skip the shadow rays")
+    p.add_argument("--chunk", type=int, default=0,
+                   help="frames per vmapped chunk (lax.map over chunks); 0: as many as keep "
+                        f"the rays per chunk at most {MAX_RAYS}")
+
+
+def worlds(preset: str, b: int):
+    """B fields, camera poses (the dataset's sampler) and conditions (the four in turn)."""
+    shape = DS.dataset_shape(preset)
+    keys = jax.random.split(jax.random.key(0), 4 * b).reshape(b, 4)
+
+    def one(k):
+        fld = F.generate(DS.random_params(preset, k[0]), shape, k[1])
+        pos, rot, _ = DS.sample_pose(fld, k[2])
+        return fld, pos, rot
+
+    fields, pos, rot = jax.jit(jax.vmap(one))(keys)
+    conds = jax.vmap(RD.condition_by_index)(jnp.arange(b) % len(RD.CONDITIONS), keys[:, 3])
+    return shape, fields, pos, rot, conds
+
+
+def batched_render(shape: F.FieldShape, intr: RD.Intrinsics, cfg: RD.RenderConfig, b: int,
+                   chunk: int):
+    """jit of render over [B] worlds: one vmap, or lax.map over chunks of `chunk` frames."""
+    def one(x):
+        f, p, r, c = x
+        return RD.render(f, shape, p, r, intr, c, cfg=cfg)
+
+    if chunk >= b:
+        return jax.jit(lambda *x: jax.vmap(lambda *y: one(y))(*x))
+    return jax.jit(lambda *x: jax.lax.map(one, x, batch_size=chunk))
+
+
+def run(args: argparse.Namespace) -> list[dict]:
+    cfg = RD.RenderConfig(shadows=not args.no_shadows)
+    rows = []
+    for b in args.batch:
+        shape, fields, pos, rot, conds = worlds(args.preset, b)
+        for res in args.res:
+            intr = RD.Intrinsics(res, res)
+            auto = 1 << ((MAX_RAYS // (res * res)).bit_length() - 1)
+            chunk = min(b, args.chunk or max(1, auto))
+            fn = batched_render(shape, intr, cfg, b, chunk)
+            t = time_call(fn, fields, pos, rot, conds, repeats=args.repeats)
+            config = (f"{args.preset} {res}x{res}, fovy {intr.fovy:g}, "
+                      f"{'no shadows' if args.no_shadows else 'shadows'}, chunk {chunk}")
+            rows.append({"stage": "render", "config": config, "batch": b,
+                         "value": b / t["median_s"], "unit": "frames/s",
+                         "compile_s": t["compile_s"], "runs_s": t["runs_s"]})
+            print(f"render {config}, B={b}: compile {t['compile_s']:.1f} s, run median "
+                  f"{t['median_s'] * 1e3:.1f} ms -> {b / t['median_s']:,.0f} frames/s", flush=True)
+    return rows
