@@ -1,6 +1,6 @@
 """Markdown tables from `benchmarks.jsonl` (the machine record of every benchmark run).
 
-    python experiments/benchmarks_table.py            # the latest figure per (device, stage, config, batch)
+    python experiments/benchmarks_table.py            # latest row per device, stage, config
     python experiments/benchmarks_table.py --all      # every recorded row
     python experiments/benchmarks_table.py --readme   # rewrite the table in README.md
 """

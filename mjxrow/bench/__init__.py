@@ -10,8 +10,9 @@ import statistics
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import jax
 
@@ -54,7 +55,7 @@ def record(rows: list[dict], path: str | Path = "benchmarks.jsonl") -> None:
 
 
 def print_table(rows: list[dict]) -> None:
-    print(f"\n| device | stage | config | batch | value | unit |\n|---|---|---|---|---|---|")
+    print("\n| device | stage | config | batch | value | unit |\n|---|---|---|---|---|---|")
     dev = device_name()
     for r in rows:
         print(f"| {dev} | {r['stage']} | {r['config']} | {r['batch']} | {r['value']:.4g} | "
