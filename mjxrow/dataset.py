@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import concurrent.futures as cf
 import functools
+import io
 import os
 import sys
 import tempfile
@@ -268,7 +269,7 @@ def write_dataset(crop: str, n: int, out: str | Path, seed: int = 0, size: int =
     return index
 
 
-def contact_sheet(crop: str, path: str | Path, per_condition: int = 3, size: int = 192,
+def contact_sheet(crop: str, path: str | Path, per_condition: int = 3, size: int = 160,
                   seed: int = 0) -> Path:
     """A PNG with `per_condition` samples of each condition (rows), RGB beside mask."""
     import matplotlib
@@ -297,8 +298,11 @@ def contact_sheet(crop: str, path: str | Path, per_condition: int = 3, size: int
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=80, format="png")
     plt.close(fig)
+    # a 256-colour palette keeps the sheet small enough for the repository
+    Image.open(buf).convert("RGB").quantize(256).save(path, optimize=True)
     return path
 
 
