@@ -224,7 +224,9 @@ def write_dataset(crop: str, n: int, out: str | Path, seed: int = 0, size: int =
     batch = min(batch, n)
     all_idx = np.arange(n)
     metas = []
-    for chunk, pad in _batches(all_idx, min(512, 1 << (n - 1).bit_length())):
+    meta_batch = min(512, 1 << (n - 1).bit_length())
+    for chunk, pad in tqdm(list(_batches(all_idx, meta_batch)), desc=f"{crop} poses",
+                           unit="batch", disable=not progress or n <= 4 * meta_batch):
         metas.append(np.asarray(meta_fn(sample_keys(seed, jnp.asarray(pad))))[: len(chunk)])
     meta = np.concatenate(metas)
 
