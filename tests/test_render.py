@@ -186,7 +186,7 @@ def brute_force(fld, shape, pos, rot, sun):
         t, _ = G.nearest_prim(tab, flat, xyz(o), xyz(d), tmin[:, None] * 0, tmax[:, None])
         return jnp.min(jnp.where(ok, t, jnp.inf), axis=1)
 
-    t_ter, _ = T.trace_terrain(fld.terrain, fld.terrain_size, o, d, tmin, far, 2000, 12)
+    t_ter, _ = T.trace_terrain(fld.terrain, fld.terrain_size, o, d, tmin, far, 400, 12)
     obst = G.obstacle_table(fld, jnp.asarray(pos), -jnp.asarray(rot[:, 2]),
                             shape.obstacle_slots)
     t_obs, _, _ = G.trace_obstacles(obst, o, d, tmin)
