@@ -275,6 +275,26 @@ def test_dataset_folder_loading(tmp_path):
         D.read_index(tmp_path / "empty")
 
 
+def test_train_cli_fine_tunes_from_a_checkpoint(tiny, tmp_path):
+    _write_folder(tmp_path / "ds")
+    module, variables = tiny
+    C.save(tmp_path / "ck", module, variables, meta={"image_size": H})
+    base = ["--crop", "all", "--data", str(tmp_path / "ds"), "--size", "32", "--batch", "2",
+            "--steps", "1", "--warmup", "0", "--weight-decay", "0", "--val-frac", "0.25",
+            "--eval-every", "1", "--workers", "1"]
+    # lr 0: the run's weights are the checkpoint's, so the exported model equals it
+    T.main(base + ["--init", str(tmp_path / "ck"), "--lr", "0", "--out", str(tmp_path / "run"),
+                   "--export-to", str(tmp_path / "out")])
+    got_module, got = C.load(tmp_path / "out")
+    assert got_module.config() == module.config()
+    for a, b in zip(jax.tree.leaves(got["params"]), jax.tree.leaves(variables["params"]),
+                    strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-3, atol=1e-6)  # float16 storage
+    assert C.read_config(tmp_path / "out")["meta"]["init"] == str((tmp_path / "ck").resolve())
+    with pytest.raises(ValueError, match="nowhere"):
+        T.main(base + ["--init", str(tmp_path / "nowhere"), "--out", str(tmp_path / "r2")])
+
+
 def test_eval_tables(tiny, tmp_path):
     # pooled metrics per group, by hand
     df = pd.DataFrame({"crop": ["a", "a", "b"], "condition": ["sunny", "cloudy", "sunny"],

@@ -1,7 +1,8 @@
 """Training of the plant segmenter: losses, train state, jitted step, the loop with resume.
 
 CLI: `python -m mjxrow.seg.train --crop zucchini (--data DIR | --on-the-fly) [--arch small]
-[--width 1.0] [--size 224] [--steps N] [--batch B] [--loss iou|bce] [--out DIR] [--export-to DIR]`.
+[--width 1.0] [--size 224] [--steps N] [--batch B] [--loss iou|bce] [--init CKPT] [--out DIR]
+[--export-to DIR]`. `--init` fine-tunes a trained model (e.g. the all-crop one on one crop).
 
 The loss default is the paper's IoU loss 1 − Σyp / Σ(y + p − yp) with p = sigmoid(logit), summed
 over the pixels of EACH image and averaged over the batch (+1 smoothing in numerator and
@@ -366,6 +367,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", help="run folder (default runs/seg_<crop>_<arch>)")
     p.add_argument("--restart", action="store_true", help="delete the run folder first")
+    p.add_argument("--init", help="start from this checkpoint's weights (a crop name for a "
+                                  "shipped model, or a checkpoint folder) instead of random "
+                                  "ones; its architecture replaces --arch/--width")
     p.add_argument("--export-to", help="write the best model here as a shipped checkpoint")
     p.add_argument("--export-dtype", default="float16", choices=C.WEIGHT_DTYPES)
     args = p.parse_args(argv)
@@ -378,8 +382,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     out = Path(args.out or f"runs/seg_{args.crop}_{args.arch}")
     if args.restart and out.exists():
         shutil.rmtree(out)
-    module, variables = create(args.arch, args.width, jax.random.key(args.seed), args.size[0],
-                               reduced_tail=args.reduced_tail, dtype=args.dtype)
+    if args.init:
+        module, variables = C.load(args.init)  # ValueError names a missing checkpoint
+        init_from = str(C.resolve(args.init))
+    else:
+        module, variables = create(args.arch, args.width, jax.random.key(args.seed),
+                                   args.size[0], reduced_tail=args.reduced_tail, dtype=args.dtype)
+        init_from = "random"
     cfg = TrainConfig(steps=args.steps, lr=args.lr, warmup=args.warmup,
                       weight_decay=args.weight_decay, loss=args.loss, flip=args.flip,
                       grey=args.grey, jitter=args.jitter, seed=args.seed,
@@ -389,7 +398,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     command = "python -m mjxrow.seg.train " + " ".join(sys.argv[1:] if argv is None else argv)
     meta = {"command": command, "crop": args.crop, "image_size": args.size[0],
             "image_sizes": args.size,
-            "batch": args.batch, "device": jax.devices()[0].device_kind}
+            "batch": args.batch, "device": jax.devices()[0].device_kind, "init": init_from}
     result = fit(module, variables, data, cfg, out, meta)
     print(json.dumps(result))
     if args.export_to:
