@@ -367,6 +367,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", help="run folder (default runs/seg_<crop>_<arch>)")
     p.add_argument("--restart", action="store_true", help="delete the run folder first")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar (logs)")
     p.add_argument("--init", help="start from this checkpoint's weights (a crop name for a "
                                   "shipped model, or a checkpoint folder) instead of random "
                                   "ones; its architecture replaces --arch/--width")
@@ -393,7 +394,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                       weight_decay=args.weight_decay, loss=args.loss, flip=args.flip,
                       grey=args.grey, jitter=args.jitter, seed=args.seed,
                       eval_every=args.eval_every, ckpt_every=args.eval_every,
-                      log_every=args.log_every)
+                      log_every=args.log_every, progress=not args.no_progress)
     data = build_data(args)
     command = "python -m mjxrow.seg.train " + " ".join(sys.argv[1:] if argv is None else argv)
     meta = {"command": command, "crop": args.crop, "image_size": args.size[0],
