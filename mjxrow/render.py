@@ -29,6 +29,7 @@ is only shaded by its slope). Sky pixels have `depth = SKY_DEPTH`, `mask = False
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -39,6 +40,7 @@ from mjxrow import field as F
 from mjxrow import render_geom as G
 from mjxrow import render_shade as S
 from mjxrow import render_terrain as T
+from mjxrow import render_tiles as RT
 from mjxrow.render_shade import CONDITIONS, Conditions, condition_by_index, conditions
 
 __all__ = ["CONDITIONS", "DEFAULT_CONFIG", "Conditions", "Frame", "Intrinsics", "RenderConfig",
@@ -46,6 +48,7 @@ __all__ = ["CONDITIONS", "DEFAULT_CONFIG", "Conditions", "Frame", "Intrinsics", 
            "camera_rot", "condition_by_index", "conditions", "render"]
 
 SKY, SOIL, PLANT, OBSTACLE = 0, 1, 2, 3
+INF = jnp.inf
 SKY_DEPTH = 1000.0  # m, depth of sky pixels (finite, larger than any field)
 
 
@@ -67,14 +70,15 @@ class Intrinsics:
 
 @dataclasses.dataclass(frozen=True)
 class RenderConfig:
-    """Static knobs of the ray caster (speed against completeness)."""
+    """Static knobs of the ray caster (speed against completeness; see render_tiles)."""
 
-    blocks: int = 4  # blocks of plants per row whose box a camera ray tests (render_geom)
-    block_keep: int = 5  # blocks per camera ray whose plants' boxes are tested
-    keep: int = 8  # plants per camera ray intersected exactly (the first boxes entered)
-    shadow_blocks: int = 2  # the same for shadow rays
-    shadow_block_keep: int = 2
-    shadow_keep: int = 4
+    tile: int = 4  # tile side [px]: plants are culled once per tile of tile × tile pixels
+    block_keep: int = 16  # blocks of BLOCK plants per tile whose plants' boxes are tested
+    keep: int = 8  # candidate plants per tile that every ray intersects exactly
+    deep_keep: int = 40  # further candidates tested on the deep tiles
+    deep_share: float = 0.125  # share of a frame's tiles that may be deep
+    shadow_block_keep: int = 8  # the same for the shadow rays of a tile
+    shadow_keep: int = 6
     terrain_steps: int = 32  # march samples over the ray's part in the terrain's height band
     terrain_refine: int = 6  # bisections of the first bracket before the exact triangle
     obstacles: int = 8  # nearest obstacles (ahead of the camera) tested per frame
@@ -83,11 +87,14 @@ class RenderConfig:
     far: float = 150.0  # m, nothing further is drawn
 
     def __post_init__(self):
-        for name in ("blocks", "block_keep", "keep", "shadow_blocks",
-                     "shadow_block_keep", "shadow_keep", "terrain_steps",
-                     "obstacles"):
+        for name in ("tile", "block_keep", "keep", "shadow_block_keep", "shadow_keep",
+                     "terrain_steps", "obstacles"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"render.{name}: must be at least 1, got {getattr(self, name)}")
+        if int(self.deep_keep) < 0:
+            raise ValueError(f"render.deep_keep: must be at least 0, got {self.deep_keep}")
+        if not 0.0 <= self.deep_share <= 1.0:
+            raise ValueError(f"render.deep_share: must lie in [0, 1], got {self.deep_share}")
         if not 0.0 < self.near < self.far:
             raise ValueError(f"render.near/far: need 0 < near < far, got {self.near}, {self.far}")
 
@@ -128,18 +135,25 @@ def pixel_rays(intr: Intrinsics) -> np.ndarray:
     return np.stack([xx, yy, -np.ones_like(xx)], -1).reshape(-1, 3).astype(np.float32)
 
 
-def _trace(field, shape, tab, obst, o, d, cfg):
-    """Nearest surface of each ray: (t, class, point, normal, plant, primitive k, is_branch,
-    point in the plant primitive's frame)."""
-    n = o.shape[0]
+def _xyz(v):
+    return tuple(v[..., i] for i in range(3))
+
+
+def _trace(field, shape, tab, obst, rays, cfg):
+    """Nearest surface of each ray (flat, tile-major [N = T·P]): (t, class, point, normal,
+    plant, primitive k, is_branch, point in the plant primitive's frame)."""
+    cam, d, c, tan_a = rays
+    nt, npx = tan_a.shape[0], d.shape[0] // tan_a.shape[0]
+    n = d.shape[0]
+    o = jnp.broadcast_to(cam, d.shape)
     t_min = jnp.full((n,), cfg.near, jnp.float32)
     far = jnp.full((n,), cfg.far, jnp.float32)
     t_ter, n_ter = T.trace_terrain(field.terrain, field.terrain_size, o, d, t_min, far,
                                    cfg.terrain_steps, cfg.terrain_refine)
     t_obs, n_obs, branch = G.trace_obstacles(obst, o, d, t_min)
     t_far = jnp.minimum(jnp.minimum(t_ter, t_obs), far)
-    t_pl, plant, k = G.trace_plants(tab, shape.max_plants_per_row, o, d, t_min, t_far,
-                                    cfg.blocks, cfg.block_keep, cfg.keep)
+    t_pl, plant, k = _trace_plants(shape, tab, cam, d.reshape(nt, npx, 3), c, tan_a,
+                                   t_far.reshape(nt, npx), cfg)
     cls = jnp.where(jnp.isfinite(t_pl), PLANT,
                     jnp.where((t_obs < t_ter) & (t_obs < cfg.far), OBSTACLE,
                               jnp.where(t_ter < cfg.far, SOIL, SKY)))
@@ -152,18 +166,50 @@ def _trace(field, shape, tab, obst, o, d, cfg):
     return t, cls, p, normal, plant, k, branch, local
 
 
-def _shadow(field, shape, tab, obst, p, normal, cond, cfg):
-    """Visibility of the sun from surface points p [N, 3]: 1 lit, 0 in a plant's or obstacle's
-    shadow."""
+def _trace_plants(shape, tab, cam, d, c, tan_a, t_far, cfg):
+    """Nearest plant hit of the camera rays d [T, P, 3] (t_far [T, P]): the tile's first
+    `keep` candidates for every tile, the next `deep_keep` on the deep tiles. Returns flat
+    (t [N] (+inf: none), plant int32 [N], k int32 [N])."""
+    nt = d.shape[0]
+    ids, entry = RT.camera_candidates(tab, shape.max_plants_per_row, cam, c, tan_a,
+                                      jnp.max(t_far, axis=1), cfg.block_keep,
+                                      cfg.keep + cfg.deep_keep)
+    o = tuple(jnp.reshape(cam[i], (1, 1)) for i in range(3))
+    t_min = jnp.full(t_far.shape, cfg.near, jnp.float32)
+    kp = min(cfg.keep, ids.shape[1])
+    t, plant, k = RT.exact(tab, ids[:, :kp], jnp.isfinite(entry[:, :kp]), o, _xyz(d), t_min,
+                           t_far)
+    n_deep = min(nt, int(np.ceil(cfg.deep_share * nt)))
+    if ids.shape[1] > kp and n_deep > 0:
+        u = jnp.minimum(t, t_far)  # nothing beyond a ray's current hit matters
+        rest = entry[:, kp:] < jnp.max(u, axis=1, keepdims=True)
+        score, sel = jax.lax.top_k(jnp.sum(rest, axis=1).astype(jnp.float32), n_deep)
+        t2, plant2, k2 = RT.exact(tab, ids[sel, kp:], rest[sel] & (score[:, None] > 0), o,
+                                  _xyz(d[sel]), t_min[sel], u[sel])
+        better = t2 < t[sel]
+        t = t.at[sel].set(jnp.where(better, t2, t[sel]))
+        plant = plant.at[sel].set(jnp.where(better, plant2, plant[sel]))
+        k = k.at[sel].set(jnp.where(better, k2, k[sel]))
+    return t.reshape(-1), plant.reshape(-1), k.reshape(-1)
+
+
+def _shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, nt):
+    """Visibility of the sun from surface points p [N, 3] (tile-major; cls [N] their class):
+    1 lit, 0 in a plant's or obstacle's shadow."""
     n = p.shape[0]
-    l = jnp.broadcast_to(cond.sun_dir, p.shape)
+    l = cond.sun_dir
     o = p + 2e-3 * normal + 1e-3 * l
     t_min = jnp.zeros((n,), jnp.float32)
-    t_far = jnp.full((n,), 60.0, jnp.float32)
-    t_pl, _, _ = G.trace_plants(tab, shape.max_plants_per_row, o, l, t_min, t_far,
-                                cfg.shadow_blocks, cfg.shadow_block_keep,
-                                cfg.shadow_keep)
-    t_ob, _, _ = G.trace_obstacles(obst, o, l, t_min)
+    ot = o.reshape(nt, -1, 3)
+    seen = (cls != SKY).reshape(nt, -1, 1)
+    lo = jnp.min(jnp.where(seen, ot, INF), axis=1)
+    hi = jnp.max(jnp.where(seen, ot, -INF), axis=1)
+    ids, entry = RT.shadow_candidates(tab, shape.max_plants_per_row, lo, hi, l, 60.0,
+                                      cfg.shadow_block_keep, cfg.shadow_keep)
+    ls = tuple(jnp.reshape(l[i], (1, 1)) for i in range(3))
+    t_pl = RT.exact(tab, ids, jnp.isfinite(entry), _xyz(ot), ls, t_min.reshape(nt, -1),
+                    jnp.full(ot.shape[:2], 60.0, jnp.float32), any_hit=True).reshape(-1)
+    t_ob, _, _ = G.trace_obstacles(obst, o, jnp.broadcast_to(l, p.shape), t_min)
     return jnp.where(jnp.isfinite(t_pl) | jnp.isfinite(t_ob), 0.0, 1.0)
 
 
@@ -176,29 +222,39 @@ def _ground_occlusion(tab, p):
 
 
 def _setup(field, shape, cam_pos, cam_rot, intr, cfg):
+    """Field with its terrain in memory, plant table, obstacle table, rays (camera [3],
+    directions [N, 3] tile-major, tile centres [T, 3], tan of the tile half-angles [T]),
+    |z = −1 pixel ray| [N], tile grid."""
     # a terrain generated in the same jit must be in memory before the per-ray gathers
     field = field.replace(terrain=G.materialise(field.terrain))
-    dc = jnp.asarray(pixel_rays(intr))
-    norm = jnp.linalg.norm(dc, axis=-1)
+    dirs, norm, centre, tan_a, tiles = RT.tile_layout(intr.width, intr.height, intr.fovy,
+                                                      cfg.tile)
     cam_pos = jnp.asarray(cam_pos, jnp.float32)
     cam_rot = jnp.asarray(cam_rot, jnp.float32)
-    d = (dc / norm[:, None]) @ cam_rot.T
-    o = jnp.broadcast_to(cam_pos, d.shape)
+    d = jnp.asarray(dirs.reshape(-1, 3)) @ cam_rot.T
+    c = jnp.asarray(centre) @ cam_rot.T
     tab = G.plant_table(field, shape)
     obst = G.obstacle_table(field, cam_pos, -cam_rot[:, 2],
                             min(cfg.obstacles, shape.obstacle_slots))
-    return field, tab, obst, o, d, norm
+    rays = (cam_pos, d, c, jnp.asarray(tan_a))
+    return field, tab, obst, rays, jnp.asarray(norm.reshape(-1)), tiles
 
 
 def geometry(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax.Array,
              intr: Intrinsics, cfg: RenderConfig = DEFAULT_CONFIG) -> tuple[jax.Array, jax.Array]:
     """What `render` sees, without shading: (depth float32 [H, W] (metres along the optical
     axis, SKY_DEPTH for sky), classes uint8 [H, W]). Same arguments as `render`."""
-    field, tab, obst, o, d, norm = _setup(field, shape, cam_pos, cam_rot, intr, cfg)
-    t, cls, *_ = _trace(field, shape, tab, obst, o, d, cfg)
+    field, tab, obst, rays, norm, tiles = _setup(field, shape, cam_pos, cam_rot, intr, cfg)
+    t, cls, *_ = _trace(field, shape, tab, obst, rays, cfg)
     depth = jnp.where(cls == SKY, SKY_DEPTH, t / norm).astype(jnp.float32)
-    return (depth.reshape(intr.height, intr.width),
-            cls.astype(jnp.uint8).reshape(intr.height, intr.width))
+    to_image = functools.partial(_image, tiles=tiles, intr=intr)
+    return to_image(depth), to_image(cls.astype(jnp.uint8))
+
+
+def _image(x, tiles, intr):
+    """Flat tile-major [N, ...] → [H, W, ...]."""
+    nt = tiles[0] * tiles[1]
+    return RT.untile(x.reshape((nt, -1) + x.shape[1:]), tiles, intr.height, intr.width)
 
 
 def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax.Array,
@@ -210,11 +266,11 @@ def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax
     cam_rot float32 [3, 3] (columns right, up, backwards). cond: `conditions(name)`. key: None
     for a deterministic image, or a PRNG key for sensor noise and exposure variation
     (augmentation). Returns a `Frame` of [H, W] images."""
-    H, W = intr.height, intr.width
-    field, tab, obst, o, d, norm = _setup(field, shape, cam_pos, cam_rot, intr, cfg)
-    t, cls, p, normal, plant, k, is_branch, local = _trace(field, shape, tab, obst, o, d, cfg)
-    vis = (_shadow(field, shape, tab, obst, p, normal, cond, cfg) if cfg.shadows
-           else jnp.ones_like(t))
+    field, tab, obst, rays, norm, tiles = _setup(field, shape, cam_pos, cam_rot, intr, cfg)
+    d = rays[1]
+    t, cls, p, normal, plant, k, is_branch, local = _trace(field, shape, tab, obst, rays, cfg)
+    vis = (_shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, tiles[0] * tiles[1])
+           if cfg.shadows else jnp.ones_like(t))
 
     # albedo
     material = jnp.asarray(tab.material)[k]
@@ -242,11 +298,12 @@ def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax
         k_exp, k_noise, k_wb = jax.random.split(key, 3)
         exposure = exposure * jnp.exp(0.15 * jax.random.normal(k_exp, ()))
         radiance = radiance * (1.0 + 0.03 * jax.random.normal(k_wb, (3,)))
-    img = jnp.clip(radiance * exposure, 0.0, 1.0) ** (1.0 / 2.2)
+    to_image = functools.partial(_image, tiles=tiles, intr=intr)
+    img = to_image(jnp.clip(radiance * exposure, 0.0, 1.0) ** (1.0 / 2.2))  # [H, W, 3]
     if key is not None:
         img = img + cond.noise * jax.random.normal(k_noise, img.shape)
     rgb = jnp.clip(jnp.round(img * 255.0), 0, 255).astype(jnp.uint8)
 
     depth = jnp.where(cls == SKY, SKY_DEPTH, t / norm)
-    return Frame(rgb=rgb.reshape(H, W, 3), depth=depth.reshape(H, W).astype(jnp.float32),
-                 mask=(cls == PLANT).reshape(H, W), classes=cls.astype(jnp.uint8).reshape(H, W))
+    return Frame(rgb=rgb, depth=to_image(depth.astype(jnp.float32)),
+                 mask=to_image(cls == PLANT), classes=to_image(cls.astype(jnp.uint8)))
