@@ -44,26 +44,31 @@ def trace_terrain(terrain, size, o, d, t_min, t_max, steps: int, refine: int):
     t1 = jnp.minimum(jnp.minimum(tx1, ty1), jnp.minimum(tz1, t_max))
     live = t0 < t1
     t1 = jnp.where(live, t1, t0)
+    ox, oy, oz = (o[:, i:i + 1] for i in range(3))
+    dx, dy, dz = (d[:, i:i + 1] for i in range(3))
 
-    def f(t):  # height of the ray above the terrain at t [N, S]
-        p = o[:, None, :] + t[..., None] * d[:, None, :]
-        return p[..., 2] - terrain_eval(terrain, size, p[..., 0], p[..., 1])[0]
+    def f(t):  # height of the ray above the terrain at t (broadcast against [N, 1])
+        return oz + t * dz - terrain_eval(terrain, size, ox + t * dx, oy + t * dy)[0]
 
+    # the samples and the first one below the surface in closed form: no [N, S, 3] points,
+    # no gathers from the samples
     frac = jnp.arange(0, steps + 1, dtype=jnp.float32) / steps
-    ts = t0[:, None] + (t1 - t0)[:, None] * frac  # [N, S + 1]
-    below = f(ts) <= 0.0
-    found = live & jnp.any(below, axis=1)
-    first = jnp.argmax(below, axis=1)
-    b = jnp.take_along_axis(ts, first[:, None], 1)[:, 0]
-    a = jnp.where(first > 0, jnp.take_along_axis(ts, jnp.maximum(first - 1, 0)[:, None], 1)[:, 0],
-                  t0)
+    span = (t1 - t0)[:, None]
+    below = f(t0[:, None] + span * frac) <= 0.0  # [N, S + 1]
+    first = jnp.min(jnp.where(below, jnp.arange(steps + 1), steps + 1), axis=1, keepdims=True)
+    found = live & (first[:, 0] <= steps)
+    b = (t0[:, None] + span * (first.astype(jnp.float32) / steps))
+    a = jnp.where(first > 0, t0[:, None] + span * ((first - 1).astype(jnp.float32) / steps),
+                  t0[:, None])
+
     def bisect(_, ab):
         a, b = ab
         m = 0.5 * (a + b)
-        above = f(m[:, None])[:, 0] > 0.0
+        above = f(m) > 0.0
         return jnp.where(above, m, a), jnp.where(above, b, m)
 
     a, b = jax.lax.fori_loop(0, refine, bisect, (a, b), unroll=refine if unroll() else 1)
+    a, b = a[:, 0], b[:, 0]
     m = 0.5 * (a + b)
     pm = o + m[:, None] * d
     h, gx, gy = terrain_eval(terrain, size, pm[:, 0], pm[:, 1])
