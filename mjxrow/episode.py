@@ -11,8 +11,10 @@ An episode starts at rest `sim_cfg.path_length` before the end of its lane (sim.
 is the lane's end point (row end x, lane centre y). Each step: observation → policy → one
 control period of physics → events. It ends at the first event, in this order of precedence:
 sim_error (NaN or exploded state), flipped, collision (robot footprint touching a plant's
-collision footprint, metrics.collides), goal (within `goal_radius`), off_patch (the robot left
-the simulated terrain), stuck (moved less than `stuck_dist` over `stuck_window` steps), timeout
+collision footprint, metrics.collides), goal (within `goal_radius`), missed_goal (past the
+goal's line: x beyond the goal's x + `goal_radius`, beside the goal; the row has ended there,
+so a robot that drives on along +x can no longer reach it), off_patch (the robot left the
+simulated terrain), stuck (moved less than `stuck_dist` over `stuck_window` steps), timeout
 (after `n_steps`). Once ended, the state stays frozen and the remaining steps are masked.
 
 CLI: `python -m mjxrow.episode --preset vineyard --controller oracle --n 8 --seed 0 --out DIR
@@ -61,6 +63,7 @@ class EpisodeConfig:
     stuck_dist: float = 0.05  # m, moving less than this over a window is stuck
     collision_window: int = 4  # plants checked each side along a row (metrics.collides)
     end_off_patch: bool = True  # end an episode that leaves the terrain patch as off_patch
+    end_missed_goal: bool = True  # end an episode that passes the goal's line as missed_goal
     sim: sim.SimConfig = sim.SimConfig()
 
     def __post_init__(self):
@@ -127,6 +130,8 @@ def episode(mx, field: F.Field, lane: jax.Array, key: jax.Array, noise: sim.Pose
             (t == cfg.n_steps - 1, M.TIMEOUT),
             (check & (jnp.linalg.norm(p[:2] - anchor) < cfg.stuck_dist), M.STUCK),
             (sim.off_patch(m, s_new, scfg) if cfg.end_off_patch else False, M.OFF_PATCH),
+            (p[0] > goal[0] + cfg.goal_radius if cfg.end_missed_goal else False,
+             M.MISSED_GOAL),
             (jnp.linalg.norm(p[:2] - goal) <= cfg.goal_radius, M.GOAL),
             (M.collides(p, field, cfg.crop, half, cfg.collision_window), M.COLLISION),
             (sim.is_flipped(s_new, scfg), M.FLIPPED),

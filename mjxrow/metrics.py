@@ -23,10 +23,13 @@ from mjxrow import plants
 from mjxrow.field import Field
 
 # Termination reasons; code 0 marks a step at which the episode is still running. `off_patch`:
-# the robot left the simulated terrain (drove past the row's end or strayed far from its lane).
+# the robot left the simulated terrain (strayed far from its lane, or drove off its back or
+# front end); `missed_goal`: it drove past the row's end (the goal's x plus the goal radius)
+# beside the goal, without reaching it.
 REASONS = ("running", "goal", "collision", "timeout", "flipped", "stuck", "sim_error",
-           "off_patch")
-RUNNING, GOAL, COLLISION, TIMEOUT, FLIPPED, STUCK, SIM_ERROR, OFF_PATCH = range(len(REASONS))
+           "off_patch", "missed_goal")
+(RUNNING, GOAL, COLLISION, TIMEOUT, FLIPPED, STUCK, SIM_ERROR, OFF_PATCH,
+ MISSED_GOAL) = range(len(REASONS))
 
 METRICS = ("success", "collision", "reason", "cha", "mae", "mse", "omega_std", "v_mean", "time",
            "path_ratio", "max_offset")

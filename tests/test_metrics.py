@@ -105,7 +105,8 @@ def test_batched_summary_and_reasons():
     assert np.asarray(s["success"]).tolist() == [True, False]
     assert np.asarray(s["collision"]).tolist() == [False, True]
     assert M.reason_counts(s["reason"]) == dict(goal=1, collision=1, timeout=0, flipped=0,
-                                                stuck=0, sim_error=0, off_patch=0)
+                                                stuck=0, sim_error=0, off_patch=0,
+                                                missed_goal=0)
 
 
 def test_aggregate_mean_and_ci():
