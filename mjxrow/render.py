@@ -209,7 +209,7 @@ def _shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, nt):
     ls = tuple(jnp.reshape(l[i], (1, 1)) for i in range(3))
     t_pl = RT.exact(tab, ids, jnp.isfinite(entry), _xyz(ot), ls, t_min.reshape(nt, -1),
                     jnp.full(ot.shape[:2], 60.0, jnp.float32), any_hit=True).reshape(-1)
-    t_ob, _, _ = G.trace_obstacles(obst, o, jnp.broadcast_to(l, p.shape), t_min)
+    t_ob = G.trace_obstacles(obst, o, jnp.broadcast_to(l, p.shape), t_min, any_hit=True)
     return jnp.where(jnp.isfinite(t_pl) | jnp.isfinite(t_ob), 0.0, 1.0)
 
 

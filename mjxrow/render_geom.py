@@ -140,14 +140,15 @@ def capsule_normal(p, c, axis, half):
 class PlantTable:
     """A field's plants prepared for ray casting (one field; R rows, P plants, K primitives).
 
-    `prim_t` holds 12 numbers per primitive, component-major (each component of all plants is
-    one contiguous row, so a per-ray gather of a component is a gather from one short row):
-    ellipsoid = centre (3), A (3×3 row-major, row i = axis_i / semi-axis_i); capsule = centre (3),
-    axis (3), radius, half length, 4 zeros. `box_t` is each plant's axis-aligned bounding box
-    (x lo, x hi, y lo, y hi, z lo, z hi); an inactive plant has an empty box. `block_t` holds
-    the boxes of blocks of BLOCK consecutive plants of a row."""
+    `prim` holds 12 numbers per primitive, one [R·P, 12] table per primitive slot k (a tile's
+    gather of its candidates' slot k is one gather of whole rows, already in the order the
+    exact tests consume): ellipsoid = centre (3), A (3×3 row-major, row i = axis_i /
+    semi-axis_i); capsule = centre (3), axis (3), radius, half length, 4 zeros. `box_t` is each
+    plant's axis-aligned bounding box (x lo, x hi, y lo, y hi, z lo, z hi); an inactive plant
+    has an empty box. `block_t` holds the boxes of blocks of BLOCK consecutive plants of a
+    row."""
 
-    prim_t: jax.Array  # float32 [K·12, R·P]
+    prim: jax.Array  # float32 [K, R·P, 12]
     box_t: jax.Array  # float32 [6, R·P] [m]
     block_t: jax.Array  # float32 [6, R·NB] [m], boxes of BLOCK consecutive plants of a row
     base: jax.Array  # float32 [R·P, 3]: base z [m], height [m], phase [0, 1)
@@ -155,18 +156,14 @@ class PlantTable:
     row_zlo: jax.Array  # float32 [R], lowest point of any plant of the row [m]
     row_zhi: jax.Array  # float32 [R], highest point of any plant of the row [m]
     reach_y: jax.Array  # float32 [], largest lateral reach of a plant from its row line [m]
-    core_y: jax.Array  # float32 [], lateral reach most plants exceed [m]
-    reach_x: jax.Array  # float32 [], largest reach along x from the plant's nominal x [m]
-    x0: jax.Array  # float32 [], nominal x of plant 0 [m]
-    d_pp: jax.Array  # float32 [], nominal plant spacing [m]
     kind: np.ndarray = struct.field(pytree_node=False)  # int [K], plants.ELLIPSOID / CAPSULE
     material: np.ndarray = struct.field(pytree_node=False)  # int [K], plants.LEAF ...
 
 
 def plant_table(field: F.Field, shape: F.FieldShape) -> PlantTable:
     """Primitive table, bounding boxes and row bounds of one field (pure; cost ~R·P·K,
-    negligible next to the rays). Every bound comes from the actual primitives, so culling
-    never drops a plant that reaches into a slab or box."""
+    small next to the rays). Every bound comes from the actual primitives, so culling never
+    drops a plant that reaches into a box."""
     pr = PL.plant_prims(field, shape)
     R, P, K = pr.active.shape
     rot, size, c = pr.rot, pr.size, pr.centre
@@ -177,16 +174,13 @@ def plant_table(field: F.Field, shape: F.FieldShape) -> PlantTable:
     caps = jnp.concatenate([axis, size[..., :1], size[..., 2:3], jnp.zeros(size.shape[:-1] + (4,))],
                            -1)
     data = jnp.where(is_caps[..., None], caps, A.reshape(A.shape[:-2] + (9,)))
-    prim = jnp.concatenate([c, data], -1).reshape(R * P, K * 12)
-    # axis-aligned half extents of each primitive
-    ext_e = jnp.sqrt(jnp.sum((rot * size[..., None, :]) ** 2, -1))
+    prim = jnp.moveaxis(jnp.concatenate([c, data], -1).reshape(R * P, K, 12), 1, 0)
+    # axis-aligned half extents of each primitive (elementwise: no tiny matrix products)
+    rs = rot * size[..., None, :]
+    ext_e = jnp.sqrt(rs[..., 0] ** 2 + rs[..., 1] ** 2 + rs[..., 2] ** 2)
     ext_c = jnp.abs(axis) * size[..., 2:3] + size[..., :1]
     ext = jnp.where(is_caps[..., None], ext_c, ext_e)  # [R, P, K, 3]
     act = field.plant_active
-    q = F._scaled(field.params)
-    d_pp = q["d_pp"]
-    x0 = field.row_x[0]
-    x_nom = x0 + jnp.arange(P, dtype=jnp.float32) * d_pp
     big = jnp.float32(1e9)
     lo = jnp.where(act[..., None, None], jnp.min(c - ext, axis=2, keepdims=True), big)[:, :, 0]
     hi = jnp.where(act[..., None, None], jnp.max(c + ext, axis=2, keepdims=True), -big)[:, :, 0]
@@ -198,78 +192,12 @@ def plant_table(field: F.Field, shape: F.FieldShape) -> PlantTable:
         [0, 3, 1, 4, 2, 5])]
     lat = jnp.maximum(hi[..., 1] - field.row_y[:, None], field.row_y[:, None] - lo[..., 1])
     reach_y = jnp.max(jnp.where(act, lat, 0.0))
-    n_act = jnp.maximum(jnp.sum(act), 1)
-    mean = jnp.sum(jnp.where(act, lat, 0.0)) / n_act
-    std = jnp.sqrt(jnp.sum(jnp.where(act, (lat - mean) ** 2, 0.0)) / n_act)
-    core_y = jnp.clip(mean - std, 0.0, reach_y)
-    reach_x = jnp.max(jnp.where(act, jnp.maximum(hi[..., 0] - x_nom, x_nom - lo[..., 0]), 0.0))
     base = jnp.stack([field.plant_pos[..., 2], field.plant_size[..., 2], field.plant_phase], -1)
-    prim_t, box_t, block_t, base = materialise(
-        (prim.T, box.reshape(6, R * P), blk.reshape(6, R * nb), base.reshape(R * P, 3)))
-    return PlantTable(prim_t=prim_t, box_t=box_t, block_t=block_t, base=base, row_y=field.row_y,
+    prim, box_t, block_t, base = materialise(
+        (prim, box.reshape(6, R * P), blk.reshape(6, R * nb), base.reshape(R * P, 3)))
+    return PlantTable(prim=prim, box_t=box_t, block_t=block_t, base=base, row_y=field.row_y,
                       row_zlo=jnp.min(lo[..., 2], axis=1), row_zhi=jnp.max(hi[..., 2], axis=1),
-                      reach_y=reach_y, core_y=core_y, reach_x=reach_x, x0=x0, d_pp=d_pp,
-                      kind=np.asarray(pr.kind), material=np.asarray(pr.material))
-
-
-def _box_entry(o, d, box, t_min, t_max):
-    """Entry t of rays into boxes (+inf if missed or empty). o, d: [N, 3]; box: 6 arrays of
-    [N, C] (x lo, x hi, y lo, y hi, z lo, z hi); t_min, t_max: [N, 1]."""
-    x0, x1 = slab(o[:, 0:1], d[:, 0:1], box[0], box[1])
-    y0, y1 = slab(o[:, 1:2], d[:, 1:2], box[2], box[3])
-    z0, z1 = slab(o[:, 2:3], d[:, 2:3], box[4], box[5])
-    t_in = jnp.maximum(jnp.maximum(x0, y0), jnp.maximum(z0, t_min))
-    t_out = jnp.minimum(jnp.minimum(x1, y1), jnp.minimum(z1, t_max))
-    return jnp.where((box[0] <= box[1]) & (t_in <= t_out), t_in, INF)
-
-
-def _first(key, ids, n: int):
-    """The `n` ids with the smallest keys per row: (ids [N, n], finite bool [N, n])."""
-    neg, j = jax.lax.top_k(-key, min(n, key.shape[1]))
-    return jnp.take_along_axis(ids, j, 1), jnp.isfinite(neg)
-
-
-def candidates(tab: PlantTable, n_plants: int, o, d, t_min, t_far, blocks: int,
-               block_keep: int, keep: int):
-    """Plants each ray must test exactly, found through the row structure in three levels.
-    (1) Every row: where the ray crosses the row's slab (|y − row_y| ≤ reach, z in the row's
-    band, x along the row, t before t_far), the `blocks` blocks of BLOCK plants met first
-    along the ray, from the one where it reaches the row's core (backed off by one), are tested
-    against their boxes. (2) The plants of the `block_keep` blocks entered first are tested
-    against their own boxes. (3) The `keep` plant boxes entered first are kept.
-    o, d: [N, 3]; t_min, t_far: [N]. Returns (flat plant index int32 [N, keep],
-    valid bool [N, keep])."""
-    R = tab.row_y.shape[0]
-    P = n_plants
-    nb = tab.block_t.shape[1] // R
-    n = o.shape[0]
-    tmin, tmax = t_min[:, None], t_far[:, None]
-    ty0, ty1 = slab(o[:, 1:2], d[:, 1:2], tab.row_y - tab.reach_y, tab.row_y + tab.reach_y)
-    tz0, tz1 = slab(o[:, 2:3], d[:, 2:3], tab.row_zlo, tab.row_zhi)
-    x_lo = tab.x0 - tab.reach_x
-    x_hi = tab.x0 + (P - 1) * tab.d_pp + tab.reach_x
-    tx0, tx1 = slab(o[:, 0:1], d[:, 0:1], x_lo, x_hi)
-    t_lo = jnp.maximum(jnp.maximum(ty0, tz0), jnp.maximum(tx0, tmin))
-    t_hi = jnp.minimum(jnp.minimum(ty1, tz1), jnp.minimum(tx1, tmax))
-    ok = t_lo <= t_hi  # [N, R]
-    # the window starts where the ray reaches the row's core (most plants' foliage)
-    tc0, _ = slab(o[:, 1:2], d[:, 1:2], tab.row_y - tab.core_y, tab.row_y + tab.core_y)
-    xs = o[:, 0:1] + jnp.where(ok, jnp.clip(tc0, t_lo, t_hi), 0.0) * d[:, 0:1]
-    step = jnp.where(d[:, 0:1] >= 0, 1.0, -1.0)
-    b0 = jnp.floor((xs - tab.x0) / (tab.d_pp * BLOCK) + 0.5) - step  # start one block back
-    b = b0[..., None] + step[..., None] * jnp.arange(blocks, dtype=jnp.float32)
-    valid = ok[..., None] & (b >= 0) & (b <= nb - 1)  # [N, R, blocks]
-    bid = jnp.arange(R, dtype=jnp.int32)[:, None] * nb + jnp.clip(b, 0, nb - 1).astype(jnp.int32)
-    bid, valid = bid.reshape(n, -1), valid.reshape(n, -1)
-    key = _box_entry(o, d, [tab.block_t[j][bid] for j in range(6)], tmin, tmax)
-    bsel, bhit = _first(jnp.where(valid, key, INF), bid, block_keep)
-    # plants of those blocks
-    r, blk = bsel // nb, bsel % nb
-    i = blk[..., None] * BLOCK + jnp.arange(BLOCK)  # [N, KB, BLOCK]
-    pvalid = bhit[..., None] & (i < P)
-    flat = (r[..., None] * P + jnp.minimum(i, P - 1)).reshape(n, -1)
-    key = _box_entry(o, d, [tab.box_t[j][flat] for j in range(6)], tmin, tmax)
-    return _first(jnp.where(pvalid.reshape(n, -1), key, INF), flat, keep)
+                      reach_y=reach_y, kind=np.asarray(pr.kind), material=np.asarray(pr.material))
 
 
 def unroll() -> bool:
@@ -280,10 +208,9 @@ def unroll() -> bool:
 
 def nearest_prim(tab: PlantTable, flat, o, d, t_min, t_max):
     """Nearest primitive hit of each candidate plant `flat` (int32 [N, C] indices into the
-    table). o, d: (x, y, z) tuples of [N, 1]; t_min, t_max: [N, 1].
+    table), one gather per primitive (reference and tests; the renderer uses
+    `render_tiles.exact`). o, d: (x, y, z) tuples of [N, 1]; t_min, t_max: [N, 1].
     Returns (t [N, C] (+inf: none in (t_min, t_max)), k int32 [N, C])."""
-    K = len(tab.kind)
-    table = tab.prim_t.reshape(K, 12, -1)
     t_best = jnp.full(flat.shape, INF)
     k_best = jnp.zeros(flat.shape, jnp.int32)
     for kd in (PL.ELLIPSOID, PL.CAPSULE):
@@ -294,7 +221,7 @@ def nearest_prim(tab: PlantTable, flat, o, d, t_min, t_max):
         def body(carry, x, kd=kd):
             t_b, k_b = carry
             rows, k = x
-            p = [rows[i][flat] for i in range(12)]  # 12 × [N, C]
+            p = [rows[:, i][flat] for i in range(12)]  # 12 × [N, C]
             if kd == PL.CAPSULE:
                 t = capsule_hit(o, d, p[0:3], p[3:6], p[6], p[7], t_min)
             else:
@@ -302,45 +229,35 @@ def nearest_prim(tab: PlantTable, flat, o, d, t_min, t_max):
             better = t < jnp.minimum(t_b, t_max)
             return (jnp.where(better, t, t_b), jnp.where(better, k, k_b)), None
 
-        xs = (table[ks], jnp.asarray(ks, jnp.int32))
+        xs = (tab.prim[ks], jnp.asarray(ks, jnp.int32))
         (t_best, k_best), _ = jax.lax.scan(body, (t_best, k_best), xs,
                                            unroll=len(ks) if unroll() else 1)
     return t_best, k_best
-
-
-def trace_plants(tab: PlantTable, n_plants: int, o, d, t_min, t_far, blocks: int,
-                 block_keep: int, keep: int):
-    """Nearest plant hit of each ray (see `candidates` for which plants are tested).
-    o, d: [N, 3] (|d| = 1); t_min, t_far: [N].
-    Returns (t [N] (+inf: none before t_far), plant flat index int32 [N], primitive k [N])."""
-    flat, valid = candidates(tab, n_plants, o, d, t_min, t_far, blocks, block_keep, keep)
-    oc = tuple(x[:, None] for x in _xyz(o))
-    dc = tuple(x[:, None] for x in _xyz(d))
-    t, k = nearest_prim(tab, flat, oc, dc, t_min[:, None], t_far[:, None])  # [N, C]
-    t = jnp.where(valid, t, INF)
-    best = jnp.argmin(t, axis=1)[:, None]
-    t_best = jnp.take_along_axis(t, best, 1)[:, 0]
-    plant = jnp.take_along_axis(flat, best, 1)[:, 0]
-    return t_best, plant, jnp.take_along_axis(k, best, 1)[:, 0]
 
 
 def plant_normal(tab: PlantTable, plant, k, p):
     """At hit points p [N, 3] of primitive k [N] of plant [N]: (outward unit normal [N, 3],
     the point in the primitive's own frame [N, 3]: on an ellipsoid the unit-sphere point
     (semi-axis units), on a capsule (0, 0, position along the axis / half length))."""
-    col = k[:, None] * 12 + jnp.arange(12)  # [N, 12]
-    row = tab.prim_t[col, plant[:, None]]  # [N, 12]
-    c = row[:, :3]
-    A = row[:, 3:12].reshape(-1, 3, 3)
-    r = p - c
-    u = jnp.sum(A * r[:, None, :], -1)  # A r
-    n_e = jnp.sum(A * u[:, :, None], 1)  # Aᵀ A r
-    n_e = n_e / jnp.maximum(jnp.linalg.norm(n_e, axis=-1, keepdims=True), 1e-12)
-    n_c = capsule_normal(p, c, row[:, 3:6], row[:, 7])
+    K, RP = tab.prim.shape[:2]
+    row = tab.prim.reshape(K * RP, 12)[k * RP + plant]  # [N, 12]
+    c, A = row[:, :3], [row[:, 3 + i] for i in range(9)]
+    r = _xyz(p - c)
+    u = [A[3 * i] * r[0] + A[3 * i + 1] * r[1] + A[3 * i + 2] * r[2] for i in range(3)]  # A r
+    n_e = [A[j] * u[0] + A[3 + j] * u[1] + A[6 + j] * u[2] for j in range(3)]  # Aᵀ A r
+    axis = _xyz(row[:, 3:6])
+    half = row[:, 7]
+    along = _dot3(r, axis)
+    s = jnp.clip(along, -half, half)
+    n_c = [r[j] - s * axis[j] for j in range(3)]
     is_caps = jnp.asarray(tab.kind == PL.CAPSULE)[k]
-    along = _dot(r, row[:, 3:6]) / jnp.maximum(row[:, 7], 1e-6)
-    u_c = jnp.stack([jnp.zeros_like(along), jnp.zeros_like(along), along], -1)
-    return (jnp.where(is_caps[:, None], n_c, n_e), jnp.where(is_caps[:, None], u_c, u))
+    n = [jnp.where(is_caps, n_c[j], n_e[j]) for j in range(3)]
+    inv = 1.0 / jnp.maximum(jnp.sqrt(_dot3(n, n)), 1e-12)
+    u_c = along / jnp.maximum(half, 1e-6)
+    zero = jnp.zeros_like(u_c)
+    local = [jnp.where(is_caps, zero, u[0]), jnp.where(is_caps, zero, u[1]),
+             jnp.where(is_caps, u_c, u[2])]
+    return jnp.stack([x * inv for x in n], -1), jnp.stack(local, -1)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -362,14 +279,25 @@ def obstacle_table(field: F.Field, cam_pos, forward, n: int):
             field.obst_kind[idx] == F.BRANCH)
 
 
-def trace_obstacles(obst, o, d, t_min):
-    """Nearest obstacle hit: (t [N] (+inf: none), normal [N, 3], is_branch bool [N])."""
+def trace_obstacles(obst, o, d, t_min, any_hit: bool = False):
+    """Nearest obstacle hit: (t [N] (+inf: none), normal [N, 3], is_branch bool [N]); with
+    any_hit, t only. One obstacle at a time (elementwise over the rays, no [N, n] arrays)."""
     c, axis, rad, half, ok, branch = obst
-    oc = tuple(x[:, None] for x in _xyz(o))
-    dc = tuple(x[:, None] for x in _xyz(d))
-    t = capsule_hit(oc, dc, _xyz(c), _xyz(axis), rad, half, t_min[:, None])  # [N, n]
-    t = jnp.where(ok, t, INF)
-    j = jnp.argmin(t, axis=1)
-    t_best = jnp.take_along_axis(t, j[:, None], 1)[:, 0]
+    oc, dc = _xyz(o), _xyz(d)
+    n = c.shape[0]
+    t_best = jnp.full(t_min.shape, INF)
+    j_best = jnp.zeros(t_min.shape, jnp.int32)
+
+    def body(carry, x):
+        t_b, j_b = carry
+        cj, aj, rj, hj, okj, j = x
+        t = capsule_hit(oc, dc, _xyz(cj), _xyz(aj), rj, hj, t_min)
+        better = okj & (t < t_b)
+        return (jnp.where(better, t, t_b), jnp.where(better, j, j_b)), None
+
+    xs = (c, axis, rad, half, ok, jnp.arange(n, dtype=jnp.int32))
+    (t_best, j_best), _ = jax.lax.scan(body, (t_best, j_best), xs, unroll=n if unroll() else 1)
+    if any_hit:
+        return t_best
     p = o + jnp.where(jnp.isfinite(t_best), t_best, 0.0)[:, None] * d
-    return t_best, capsule_normal(p, c[j], axis[j], half[j]), branch[j]
+    return t_best, capsule_normal(p, c[j_best], axis[j_best], half[j_best]), branch[j_best]

@@ -141,49 +141,55 @@ def shadow_candidates(tab, n_plants, lo, hi, sun, t_max: float, block_keep: int,
     return _cull(tab, n_plants, entry, m.shape[0], block_keep, n)
 
 
-def _gather_prims(tab: G.PlantTable, ids):
-    """Primitives of candidates ids [T, C]: per kind, (ks int [Kk], data [C·Kk, 12, T, 1])."""
+def exact(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, group: int = 4,
+          any_hit: bool = False):
+    """Nearest exact primitive hit of tile rays among their tile's candidates, `group`
+    candidates at a time (one primitive slot k of each), elementwise over [T, group, P].
+    ids int32 [T, C], valid bool [T, C]; o, d: (x, y, z) tuples of [T, P] arrays (or [1, 1]:
+    the same for every ray), |d| = 1; t_min, t_max: [T, P]. Returns (t [T, P] (+inf: none in
+    (t_min, t_max)), plant int32 [T, P], k int32 [T, P]); with any_hit, t only."""
     K = len(tab.kind)
-    g = tab.prim_t[:, ids]  # [K·12, T, C]
-    g = jnp.moveaxis(g.reshape((K, 12) + ids.shape), 3, 0)  # [C, K, 12, T]
-    out = []
-    for kd in (PL.ELLIPSOID, PL.CAPSULE):
-        ks = np.flatnonzero(tab.kind == kd)
-        if len(ks):
-            x = g[:, ks].reshape((-1, 12) + ids.shape[:1] + (1,))
-            out.append((kd, ks, x))
-    return out
-
-
-def exact(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool = False):
-    """Nearest exact primitive hit of tile rays among their tile's candidates.
-    ids int32 [T, C], valid bool [T, C]; o, d: (x, y, z) tuples of [T, P] (or [1, 1]) arrays,
-    |d| = 1; t_min, t_max: [T, P]. Returns (t [T, P] (+inf: none in (t_min, t_max)),
-    plant int32 [T, P], k int32 [T, P]); with any_hit, t only."""
-    K = len(tab.kind)
-    C = ids.shape[1]
+    nt, C = ids.shape
+    g = max(1, min(group, C))
+    ng = -(-C // g)
+    pad = ng * g - C
+    if pad:
+        ids = jnp.concatenate([ids, jnp.zeros((nt, pad), ids.dtype)], 1)
+        valid = jnp.concatenate([valid, jnp.zeros((nt, pad), bool)], 1)
+    ids_g = jnp.swapaxes(ids.reshape(nt, ng, g), 0, 1)  # [ng, T, g]
+    ok_g = jnp.swapaxes(valid.reshape(nt, ng, g), 0, 1)[..., None]  # [ng, T, g, 1]
+    ray = lambda v: tuple(x[:, None, :] for x in v)  # noqa: E731  [T, P] → [T, 1, P]
+    o, d, t_lo = ray(o), ray(d), t_min[:, None, :]
     t_best = jnp.full(t_max.shape, INF)
     s_best = jnp.zeros(t_max.shape, jnp.int32)
-    for kd, ks, data in _gather_prims(tab, ids):
-        nk = len(ks)
-        ok = jnp.repeat(jnp.moveaxis(valid, 1, 0), nk, axis=0)[..., None]  # [C·nk, T, 1]
-        kk = np.tile(ks, C)
-        cc = np.repeat(np.arange(C), nk)
-        step = jnp.asarray(cc * K + kk, jnp.int32)
+    for kd in (PL.ELLIPSOID, PL.CAPSULE):
+        ks = np.flatnonzero(tab.kind == kd)
+        if not len(ks):
+            continue
+        data = tab.prim[ks][:, ids_g].reshape((-1, nt, g, 12))  # [nk·ng, T, g, 12]
+        ok = jnp.broadcast_to(ok_g, (len(ks),) + ok_g.shape).reshape((-1, nt, g, 1))
+        kk, gg = np.meshgrid(ks, np.arange(ng), indexing="ij")
+        base = jnp.asarray((gg * g * K + kk).reshape(-1), jnp.int32)  # step → (group, k)
 
         def body(carry, x, kd=kd):
             t_b, s_b = carry
-            p, ok, s = x
-            p = [p[i] for i in range(12)]
+            q, okq, b = x
+            p = [q[..., i:i + 1] for i in range(12)]  # [T, g, 1]
             if kd == PL.CAPSULE:
-                t = G.capsule_hit(o, d, p[0:3], p[3:6], p[6], p[7], t_min)
+                t = G.capsule_hit(o, d, p[0:3], p[3:6], p[6], p[7], t_lo)
             else:
-                t = G.ellipsoid_hit(o, d, p[0:3], p[3:12], t_min)
-            better = ok & (t < jnp.minimum(t_b, t_max))
-            return (jnp.where(better, t, t_b), jnp.where(better, s, s_b)), None
+                t = G.ellipsoid_hit(o, d, p[0:3], p[3:12], t_lo)
+            t = jnp.where(okq, t, INF)  # [T, g, P]
+            tm = jnp.min(t, axis=1)
+            better = tm < jnp.minimum(t_b, t_max)
+            if any_hit:
+                return (jnp.where(better, tm, t_b), s_b), None
+            first = jnp.min(jnp.where(t == tm[:, None], jnp.arange(g)[:, None], g), axis=1)
+            s = b + first.astype(jnp.int32) * K
+            return (jnp.where(better, tm, t_b), jnp.where(better, s, s_b)), None
 
-        n_steps = C * nk
-        (t_best, s_best), _ = jax.lax.scan(body, (t_best, s_best), (data, ok, step),
+        n_steps = base.shape[0]
+        (t_best, s_best), _ = jax.lax.scan(body, (t_best, s_best), (data, ok, base),
                                            unroll=min(n_steps, 64) if G.unroll() else 1)
     if any_hit:
         return t_best
