@@ -41,10 +41,11 @@ from mjxrow import render_geom as G
 from mjxrow import render_shade as S
 from mjxrow import render_terrain as T
 from mjxrow import render_tiles as RT
+from mjxrow.render_geom import PlantTable, plant_table
 from mjxrow.render_shade import CONDITIONS, Conditions, condition_by_index, conditions
 
-__all__ = ["CONDITIONS", "DEFAULT_CONFIG", "Conditions", "Frame", "Intrinsics", "RenderConfig",
-           "SKY_DEPTH", "geometry",
+__all__ = ["CONDITIONS", "DEFAULT_CONFIG", "Conditions", "Frame", "Intrinsics", "PlantTable",
+           "RenderConfig", "SKY_DEPTH", "geometry", "plant_table",
            "camera_rot", "condition_by_index", "conditions", "render"]
 
 SKY, SOIL, PLANT, OBSTACLE = 0, 1, 2, 3
@@ -221,7 +222,12 @@ def _ground_occlusion(tab, p):
     return 0.55 + 0.45 * s * s * (3 - 2 * s)
 
 
-def _setup(field, shape, cam_pos, cam_rot, intr, cfg):
+def _rotate(v, rot):
+    """Camera-frame vectors v [N, 3] → world frame (elementwise: no tiny matrix product)."""
+    return v[:, 0:1] * rot[:, 0] + v[:, 1:2] * rot[:, 1] + v[:, 2:3] * rot[:, 2]
+
+
+def _setup(field, shape, cam_pos, cam_rot, intr, cfg, table=None):
     """Field with its terrain in memory, plant table, obstacle table, rays (camera [3],
     directions [N, 3] tile-major, tile centres [T, 3], tan of the tile half-angles [T]),
     |z = −1 pixel ray| [N], tile grid."""
@@ -231,9 +237,9 @@ def _setup(field, shape, cam_pos, cam_rot, intr, cfg):
                                                       cfg.tile)
     cam_pos = jnp.asarray(cam_pos, jnp.float32)
     cam_rot = jnp.asarray(cam_rot, jnp.float32)
-    d = jnp.asarray(dirs.reshape(-1, 3)) @ cam_rot.T
-    c = jnp.asarray(centre) @ cam_rot.T
-    tab = G.plant_table(field, shape)
+    d = _rotate(jnp.asarray(dirs.reshape(-1, 3)), cam_rot)
+    c = _rotate(jnp.asarray(centre), cam_rot)
+    tab = G.plant_table(field, shape) if table is None else table
     obst = G.obstacle_table(field, cam_pos, -cam_rot[:, 2],
                             min(cfg.obstacles, shape.obstacle_slots))
     rays = (cam_pos, d, c, jnp.asarray(tan_a))
@@ -241,10 +247,12 @@ def _setup(field, shape, cam_pos, cam_rot, intr, cfg):
 
 
 def geometry(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax.Array,
-             intr: Intrinsics, cfg: RenderConfig = DEFAULT_CONFIG) -> tuple[jax.Array, jax.Array]:
+             intr: Intrinsics, cfg: RenderConfig = DEFAULT_CONFIG,
+             table: PlantTable | None = None) -> tuple[jax.Array, jax.Array]:
     """What `render` sees, without shading: (depth float32 [H, W] (metres along the optical
     axis, SKY_DEPTH for sky), classes uint8 [H, W]). Same arguments as `render`."""
-    field, tab, obst, rays, norm, tiles = _setup(field, shape, cam_pos, cam_rot, intr, cfg)
+    field, tab, obst, rays, norm, tiles = _setup(field, shape, cam_pos, cam_rot, intr, cfg,
+                                                 table)
     t, cls, *_ = _trace(field, shape, tab, obst, rays, cfg)
     depth = jnp.where(cls == SKY, SKY_DEPTH, t / norm).astype(jnp.float32)
     to_image = functools.partial(_image, tiles=tiles, intr=intr)
@@ -259,14 +267,16 @@ def _image(x, tiles, intr):
 
 def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax.Array,
            intr: Intrinsics, cond: Conditions, key: jax.Array | None = None,
-           cfg: RenderConfig = DEFAULT_CONFIG) -> Frame:
+           cfg: RenderConfig = DEFAULT_CONFIG, table: PlantTable | None = None) -> Frame:
     """Render ONE field from ONE camera (pure; jit and vmap outside).
 
     field: one `Field` (no batch axis); shape, intr, cfg: static. cam_pos float32 [3] [m],
     cam_rot float32 [3, 3] (columns right, up, backwards). cond: `conditions(name)`. key: None
     for a deterministic image, or a PRNG key for sensor noise and exposure variation
-    (augmentation). Returns a `Frame` of [H, W] images."""
-    field, tab, obst, rays, norm, tiles = _setup(field, shape, cam_pos, cam_rot, intr, cfg)
+    (augmentation). table: `plant_table(field, shape)` computed once for many frames of the
+    same field (an episode), or None to compute it here. Returns a `Frame` of [H, W] images."""
+    field, tab, obst, rays, norm, tiles = _setup(field, shape, cam_pos, cam_rot, intr, cfg,
+                                                 table)
     d = rays[1]
     t, cls, p, normal, plant, k, is_branch, local = _trace(field, shape, tab, obst, rays, cfg)
     vis = (_shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, tiles[0] * tiles[1])
@@ -282,7 +292,7 @@ def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax
     albedo = jnp.where((cls == PLANT)[:, None], a_plant,
                        jnp.where((cls == OBSTACLE)[:, None], a_obst, a_soil))
     # light: sky ambient (occluded near plants and under canopies) + sun (shadowed)
-    ndl = normal @ cond.sun_dir
+    ndl = jnp.sum(normal * cond.sun_dir, -1)
     rel_h = jnp.clip((p[:, 2] - tab.base[plant, 0]) / jnp.maximum(tab.base[plant, 1], 1e-3),
                      0.0, 1.0)
     ao = jnp.where(cls == PLANT, 0.45 + 0.55 * jnp.sqrt(rel_h), _ground_occlusion(tab, p))

@@ -226,7 +226,7 @@ def sky(d: jax.Array, cond: Conditions) -> jax.Array:
     and glow, a cloud layer textured with value noise."""
     up = jnp.clip(d[:, 2], 0.0, 1.0)
     grad = cond.sky_horizon + (cond.sky_zenith - cond.sky_horizon) * (up ** 0.45)[:, None]
-    cos_sun = jnp.clip(d @ cond.sun_dir, 0.0, 1.0)
+    cos_sun = jnp.clip(jnp.sum(d * cond.sun_dir, -1), 0.0, 1.0)
     glow = (0.9 * cos_sun ** 900 + 0.12 * cos_sun ** 10)[:, None] * cond.sun_rgb
     # clouds on a plane 1 unit above: coordinates d_xy / d_z
     h = jnp.maximum(d[:, 2], 0.03)

@@ -1,0 +1,199 @@
+"""Tile culling (render_tiles): the static tile layout, the conservative cone and shadow box
+tests against brute force, the tiled exact tests against the per-plant reference, padded
+images, deep tiles on grazing views, and a precomputed plant table."""
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjxrow import field as F
+from mjxrow import render as RD
+from mjxrow import render_geom as G
+from mjxrow import render_tiles as RT
+
+COMMON = F.FieldShape(crop="zucchini", max_rows=16, max_plants_per_row=40,
+                      terrain_cells=(96, 88), obstacle_slots=8)
+
+
+def test_tile_layout_round_trip():
+    # 13 × 18 pixels in tiles of 4: 4 × 5 tiles, the last row and column padded
+    intr = RD.Intrinsics(18, 13, 50.0)
+    dirs, norm, centre, tan_a, tiles = RT.tile_layout(18, 13, 50.0, 4)
+    assert tiles == (4, 5) and dirs.shape == (20, 16, 3) and centre.shape == (20, 3)
+    img = np.asarray(RT.untile(jnp.asarray(dirs * norm[..., None]), tiles, 13, 18))
+    assert np.allclose(img.reshape(-1, 3), RD.pixel_rays(intr), atol=1e-6)
+    # every pixel ray lies inside its tile's cone, the widest barely
+    cos = np.sum(dirs * centre[:, None], -1)
+    ang = np.arccos(np.clip(cos, -1, 1)).max(1)
+    assert np.all(np.tan(ang) <= tan_a) and np.all(tan_a <= np.tan(ang) * 1.01 + 1e-5)
+    # the top-left tile's centre: the mean of pixel rays 0..3, up and to the left
+    assert centre[0, 0] < 0 and centre[0, 1] > 0 and centre[0, 2] < 0
+
+
+def _ray_box_entry(o, d, lo, hi, t_max):
+    """Brute-force entry t of rays o + t·d ([..., 3], broadcasting) into boxes [lo, hi]
+    ([..., 3]): [...] (inf: missed)."""
+    inv = 1.0 / np.where(np.abs(d) < 1e-12, 1e-12, d)
+    ta, tb = (lo - o) * inv, (hi - o) * inv
+    t0 = np.maximum(np.minimum(ta, tb).max(-1), 0.0)
+    t1 = np.minimum(np.maximum(ta, tb).min(-1), t_max)
+    return np.where(t0 <= t1, t0, np.inf)
+
+
+def test_cone_entry_bounds_every_tile_ray():
+    rng = np.random.default_rng(0)
+    dirs, _, centre, tan_a, _ = RT.tile_layout(32, 24, 42.0, 4)
+    o = np.array([0.3, -0.2, 0.5], np.float32)
+    lo = rng.uniform(-6, 6, (400, 3)).astype(np.float32)
+    lo[:, 0] += 8.0  # boxes ahead of a camera looking along +x
+    hi = lo + rng.uniform(0.05, 1.0, (400, 3)).astype(np.float32)
+    box = [jnp.asarray(b) for b in (lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1], lo[:, 2], hi[:, 2])]
+    rot = np.asarray(RD.camera_rot(0.0, -0.1))
+    d = dirs @ rot.T
+    c = jnp.asarray(centre @ rot.T)
+    t_cut = jnp.full((len(centre),), 30.0)
+    grow = RT._cone_grow(jnp.asarray(o), c, jnp.asarray(tan_a), box)
+    bound = np.asarray(RT._grown_entry(jnp.asarray(o), c, grow, box, t_cut))  # [T, M]
+    e = _ray_box_entry(o, d[:, :, None], lo, hi, 30.0).min(1)  # [T, M]: first tile ray in
+    met = np.isfinite(e)
+    assert met.sum() > 50
+    assert np.all(bound[met] <= e[met] + 1e-4)
+    # and the test culls: most (tile, box) pairs are out
+    assert np.isfinite(bound).mean() < 0.3
+
+
+def test_shadow_box_test_is_exact_for_points_in_the_tile_box():
+    rng = np.random.default_rng(1)
+    sun = np.array([0.5, 0.3, 0.81], np.float32)
+    sun /= np.linalg.norm(sun)
+    lo_t = rng.uniform(-3, 3, (30, 3)).astype(np.float32)
+    hi_t = lo_t + rng.uniform(0.0, 0.8, (30, 3)).astype(np.float32)
+    lo = rng.uniform(-3, 3, (200, 3)).astype(np.float32)
+    lo[:, 2] += 1.5
+    hi = lo + rng.uniform(0.1, 0.8, (200, 3)).astype(np.float32)
+    m, h = 0.5 * (lo_t + hi_t), 0.5 * (hi_t - lo_t)
+    box = [jnp.asarray(b) for b in (lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1], lo[:, 2], hi[:, 2])]
+    grow = jnp.broadcast_to(jnp.asarray(h)[..., None], h.shape + (200,))
+    ent = np.asarray(RT._grown_entry(jnp.asarray(m), jnp.broadcast_to(jnp.asarray(sun), m.shape),
+                                     grow, box, jnp.full((30,), 60.0)))
+    # points of each tile box, their corners included
+    u = np.concatenate([rng.uniform(size=(60, 3)), np.indices((2, 2, 2)).reshape(3, -1).T])
+    pts = lo_t[:, None] + u[None] * (hi_t - lo_t)[:, None]  # [30, 68, 3]
+    e = _ray_box_entry(pts[:, :, None], sun, lo, hi, 60.0)  # [30, 68, 200]
+    hit = np.isfinite(e).any(1)
+    assert hit.sum() > 10 and np.all(np.isfinite(ent[hit]))
+    assert np.isfinite(ent).mean() < 0.5
+
+
+generate = jax.jit(F.generate, static_argnums=1)
+
+
+@pytest.fixture(scope="module")
+def lane_scene():
+    params = F.make_params("zucchini", terrain_length=14.0, row_length=10.0, terrain_width=14.0,
+                           p_missing=0.0)
+    fld = jax.tree.map(np.asarray, generate(params, COMMON, jax.random.key(5)))
+    lane = int(F.robot_lane(fld))
+    y = float(fld.lane_y[lane])
+    x0 = float(fld.row_x[0])
+    z = float(F.terrain_height(fld.terrain, fld.terrain_size, x0 - 0.5, y)) + 0.35
+    return fld, COMMON, np.array([x0 - 0.5, y, z], np.float32)
+
+
+@functools.cache
+def _geometry(shape, intr, cfg):
+    return jax.jit(lambda f, p, r: RD.geometry(f, shape, p, r, intr, cfg))
+
+
+def _reference_classes(fld, shape, intr, pos, rot):
+    """Per-pixel tiles (tile = 1: every ray culled on its own) with every candidate kept."""
+    cfg = RD.RenderConfig(tile=1, block_keep=64, keep=64, deep_keep=0)
+    return np.asarray(_geometry(shape, intr, cfg)(fld, pos, rot)[1])
+
+
+def test_tiles_see_what_single_rays_see_on_a_padded_image(lane_scene):
+    fld, shape, pos = lane_scene
+    intr = RD.Intrinsics(30, 22, 45.0)  # neither side a multiple of the tile
+    rot = np.asarray(RD.camera_rot(0.1, np.deg2rad(-12.0)))
+    ref = _reference_classes(fld, shape, intr, pos, rot)
+    depth, cls = _geometry(shape, intr, RD.DEFAULT_CONFIG)(fld, pos, rot)
+    assert cls.shape == (22, 30) and depth.shape == (22, 30)
+    assert (ref == RD.PLANT).sum() > 60
+    assert np.array_equal(np.asarray(cls), ref)
+
+
+def test_deep_tiles_complete_grazing_views(lane_scene):
+    # looking along the lane a little towards a row: each tile's rays meet the row's plants
+    # at many depths, more than `keep` candidates
+    fld, shape, pos = lane_scene
+    intr = RD.Intrinsics(48, 32, 45.0)
+    rot = np.asarray(RD.camera_rot(0.08, np.deg2rad(-6.0)))
+    ref = _reference_classes(fld, shape, intr, pos, rot)
+    shallow = RD.RenderConfig(keep=2, deep_keep=0)
+    deep = RD.RenderConfig(keep=2, deep_keep=30, deep_share=0.5)
+    cls0 = np.asarray(_geometry(shape, intr, shallow)(fld, pos, rot)[1])
+    cls1 = np.asarray(_geometry(shape, intr, deep)(fld, pos, rot)[1])
+    cls = np.asarray(_geometry(shape, intr, RD.DEFAULT_CONFIG)(fld, pos, rot)[1])
+    assert np.sum(cls0 != ref) >= 20, np.sum(cls0 != ref)  # two candidates per tile miss
+    assert np.sum(cls1 != ref) <= 2  # the deep tiles test the rest
+    assert np.sum(cls != ref) <= 2
+
+
+def test_tiled_exact_matches_per_plant_reference(lane_scene):
+    fld, shape, _ = lane_scene
+    tab = G.plant_table(fld, shape)
+    rng = np.random.default_rng(2)
+    active = np.flatnonzero(np.asarray(fld.plant_active).reshape(-1))
+    ids = jnp.asarray(rng.choice(active, (6, 7)), jnp.int32)
+    valid = jnp.asarray(rng.uniform(size=(6, 7)) < 0.8)
+    # rays aimed at the candidates' plant centres, from one side
+    cb = np.asarray(tab.box_t)
+    ctr = np.stack([0.5 * (cb[0] + cb[1]), 0.5 * (cb[2] + cb[3]), 0.5 * (cb[4] + cb[5])], -1)
+    target = ctr[np.asarray(ids)][:, rng.integers(0, 7, 5)] + rng.normal(0, 0.1, (6, 5, 3))
+    o = target + np.array([0.0, 2.0, 0.6])
+    d = (target - o) / np.linalg.norm(target - o, axis=-1, keepdims=True)
+    o, d = jnp.asarray(o, jnp.float32), jnp.asarray(d, jnp.float32)
+    t_min, t_max = jnp.full((6, 5), 0.01), jnp.full((6, 5), 50.0)
+    xyz = lambda v: tuple(v[..., i] for i in range(3))  # noqa: E731
+    t, plant, k = RT.exact(tab, ids, valid, xyz(o), xyz(d), t_min, t_max)
+    # reference: every candidate of the ray's tile through nearest_prim
+    flat = jnp.repeat(ids, 5, axis=0)
+    col = lambda v: tuple(v.reshape(-1, 3)[:, i:i + 1] for i in range(3))  # noqa: E731
+    tr, kr = G.nearest_prim(tab, flat, col(o), col(d), t_min.reshape(-1, 1),
+                            t_max.reshape(-1, 1))
+    tr = jnp.where(jnp.repeat(valid, 5, axis=0), tr, jnp.inf)
+    best = np.argmin(np.asarray(tr), 1)
+    t_ref = np.asarray(tr)[np.arange(30), best]
+    assert np.isfinite(t_ref).sum() >= 10
+    assert np.allclose(np.asarray(t).reshape(-1), t_ref, rtol=1e-5)
+    hit = np.isfinite(t_ref)
+    assert np.array_equal(np.asarray(plant).reshape(-1)[hit], np.asarray(flat)[np.arange(30),
+                                                                              best][hit])
+    assert np.array_equal(np.asarray(k).reshape(-1)[hit], np.asarray(kr)[np.arange(30),
+                                                                          best][hit])
+
+
+def test_precomputed_table_gives_the_same_frame(lane_scene):
+    fld, shape, pos = lane_scene
+    intr = RD.Intrinsics(16, 16, 45.0)
+    rot = np.asarray(RD.camera_rot(0.0, np.deg2rad(-10.0)))
+    cond = RD.conditions("sunny")
+    tab = jax.jit(RD.plant_table, static_argnums=1)(fld, shape)
+    a = jax.jit(lambda f, p, r: RD.render(f, shape, p, r, intr, cond))(fld, pos, rot)
+    b = jax.jit(lambda f, p, r, t: RD.render(f, shape, p, r, intr, cond, table=t))(
+        fld, pos, rot, tab)
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+        assert np.array_equal(np.asarray(x), np.asarray(y))
+    assert np.asarray(a.mask).any()
+
+
+def test_config_validates():
+    with pytest.raises(ValueError, match="tile"):
+        RD.RenderConfig(tile=0)
+    with pytest.raises(ValueError, match="deep_share"):
+        RD.RenderConfig(deep_share=1.5)
+    assert dataclasses.replace(RD.DEFAULT_CONFIG, deep_keep=0).deep_keep == 0
