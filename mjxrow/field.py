@@ -94,7 +94,7 @@ class Field:
     plant_row: jax.Array  # int32 [R, P], row index of each plant
     row_y: jax.Array  # float32 [R], lateral position of each row [m]
     row_active: jax.Array  # bool [R]
-    row_x: jax.Array  # float32 [2], (start, end) of every row along x [m]
+    row_x: jax.Array  # float32 [2], x of the first and the last plant slot of every row [m]
     lane_y: jax.Array  # float32, lateral position of the centre line of lane i [m]
     lane_width: jax.Array  # float32, distance between the rows bounding lane i [m]
     lane_active: jax.Array  # bool
@@ -403,7 +403,7 @@ def generate(params: FieldParams, shape: FieldShape, key: jax.Array) -> Field:
         plant_row=jnp.broadcast_to(jnp.arange(R, dtype=jnp.int32)[:, None], (R, P)),
         row_y=row_y.astype(jnp.float32),
         row_active=row_active,
-        row_x=jnp.stack([x0, -x0]).astype(jnp.float32),
+        row_x=jnp.stack([x0, x0 + (lay["n_plants"] - 1.0) * q["d_pp"]]).astype(jnp.float32),
         lane_y=lane_y.astype(jnp.float32),
         lane_width=lane_width.astype(jnp.float32),
         lane_active=lane_active,

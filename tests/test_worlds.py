@@ -85,7 +85,8 @@ def test_lanes_csv(tiny, paths):
                                "default"]
     np.testing.assert_allclose(t["width"], [D_RR, D_RGROUP, D_RR], atol=1e-3)
     np.testing.assert_allclose(t["y"], [-2.7, 0.0, 2.7], atol=1e-3)
-    np.testing.assert_allclose(t[["x_start", "x_end"]].to_numpy(), [[-4.0, 4.0]] * 3, atol=1e-3)
+    # rows start at −row_length/2 and end at the last plant slot: −4 + 11 · 0.7 = 3.7 m
+    np.testing.assert_allclose(t[["x_start", "x_end"]].to_numpy(), [[-4.0, 3.7]] * 3, atol=1e-3)
     assert t["default"].sum() == 1 and int(t["lane"][t["default"] == 1].iloc[0]) == int(
         F.robot_lane(field))
 
