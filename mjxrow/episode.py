@@ -15,7 +15,9 @@ collision footprint, metrics.collides), goal (within `goal_radius`), missed_goal
 goal's line: x beyond the goal's x + `goal_radius`, beside the goal; the row has ended there,
 so a robot that drives on along +x can no longer reach it), off_patch (the robot left the
 simulated terrain), stuck (moved less than `stuck_dist` over `stuck_window` steps), timeout
-(after `n_steps`). Once ended, the state stays frozen and the remaining steps are masked.
+(after `n_steps`). Once ended, the state stays frozen and the remaining steps are masked; a
+batch stops stepping once every one of its episodes has ended (checked every `CHUNK` steps), so
+the timeout costs only batches in which some episode runs that long.
 
 CLI: `python -m mjxrow.episode --preset vineyard --controller oracle --n 8 --seed 0 --out DIR
 [--set key=value ...]` (see `main`).
@@ -47,6 +49,7 @@ from mjxrow.metrics import Log
 from mjxrow.overrides import parse_sets
 
 TRACES = 0  # times the episode function was traced (each one is a compile)
+CHUNK = 25  # control steps per scan between checks for the end of every episode of a batch
 
 
 @dataclasses.dataclass(frozen=True)
@@ -150,10 +153,38 @@ def episode(mx, field: F.Field, lane: jax.Array, key: jax.Array, noise: sim.Pose
         return (s_next, ps_next, done | (reason != M.RUNNING), anchor), out
 
     carry = (s0, ps0, jnp.zeros((), bool), p0[:2])
-    _, out = jax.lax.scan(body, carry, jnp.arange(cfg.n_steps))
+    out = _run_until_done(body, carry, cfg.n_steps)
     return Log(pose=out["pose"], cmd=out["cmd"], alive=out["alive"], event=out["event"],
                start=p0, goal=goal, lane_y=lane_y, reason=jnp.max(out["event"]),
                steps=jnp.sum(out["alive"]).astype(jnp.int32), vel=out["vel"])
+
+
+def _run_until_done(body, carry, n_steps: int) -> dict:
+    """`lax.scan(body, carry, arange(n_steps))[1]`, stopped early once the episode is done.
+
+    Steps run in chunks of CHUNK (a scan each) inside a while loop that ends after the chunk in
+    which `carry[2]` (done) became True; under vmap it ends when every episode of the batch is
+    done, so a batch whose episodes all end early skips the rest of the timeout. Steps that did
+    not run read as steps after the end: pose and vel NaN, cmd 0, alive False, event RUNNING."""
+    chunk = min(n_steps, CHUNK)
+    n_chunks = -(-n_steps // chunk)
+    shapes = jax.eval_shape(body, carry, jnp.int32(0))[1]
+    fill = dict(pose=jnp.nan, vel=jnp.nan, cmd=0, alive=False, event=M.RUNNING)
+    buf0 = {k: jnp.full((n_chunks * chunk,) + v.shape, fill[k], v.dtype)
+            for k, v in shapes.items()}
+
+    def more(state):
+        c, (_, _, done, _), _ = state
+        return (c < n_chunks) & ~done
+
+    def run_chunk(state):
+        c, carry, buf = state
+        carry, out = jax.lax.scan(body, carry, c * chunk + jnp.arange(chunk))
+        buf = {k: jax.lax.dynamic_update_slice_in_dim(buf[k], out[k], c * chunk, 0) for k in buf}
+        return c + 1, carry, buf
+
+    _, _, buf = jax.lax.while_loop(more, run_chunk, (jnp.int32(0), carry, buf0))
+    return {k: v[:n_steps] for k, v in buf.items()}
 
 
 def canonical_axes(params_axes: Any) -> tuple:

@@ -87,6 +87,22 @@ def test_oracle_drives_the_lane(setup):
     assert (np.abs(s["path_ratio"] - 1.0) < 0.01).all()
 
 
+def test_early_stop_matches_stepping_every_step(setup, monkeypatch):
+    mx, fields, log, _ = setup
+    assert (log.steps < CFG.n_steps - E.CHUNK).all()  # every episode ends chunks early
+    monkeypatch.setattr(E, "CHUNK", CFG.n_steps)  # one chunk: a plain scan over every step
+    args = E.rollout_args(mx, fields, None, jax.random.split(jax.random.key(1), B),
+                          policy_params(0), AXES)
+    one = lambda *a: E.episode(*a[:5], POLICY, a[5], CFG)  # noqa: E731
+    full = jax.jit(jax.vmap(one, in_axes=(None, 0, 0, 0, 0, AXES)))(*args)
+    full = jax.tree.map(np.asarray, full)
+    for name in ("alive", "event", "reason", "steps"):
+        np.testing.assert_array_equal(getattr(log, name), getattr(full, name))
+    np.testing.assert_array_equal(log.pose, full.pose)  # NaN after the end in both
+    alive = log.alive[..., None]
+    np.testing.assert_array_equal(np.where(alive, log.cmd, 0), np.where(alive, full.cmd, 0))
+
+
 def test_new_field_params_do_not_retrace(setup):
     mx, fields, log1, _ = setup
     traces0 = E.TRACES
