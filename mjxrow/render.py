@@ -16,14 +16,22 @@ the centre of the pixel, row 0 at the top.
 
 What is not drawn: anything beyond `RenderConfig.far` metres (150 m: every preset field fits);
 the terrain's side walls; a plant primitive that contains the camera (seen from inside).
-Per ray only a static number of plants is intersected exactly, found through the row
-structure (`render_geom.candidates`: `blocks` blocks of plants per row, the `block_keep`
-blocks entered first, the `keep` plants entered first); a ray that skims the tops of more
-plant boxes than that before its first hit (far, nearly horizontal views over many rows) can
-miss a plant: against an all-plants reference the plant masks of the dataset's camera poses
-agree with IoU ≥ 0.97. Shadows are cast by plants and obstacles, not by the terrain (which
-is only shaded by its slope). Sky pixels have `depth = SKY_DEPTH`, `mask = False`,
-`classes = SKY`.
+
+How it stays fast (`render_tiles`): plants are culled once per tile of `tile × tile` pixels
+through the row structure (per row the stretch of the tile's cone inside the row's slab gives
+the blocks of plants it can meet; block and plant boxes grown by the cone give lower bounds of
+the entry distances), every ray of a tile tests its tile's `keep` candidates exactly, and the
+tiles where more plants may lie in front of a ray's hit (grazing views along rows) test a
+longer list. Shadow rays are culled the same way per tile (the box of the tile's surface
+points swept toward the sun). The terrain is marched (`terrain_steps` samples over the ray's
+part in the terrain's height band, `terrain_refine` bisections, then the triangle's exact
+plane). Limits: a plant can be missed where a tile's rays meet more plants than its lists hold
+before their hits (far, nearly horizontal views over many rows of small plants); a march step
+can step over a thin terrain feature on grazing rays. Against an all-plants reference, on the
+dataset's camera poses (`dataset.sample_pose`, 16 per preset, 64×64) the plant masks agree
+with IoU ≥ MASK_IOU (see the tests and the benchmark notes). Shadows are cast by plants and
+obstacles, not by the terrain (which is only shaded by its slope). Sky pixels have
+`depth = SKY_DEPTH`, `mask = False`, `classes = SKY`.
 """
 
 from __future__ import annotations
@@ -51,6 +59,7 @@ __all__ = ["CONDITIONS", "DEFAULT_CONFIG", "Conditions", "Frame", "Intrinsics", 
 SKY, SOIL, PLANT, OBSTACLE = 0, 1, 2, 3
 INF = jnp.inf
 SKY_DEPTH = 1000.0  # m, depth of sky pixels (finite, larger than any field)
+SHADOW_REACH = 60.0  # m, how far a shadow ray looks for a plant toward the sun
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,11 +83,15 @@ class RenderConfig:
     """Static knobs of the ray caster (speed against completeness; see render_tiles)."""
 
     tile: int = 4  # tile side [px]: plants are culled once per tile of tile × tile pixels
-    block_keep: int = 16  # blocks of BLOCK plants per tile whose plants' boxes are tested
+    row_blocks: int = 4  # blocks of BLOCK plants per row whose boxes a tile tests
+    block_keep: int = 6  # blocks per tile whose plants' boxes are tested
     keep: int = 8  # candidate plants per tile that every ray intersects exactly
-    deep_keep: int = 40  # further candidates tested on the deep tiles
     deep_share: float = 0.125  # share of a frame's tiles that may be deep
-    shadow_block_keep: int = 8  # the same for the shadow rays of a tile
+    deep_row_blocks: int = 12  # the same for the deep tiles
+    deep_block_keep: int = 16
+    deep_keep: int = 48
+    shadow_row_blocks: int = 2  # the same for the shadow rays of a tile
+    shadow_block_keep: int = 4
     shadow_keep: int = 6
     terrain_steps: int = 32  # march samples over the ray's part in the terrain's height band
     terrain_refine: int = 6  # bisections of the first bracket before the exact triangle
@@ -88,7 +101,8 @@ class RenderConfig:
     far: float = 150.0  # m, nothing further is drawn
 
     def __post_init__(self):
-        for name in ("tile", "block_keep", "keep", "shadow_block_keep", "shadow_keep",
+        for name in ("tile", "row_blocks", "block_keep", "keep", "deep_row_blocks",
+                     "deep_block_keep", "shadow_row_blocks", "shadow_block_keep", "shadow_keep",
                      "terrain_steps", "obstacles"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"render.{name}: must be at least 1, got {getattr(self, name)}")
@@ -168,24 +182,28 @@ def _trace(field, shape, tab, obst, rays, cfg):
 
 
 def _trace_plants(shape, tab, cam, d, c, tan_a, t_far, cfg):
-    """Nearest plant hit of the camera rays d [T, P, 3] (t_far [T, P]): the tile's first
-    `keep` candidates for every tile, the next `deep_keep` on the deep tiles. Returns flat
-    (t [N] (+inf: none), plant int32 [N], k int32 [N])."""
+    """Nearest plant hit of the camera rays d [T, P, 3] (t_far [T, P]): every tile's first
+    `keep` candidates, then the deep tiles' first `deep_keep` of a longer window. Returns
+    flat (t [N] (+inf: none), plant int32 [N], k int32 [N])."""
     nt = d.shape[0]
-    ids, entry = RT.camera_candidates(tab, shape.max_plants_per_row, cam, c, tan_a,
-                                      jnp.max(t_far, axis=1), cfg.block_keep,
-                                      cfg.keep + cfg.deep_keep)
-    o = tuple(jnp.reshape(cam[i], (1, 1)) for i in range(3))
+    P = shape.max_plants_per_row
+    o, cc, g, tau = RT.camera_sweep(cam, c, tan_a)
+    ids, entry, rest = RT.cull(tab, P, o, cc, g, tau, jnp.max(t_far, axis=1), cfg.row_blocks,
+                               cfg.block_keep, cfg.keep)
+    oc = tuple(jnp.reshape(cam[i], (1, 1)) for i in range(3))
     t_min = jnp.full(t_far.shape, cfg.near, jnp.float32)
-    kp = min(cfg.keep, ids.shape[1])
-    t, plant, k = RT.exact(tab, ids[:, :kp], jnp.isfinite(entry[:, :kp]), o, _xyz(d), t_min,
-                           t_far)
+    t, plant, k = RT.exact(tab, ids, jnp.isfinite(entry), oc, _xyz(d), t_min, t_far)
     n_deep = min(nt, int(np.ceil(cfg.deep_share * nt)))
-    if ids.shape[1] > kp and n_deep > 0:
+    if cfg.deep_keep > 0 and n_deep > 0:
         u = jnp.minimum(t, t_far)  # nothing beyond a ray's current hit matters
-        rest = entry[:, kp:] < jnp.max(u, axis=1, keepdims=True)
-        score, sel = jax.lax.top_k(jnp.sum(rest, axis=1).astype(jnp.float32), n_deep)
-        t2, plant2, k2 = RT.exact(tab, ids[sel, kp:], rest[sel] & (score[:, None] > 0), o,
+        cut = jnp.max(u, axis=1)
+        # plants that may still be nearer than some ray's hit: past the kept ones, or kept
+        # plants entered before the cut beyond the first `keep`
+        score = jnp.where(rest > 0, rest + jnp.sum(entry < cut[:, None], 1), 0)
+        score, sel = jax.lax.top_k(score.astype(jnp.float32), n_deep)
+        ids2, entry2, _ = RT.cull(tab, P, o[sel], cc[sel], g[sel], tau[sel], cut[sel],
+                                  cfg.deep_row_blocks, cfg.deep_block_keep, cfg.deep_keep)
+        t2, plant2, k2 = RT.exact(tab, ids2, jnp.isfinite(entry2) & (score[:, None] > 0), oc,
                                   _xyz(d[sel]), t_min[sel], u[sel])
         better = t2 < t[sel]
         t = t.at[sel].set(jnp.where(better, t2, t[sel]))
@@ -205,11 +223,14 @@ def _shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, nt):
     seen = (cls != SKY).reshape(nt, -1, 1)
     lo = jnp.min(jnp.where(seen, ot, INF), axis=1)
     hi = jnp.max(jnp.where(seen, ot, -INF), axis=1)
-    ids, entry = RT.shadow_candidates(tab, shape.max_plants_per_row, lo, hi, l, 60.0,
-                                      cfg.shadow_block_keep, cfg.shadow_keep)
+    sweep, live = RT.shadow_sweep(lo, hi, l)
+    t_max = jnp.where(live, SHADOW_REACH, -1.0)
+    ids, entry, _ = RT.cull(tab, shape.max_plants_per_row, *sweep, t_max,
+                            cfg.shadow_row_blocks, cfg.shadow_block_keep, cfg.shadow_keep)
     ls = tuple(jnp.reshape(l[i], (1, 1)) for i in range(3))
     t_pl = RT.exact(tab, ids, jnp.isfinite(entry), _xyz(ot), ls, t_min.reshape(nt, -1),
-                    jnp.full(ot.shape[:2], 60.0, jnp.float32), any_hit=True).reshape(-1)
+                    jnp.full(ot.shape[:2], SHADOW_REACH, jnp.float32),
+                    any_hit=True).reshape(-1)
     t_ob = G.trace_obstacles(obst, o, jnp.broadcast_to(l, p.shape), t_min, any_hit=True)
     return jnp.where(jnp.isfinite(t_pl) | jnp.isfinite(t_ob), 0.0, 1.0)
 

@@ -1,14 +1,12 @@
 """Ray casting against a field's plants and obstacles for `render.py` (the terrain is in
-`render_terrain.py`). Pure jnp, one field, rays flattened to [N]; no jit here.
+`render_terrain.py`; which plants each ray tests is decided in `render_tiles.py`). Pure jnp,
+one field; no jit here.
 
-Speed comes from the row structure. Plants stand on a grid (row r at `row_y[r]`, plant i at
-about `row_x[0] + i·d_pp`), so a ray needs only a few of them. In closed form per row, the
-ray's stretch inside the row's slab (|y − row_y| ≤ the plants' largest lateral reach, z in the
-row's height band, x along the row, t before the terrain) gives the blocks of BLOCK plants it
-can meet; the boxes of a few blocks per row, then of the plants of the blocks entered first,
-narrow each ray down to `keep` plants whose primitives are intersected exactly. Every count is
-static: no data-dependent shapes, no per-pixel gathers from big arrays (a field's tables are a
-few hundred kB).
+Exact ray tests of ellipsoids and capsules on (x, y, z) tuples of broadcastable arrays, the
+plant table (`plant_table`: every plant's primitives, bounding box, blocks of BLOCK plants,
+row bounds; compute it once per field and pass it to `render` when many frames see one
+field), normals and primitive-frame points at hits, and the obstacles (stones and branches,
+the few nearest the camera, tested one at a time against every ray).
 """
 
 from __future__ import annotations
@@ -156,6 +154,9 @@ class PlantTable:
     row_zlo: jax.Array  # float32 [R], lowest point of any plant of the row [m]
     row_zhi: jax.Array  # float32 [R], highest point of any plant of the row [m]
     reach_y: jax.Array  # float32 [], largest lateral reach of a plant from its row line [m]
+    reach_x: jax.Array  # float32 [], largest reach along x from the plant's nominal x [m]
+    x0: jax.Array  # float32 [], nominal x of plant 0 [m]
+    d_pp: jax.Array  # float32 [], nominal plant spacing [m]
     kind: np.ndarray = struct.field(pytree_node=False)  # int [K], plants.ELLIPSOID / CAPSULE
     material: np.ndarray = struct.field(pytree_node=False)  # int [K], plants.LEAF ...
 
@@ -192,12 +193,17 @@ def plant_table(field: F.Field, shape: F.FieldShape) -> PlantTable:
         [0, 3, 1, 4, 2, 5])]
     lat = jnp.maximum(hi[..., 1] - field.row_y[:, None], field.row_y[:, None] - lo[..., 1])
     reach_y = jnp.max(jnp.where(act, lat, 0.0))
+    d_pp = F._scaled(field.params)["d_pp"]
+    x0 = field.row_x[0]
+    x_nom = x0 + jnp.arange(P, dtype=jnp.float32) * d_pp
+    reach_x = jnp.max(jnp.where(act, jnp.maximum(hi[..., 0] - x_nom, x_nom - lo[..., 0]), 0.0))
     base = jnp.stack([field.plant_pos[..., 2], field.plant_size[..., 2], field.plant_phase], -1)
     prim, box_t, block_t, base = materialise(
         (prim, box.reshape(6, R * P), blk.reshape(6, R * nb), base.reshape(R * P, 3)))
     return PlantTable(prim=prim, box_t=box_t, block_t=block_t, base=base, row_y=field.row_y,
                       row_zlo=jnp.min(lo[..., 2], axis=1), row_zhi=jnp.max(hi[..., 2], axis=1),
-                      reach_y=reach_y, kind=np.asarray(pr.kind), material=np.asarray(pr.material))
+                      reach_y=reach_y, reach_x=reach_x, x0=x0, d_pp=d_pp,
+                      kind=np.asarray(pr.kind), material=np.asarray(pr.material))
 
 
 def unroll() -> bool:

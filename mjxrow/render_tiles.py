@@ -1,26 +1,34 @@
 """Tile culling for `render.py`: the plants a group of neighbouring pixels can see, found once
 per tile, then intersected exactly by every ray of the tile with pure arithmetic.
 
-The image is cut into square tiles of `ts × ts` pixels (static). Rays are laid out tile-major,
-`[T, P]` (T tiles, P = ts² pixels each), so a tile's data broadcast to its rays (no per-ray
-gathers). A tile's rays lie inside a cone around its centre direction `c` (half-angle α, static
-in the camera frame): a point q of a tile ray projects onto the centre ray at s = (q − o)·c ≤ |q
-− o| and lies within s·tan α of it. So the centre ray's interval in a box grown by s_max·tan α
-(s_max: the box's farthest projection) holds every tile ray's hit in the box, and its entry is a
-lower bound of their entry distances. Per tile: every block of BLOCK plants is tested that way,
-the `block_keep` blocks entered first give their plants, the `keep + deep_keep` plants entered
-first (before the farthest terrain or obstacle hit of the tile's rays) are the tile's
-candidates, sorted by entry. Every ray intersects the first `keep` exactly (`exact`); tiles
-where a later candidate can still be nearer than a ray's hit (grazing views along a row, where
-one tile's rays meet many plants at different depths) are the "deep" tiles: the `deep_tiles`
-tiles with the most such candidates test the next `deep_keep` ones too.
+The image is cut into square tiles of `ts × ts` pixels (static; the last row and column of
+tiles are padded with rays outside the image). Rays are laid out tile-major, `[T, P]` (T tiles,
+P = ts² pixels), so a tile's candidates broadcast to its rays: no per-ray gathers, no per-ray
+sorts. A tile's rays are bounded by a "sweep" around a centre ray o + s·c: the points within
+g + s·τ of it on every axis. Camera tiles: o the camera, c the tile's centre direction,
+τ = tan of the cone half-angle (static in the camera frame; a point q of a tile ray projects at
+s = (q − o)·c ≤ |q − o| and lies within s·τ of the centre ray), g = 0. Shadow rays of a tile
+(parallel, along the sun direction l): o the centre of the box B holding the tile's surface
+points, c = l, g = B's half extents, τ = 0 (a Minkowski sum: exact for boxes).
 
-Shadow rays from a tile's surface points are parallel (the sun direction l): a plant box can
-shadow a point of the tile's bounding box B iff the ray from B's centre along l meets the box
-grown by B's half extents (a Minkowski sum: exact for boxes). The `shadow_keep` plants entered
-first along l are tested exactly by each shadow ray.
+Culling (`cull`), all in closed form or over small static lists:
+1. Rows (`_window`): per row, where the sweep can be inside the row's slab (|y − row_y| ≤ the
+   plants' lateral reach, z in the row's height band, x within the rows' extent; linear
+   inequalities in s) gives the x range and so the plant indices it can meet; the first
+   `row_blocks` blocks of BLOCK plants of that range along the ray are kept.
+2. Blocks: their boxes, grown by the sweep at the box's farthest projection, give a lower bound
+   of every swept ray's entry; the `block_keep` entered first (before t_max: the farthest
+   terrain/obstacle hit of the tile's rays) give their plants.
+3. Plants: the same bound on each plant's box; the `n` entered first are the tile's candidates.
+Every ray intersects its tile's candidates exactly (`exact`). Where a later plant may still be
+nearer than a ray's hit (views along a row or over many far rows, where one tile's rays meet
+plants at many depths), the tile is "deep": the deep tiles with the most such plants are
+culled again with longer windows and lists, cut at their rays' current hits.
 
-Pure jnp, one field and one camera; no jit here.
+Limits: a plant is missed when it is beyond a row's window of `row_blocks` blocks, or beyond a
+tile's kept blocks or candidates, on a tile that is not among the deep ones (tiles over many
+small, far plants: lettuce and chard seen along the rows); see `render.py` for the measured
+agreement with an all-plants reference. Pure jnp, one field and one camera; no jit here.
 """
 
 from __future__ import annotations
@@ -71,26 +79,70 @@ def untile(x: jax.Array, tiles: tuple[int, int], height: int, width: int) -> jax
     return img[:height, :width]
 
 
-def _grown_entry(o, c, grow, box, t_max):
-    """Entry t of rays o + t·c ([T, 3] each, or o [3]) into boxes (6 arrays [M]) grown by
-    `grow` [T, M] (or [T, 3, M] per axis) on every side, cut at t_max [T]: [T, M] (+inf:
-    missed, empty box, or behind)."""
-    t_in = jnp.zeros(grow.shape[:1] + grow.shape[-1:], jnp.float32)
-    t_out = jnp.broadcast_to(t_max[:, None], t_in.shape)
+def _sweep_entry(o, c, g, tau, box, t_max):
+    """Entry s along centre rays o + s·c ([T, 3]) of the swept set of a tile (the points
+    within g + s·tan α of the centre ray, per axis: g [T, 3], tau [T]) into boxes (6 arrays
+    [T, M] or [M]), cut at t_max [T]: [T, M] (+inf: missed, empty box, or behind). The growth
+    is taken at the box's farthest projection on the centre ray, so the entry is a lower bound
+    of every swept ray's entry."""
+    ctr = [0.5 * (box[2 * a] + box[2 * a + 1]) for a in range(3)]
+    half = [0.5 * (box[2 * a + 1] - box[2 * a]) for a in range(3)]
+    s_max = sum((ctr[a] - o[:, a:a + 1]) * c[:, a:a + 1] + half[a] * jnp.abs(c[:, a:a + 1])
+                for a in range(3))
+    cone = jnp.maximum(s_max, 0.0) * tau[:, None] + 1e-4
+    t_in = jnp.zeros(cone.shape, jnp.float32)
+    t_out = jnp.broadcast_to(t_max[:, None], cone.shape)
     for a in range(3):
-        g = grow[:, a] if grow.ndim == 3 else grow
-        oa = o[..., a:a + 1] if o.ndim == 1 else o[:, a:a + 1]
-        t0, t1 = G.slab(oa, c[:, a:a + 1], box[2 * a] - g, box[2 * a + 1] + g)
+        grow = cone + g[:, a:a + 1]
+        t0, t1 = G.slab(o[:, a:a + 1], c[:, a:a + 1], box[2 * a] - grow, box[2 * a + 1] + grow)
         t_in, t_out = jnp.maximum(t_in, t0), jnp.minimum(t_out, t1)
     return jnp.where((box[0] <= box[1]) & (t_in <= t_out), t_in, INF)
 
 
-def _cone_grow(o, c, tan_a, box):
-    """Growth s_max·tan α [T, M] that makes the centre ray's box hold the cone's part in it."""
-    ctr = [0.5 * (box[2 * a] + box[2 * a + 1]) for a in range(3)]
-    half = [0.5 * (box[2 * a + 1] - box[2 * a]) for a in range(3)]
-    s = sum((ctr[a] - o[a]) * c[:, a:a + 1] + half[a] * jnp.abs(c[:, a:a + 1]) for a in range(3))
-    return jnp.maximum(s, 0.0) * tan_a[:, None] + 1e-4
+def _span(o, c, g, tau, t_max, a: int, lo, hi):
+    """Interval [s0, s1] [T, M] of the centre ray where the swept set can reach the slab
+    lo ≤ coordinate a ≤ hi ([M] or scalars): o_a + s·c_a ∈ [lo − g_a − s·τ, hi + g_a + s·τ],
+    two linear inequalities in s."""
+    oa, ca, ga, t = o[:, a:a + 1], c[:, a:a + 1], g[:, a:a + 1], tau[:, None]
+    s0 = jnp.zeros(jnp.broadcast_shapes(oa.shape, jnp.shape(lo)), jnp.float32)
+    s1 = jnp.broadcast_to(t_max[:, None], s0.shape)
+    for k, b in ((ca - t, hi + ga - oa), (-ca - t, oa - lo + ga)):  # k·s ≤ b
+        q = b / jnp.where(k == 0, 1.0, k)
+        s1 = jnp.where(k > 0, jnp.minimum(s1, q), jnp.where((k == 0) & (b < 0), -1.0, s1))
+        s0 = jnp.where(k < 0, jnp.maximum(s0, q), s0)
+    return s0, s1
+
+
+def _window(tab: G.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks: int):
+    """Blocks a tile's sweep can meet, through the row structure: per row, the stretch of the
+    centre ray where the sweep reaches the row's slab (lateral reach, height band, the rows' x
+    extent) gives the x range and so the plants it can meet; the first `row_blocks` blocks of
+    that range along the ray are kept. Returns (block id int32 [T, R·row_blocks], ok bool)."""
+    R = tab.row_y.shape[0]
+    nb = tab.block_t.shape[1] // R
+    sy0, sy1 = _span(o, c, g, tau, t_max, 1, tab.row_y - tab.reach_y, tab.row_y + tab.reach_y)
+    sz0, sz1 = _span(o, c, g, tau, t_max, 2, tab.row_zlo, tab.row_zhi)
+    x_lo = tab.x0 - tab.reach_x
+    x_hi = tab.x0 + (n_plants - 1) * tab.d_pp + tab.reach_x
+    sx0, sx1 = _span(o, c, g, tau, t_max, 0, x_lo, x_hi)
+    s0 = jnp.maximum(jnp.maximum(sy0, sz0), sx0)
+    s1 = jnp.minimum(jnp.minimum(sy1, sz1), sx1)
+    ok = (s0 <= s1) & (tab.row_zlo <= tab.row_zhi)  # [T, R]
+    xa, xb = o[:, 0:1] + s0 * c[:, 0:1], o[:, 0:1] + s1 * c[:, 0:1]
+    reach = g[:, 0:1] + s1 * tau[:, None] + tab.reach_x
+    lim = float(n_plants)
+    i_lo = jnp.clip(jnp.ceil((jnp.minimum(xa, xb) - reach - tab.x0) / tab.d_pp), -1.0, lim)
+    i_hi = jnp.clip(jnp.floor((jnp.maximum(xa, xb) + reach - tab.x0) / tab.d_pp), -1.0, lim)
+    ok = ok & (i_lo <= i_hi) & (i_hi >= 0) & (i_lo <= lim - 1)
+    b_lo = jnp.floor(jnp.maximum(i_lo, 0.0) / G.BLOCK)
+    b_hi = jnp.floor(jnp.minimum(i_hi, lim - 1) / G.BLOCK)
+    j = jnp.arange(row_blocks, dtype=jnp.float32)
+    fwd = (c[:, 0:1] >= 0)[..., None]
+    b = jnp.where(fwd, b_lo[..., None] + j, b_hi[..., None] - j)  # [T, R, row_blocks]
+    ok = ok[..., None] & (b >= b_lo[..., None]) & (b <= b_hi[..., None])
+    bid = jnp.arange(R, dtype=jnp.int32)[:, None] * nb + jnp.clip(b, 0, nb - 1).astype(jnp.int32)
+    T = o.shape[0]
+    return bid.reshape(T, -1), ok.reshape(T, -1)
 
 
 def _first(key, ids, n: int):
@@ -99,46 +151,46 @@ def _first(key, ids, n: int):
     return jnp.take_along_axis(ids, j, 1), -neg
 
 
-def _cull(tab: G.PlantTable, n_plants: int, entry_fn, n_tiles: int, block_keep: int, n: int):
-    """The n plants entered first per tile, through blocks: (ids int32 [T, n], entry [T, n])."""
+def cull(tab: G.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks: int,
+         block_keep: int, n: int):
+    """The n plants a tile's sweep enters first (see the module docstring).
+    o, c [T, 3] (|c| = 1), g [T, 3], tau [T], t_max [T] (nothing beyond matters) [m].
+    Returns (ids int32 [T, n], entry lower bound [T, n] (+inf: none), both sorted by entry,
+    and `rest` int32 [T]: plants (counted by whole blocks past the kept ones) whose entry
+    lies before t_max but who are not among the n)."""
+    T = o.shape[0]
+    bid, ok = _window(tab, n_plants, o, c, g, tau, t_max, row_blocks)
+    bkey = jnp.where(ok, _sweep_entry(o, c, g, tau, [tab.block_t[j][bid] for j in range(6)],
+                                      t_max), INF)
+    bsel, bent = _first(bkey, bid, block_keep)
     R = tab.row_y.shape[0]
     nb = tab.block_t.shape[1] // R
-    bkey = entry_fn([tab.block_t[j] for j in range(6)])  # [T, R·nb]
-    bid = jnp.broadcast_to(jnp.arange(R * nb, dtype=jnp.int32), bkey.shape)
-    bsel, bent = _first(bkey, bid, block_keep)
     r, blk = bsel // nb, bsel % nb
     i = blk[..., None] * G.BLOCK + jnp.arange(G.BLOCK)  # [T, KB, BLOCK]
-    ok = jnp.isfinite(bent)[..., None] & (i < n_plants)
-    flat = (r[..., None] * n_plants + jnp.minimum(i, n_plants - 1)).reshape(n_tiles, -1)
-    box = [tab.box_t[j][flat] for j in range(6)]  # [T, KB·BLOCK]
-    key = jnp.where(ok.reshape(n_tiles, -1), entry_fn(box), INF)
-    return _first(key, flat, n)
+    pok = jnp.isfinite(bent)[..., None] & (i < n_plants)
+    flat = (r[..., None] * n_plants + jnp.minimum(i, n_plants - 1)).reshape(T, -1)
+    key = jnp.where(pok.reshape(T, -1),
+                    _sweep_entry(o, c, g, tau, [tab.box_t[j][flat] for j in range(6)], t_max),
+                    INF)
+    ids, ent = _first(key, flat, n)
+    dropped = jnp.sum(jnp.isfinite(bkey), 1) - jnp.sum(jnp.isfinite(bent), 1)
+    rest = jnp.sum(jnp.isfinite(key), 1) - jnp.sum(jnp.isfinite(ent), 1) + G.BLOCK * dropped
+    return ids, ent, rest
 
 
-def camera_candidates(tab, n_plants, o, c, tan_a, t_cut, block_keep: int, n: int):
-    """Candidate plants of each camera tile (see the module docstring). o [3] camera position,
-    c [T, 3] unit centre directions (world), tan_a [T], t_cut [T] farthest terrain/obstacle
-    hit of the tile's rays [m]. Returns (ids int32 [T, n], entry lower bound [T, n] (+inf:
-    no candidate), both sorted by entry)."""
-    def entry(box):
-        box = [b if b.ndim == 2 else b[None] for b in box]
-        return _grown_entry(o, c, _cone_grow(o, c, tan_a, box), box, t_cut)
-    return _cull(tab, n_plants, entry, c.shape[0], block_keep, n)
+def camera_sweep(cam, c, tan_a):
+    """Sweep of camera tiles: (o [T, 3], c [T, 3], g [T, 3], tau [T])."""
+    return jnp.broadcast_to(cam, c.shape), c, jnp.zeros_like(c), tan_a
 
 
-def shadow_candidates(tab, n_plants, lo, hi, sun, t_max: float, block_keep: int, n: int):
-    """Candidate shadow casters of each tile: plants whose box meets the sun ray from some
-    point of the tile's box [lo, hi] ([T, 3] each; empty when lo > hi). sun [3] unit.
-    Returns (ids int32 [T, n], entry [T, n] (+inf: none))."""
+def shadow_sweep(lo, hi, sun):
+    """Sweep of the shadow rays of tiles whose surface points lie in boxes [lo, hi] ([T, 3];
+    lo > hi: none): the box moved along the sun direction sun [3] (a Minkowski sum: exact
+    for boxes). Returns (o, c, g, tau) and whether the tile has points, bool [T]."""
     m, h = 0.5 * (lo + hi), jnp.maximum(0.5 * (hi - lo), 0.0)
-    l = jnp.broadcast_to(sun, m.shape)
-    empty = jnp.any(lo > hi, axis=-1)
-    t_max = jnp.where(empty, -1.0, t_max)
-
-    def entry(box):
-        return _grown_entry(m, l, jnp.broadcast_to(h[..., None], h.shape + box[0].shape[-1:]),
-                            box, t_max)
-    return _cull(tab, n_plants, entry, m.shape[0], block_keep, n)
+    live = jnp.all(lo <= hi, axis=-1)
+    m = jnp.where(live[:, None], m, 0.0)
+    return (m, jnp.broadcast_to(sun, m.shape), h, jnp.zeros(m.shape[:1])), live
 
 
 def exact(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, group: int = 4,

@@ -56,8 +56,8 @@ def test_cone_entry_bounds_every_tile_ray():
     d = dirs @ rot.T
     c = jnp.asarray(centre @ rot.T)
     t_cut = jnp.full((len(centre),), 30.0)
-    grow = RT._cone_grow(jnp.asarray(o), c, jnp.asarray(tan_a), box)
-    bound = np.asarray(RT._grown_entry(jnp.asarray(o), c, grow, box, t_cut))  # [T, M]
+    sweep = RT.camera_sweep(jnp.asarray(o), c, jnp.asarray(tan_a))
+    bound = np.asarray(RT._sweep_entry(*sweep, box, t_cut))  # [T, M]
     e = _ray_box_entry(o, d[:, :, None], lo, hi, 30.0).min(1)  # [T, M]: first tile ray in
     met = np.isfinite(e)
     assert met.sum() > 50
@@ -75,11 +75,10 @@ def test_shadow_box_test_is_exact_for_points_in_the_tile_box():
     lo = rng.uniform(-3, 3, (200, 3)).astype(np.float32)
     lo[:, 2] += 1.5
     hi = lo + rng.uniform(0.1, 0.8, (200, 3)).astype(np.float32)
-    m, h = 0.5 * (lo_t + hi_t), 0.5 * (hi_t - lo_t)
     box = [jnp.asarray(b) for b in (lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1], lo[:, 2], hi[:, 2])]
-    grow = jnp.broadcast_to(jnp.asarray(h)[..., None], h.shape + (200,))
-    ent = np.asarray(RT._grown_entry(jnp.asarray(m), jnp.broadcast_to(jnp.asarray(sun), m.shape),
-                                     grow, box, jnp.full((30,), 60.0)))
+    sweep, live = RT.shadow_sweep(jnp.asarray(lo_t), jnp.asarray(hi_t), jnp.asarray(sun))
+    assert np.asarray(live).all()
+    ent = np.asarray(RT._sweep_entry(*sweep, box, jnp.full((30,), 60.0)))
     # points of each tile box, their corners included
     u = np.concatenate([rng.uniform(size=(60, 3)), np.indices((2, 2, 2)).reshape(3, -1).T])
     pts = lo_t[:, None] + u[None] * (hi_t - lo_t)[:, None]  # [30, 68, 3]

@@ -23,6 +23,11 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="square image sides [px]")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--no-shadows", action="store_true", help="skip the shadow rays")
+    p.add_argument("--tile", type=int, default=RD.DEFAULT_CONFIG.tile,
+                   help="tile side [px] of the renderer's culling")
+    p.add_argument("--table", action="store_true",
+                   help="plant tables computed outside the timed call (as an episode does once "
+                        "per field)")
     p.add_argument("--chunk", type=int, default=0,
                    help="frames per vmapped chunk (lax.map over chunks); 0: as many as keep "
                         f"the rays per chunk at most {MAX_RAYS}")
@@ -45,10 +50,12 @@ def worlds(preset: str, b: int):
 
 def batched_render(shape: F.FieldShape, intr: RD.Intrinsics, cfg: RD.RenderConfig, b: int,
                    chunk: int):
-    """jit of render over [B] worlds: one vmap, or lax.map over chunks of `chunk` frames."""
+    """jit of render over [B] worlds: one vmap, or lax.map over chunks of `chunk` frames.
+    Arguments (fields, pos, rot, conds) or, with plant tables, (fields, pos, rot, conds,
+    tables)."""
     def one(x):
-        f, p, r, c = x
-        return RD.render(f, shape, p, r, intr, c, cfg=cfg)
+        f, p, r, c, *tab = x
+        return RD.render(f, shape, p, r, intr, c, cfg=cfg, table=tab[0] if tab else None)
 
     if chunk >= b:
         return jax.jit(lambda *x: jax.vmap(lambda *y: one(y))(*x))
@@ -56,18 +63,23 @@ def batched_render(shape: F.FieldShape, intr: RD.Intrinsics, cfg: RD.RenderConfi
 
 
 def run(args: argparse.Namespace) -> list[dict]:
-    cfg = RD.RenderConfig(shadows=not args.no_shadows)
+    cfg = RD.RenderConfig(shadows=not args.no_shadows, tile=args.tile)
     rows = []
     for b in args.batch:
         shape, fields, pos, rot, conds = worlds(args.preset, b)
+        inputs = (fields, pos, rot, conds)
+        if args.table:
+            tables = jax.jit(jax.vmap(RD.plant_table, in_axes=(0, None)), static_argnums=1)
+            inputs += (tables(fields, shape),)
         for res in args.res:
             intr = RD.Intrinsics(res, res)
             auto = 1 << ((MAX_RAYS // (res * res)).bit_length() - 1)
             chunk = min(b, args.chunk or max(1, auto))
             fn = batched_render(shape, intr, cfg, b, chunk)
-            t = time_call(fn, fields, pos, rot, conds, repeats=args.repeats)
+            t = time_call(fn, *inputs, repeats=args.repeats)
             config = (f"{args.preset} {res}x{res}, fovy {intr.fovy:g}, "
-                      f"{'no shadows' if args.no_shadows else 'shadows'}, chunk {chunk}")
+                      f"{'no shadows' if args.no_shadows else 'shadows'}, tile {cfg.tile}, "
+                      f"{'tables given, ' if args.table else ''}chunk {chunk}")
             rows.append({"stage": "render", "config": config, "batch": b,
                          "value": b / t["median_s"], "unit": "frames/s",
                          "compile_s": t["compile_s"], "runs_s": t["runs_s"]})
