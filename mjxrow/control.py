@@ -43,14 +43,18 @@ class Obs:
     field: Field | None = None  # the world (no batch axis)
     mask: jax.Array | None = None  # bool [H, W], plant pixels; column 0 = image left
     depth: jax.Array | None = None  # float32 [H, W], metres along the optical axis
+    aux: Any = None  # what the policy's `prepare` computed from the field before the episode
 
 
 class Policy(NamedTuple):
     """A policy for `episode.rollout`: `init(params) -> state` and
-    `act(params, state, obs, key) -> (state, cmd [2])`; calling the policy calls `act`."""
+    `act(params, state, obs, key) -> (state, cmd [2])`; calling the policy calls `act`.
+    Optional `prepare(params, field) -> aux`: computed once per episode, before its first step
+    (e.g. the renderer's plant table), and handed to every step as `obs.aux`."""
 
     init: Callable[[Any], Any]
     act: Callable[[Any, Any, Obs, jax.Array], tuple[Any, jax.Array]]
+    prepare: Callable[[Any, Field], Any] | None = None
 
     def __call__(self, params, state, obs, key):
         return self.act(params, state, obs, key)
@@ -378,10 +382,12 @@ _POLICIES: dict[Controller, Policy] = {}
 
 
 def with_perception(controller: Controller | str,
-                    perceive: Callable[[Any, Obs, jax.Array], tuple[jax.Array, Any]]) -> Policy:
+                    perceive: Callable[[Any, Obs, jax.Array], tuple[jax.Array, Any]],
+                    prepare: Callable[[Any, Field], Any] | None = None) -> Policy:
     """Closed loop through perception: `perceive(perc_params, obs, key) -> (mask bool [H, W],
     depth float32 [H, W] or None)` (e.g. render → segment) feeds a mask controller.
-    The policy's params are the pair (perc_params, controller_params)."""
+    The policy's params are the pair (perc_params, controller_params). `prepare(perc_params,
+    field) -> aux`, if given, runs once per episode; `perceive` finds its result in obs.aux."""
     c = get(controller) if isinstance(controller, str) else controller
 
     def init(params):
@@ -391,4 +397,6 @@ def with_perception(controller: Controller | str,
         mask, depth = perceive(params[0], obs, key)
         return c.act(params[1], state, obs.replace(mask=mask, depth=depth))
 
-    return Policy(init, act)
+    if prepare is None:
+        return Policy(init, act)
+    return Policy(init, act, lambda params, field: prepare(params[0], field))

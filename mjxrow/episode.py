@@ -117,12 +117,14 @@ def episode(mx, field: F.Field, lane: jax.Array, key: jax.Array, noise: sim.Pose
     p0 = sim.pose(s0)
     init = getattr(policy, "init", None)
     ps0 = init(policy_params) if init is not None else None
+    prepare = getattr(policy, "prepare", None)
+    aux = prepare(policy_params, field) if prepare is not None else None  # once per episode
 
     def body(carry, t):
         s, ps, done, anchor = carry
         cam_pos, cam_rot = sim.camera_pose(s)
         obs = control.Obs(pose=sim.pose(s), lane_y=lane_y, lane_end_x=goal[0], goal=goal,
-                          cam_pos=cam_pos, cam_rot=cam_rot, field=field)
+                          cam_pos=cam_pos, cam_rot=cam_rot, field=field, aux=aux)
         ps_new, cmd = policy(policy_params, ps, obs, jax.random.fold_in(k_policy, t))
         cmd = jnp.asarray(cmd, jnp.float32)
         s_new = sim.step(m, s, cmd, scfg)

@@ -3,6 +3,8 @@ the oracle drives a 20 m lane, every termination reason the flat field can provo
 
 One policy and one static config serve the default tests, so the module compiles once."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -101,6 +103,26 @@ def test_early_stop_matches_stepping_every_step(setup, monkeypatch):
     np.testing.assert_array_equal(log.pose, full.pose)  # NaN after the end in both
     alive = log.alive[..., None]
     np.testing.assert_array_equal(np.where(alive, log.cmd, 0), np.where(alive, full.cmd, 0))
+
+
+def test_prepare_runs_once_per_episode_and_reaches_every_step(setup):
+    mx, fields, _, _ = setup
+    calls = []
+
+    def prepare(params, field):  # traced once; the value differs per field
+        calls.append(1)
+        return {"v": 0.1 * field.params.d_rr, "fields": 1}
+
+    def act(params, state, obs, key):
+        return state, jnp.stack([obs.aux["v"], jnp.float32(0.0)])
+
+    cfg = dataclasses.replace(CFG, n_steps=30)
+    log = E.rollout(mx, fields, None, jax.random.split(jax.random.key(1), B),
+                    C.Policy(lambda p: (), act, prepare), (), cfg)
+    assert len(calls) == 1  # outside the step loop: traced (and run) once per episode
+    np.testing.assert_allclose(np.asarray(log.cmd[:, :, 0]),
+                               np.broadcast_to(0.1 * np.asarray(fields.params.d_rr)[:, None],
+                                               (B, 30)), rtol=1e-6)
 
 
 def test_new_field_params_do_not_retrace(setup):
