@@ -70,6 +70,9 @@ def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     p.add_argument("--batch", type=int, default=32)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--crops", nargs="+", default=list(CROPS), choices=CROPS)
+    p.add_argument("--also-sizes", type=int, nargs="*", default=[],
+                   help="input sizes [px] at which each crop's model is also evaluated, beside "
+                        "its own (e.g. 64: the closed loop's camera)")
     p.add_argument("--out", help="write the markdown tables here")
     args = p.parse_args(argv)
 
@@ -78,10 +81,11 @@ def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
         raise SystemExit(f"no checkpoints in {args.ckpt_root}: train them with `python -m "
                          "mjxrow.seg.train --crop CROP --on-the-fly --export-to "
                          f"{args.ckpt_root}/CROP`")
-    rows = []
+    rows, sizes = [], {}
     for name, path in found.items():
         module, variables = C.load(path)
         size = C.read_config(path)["meta"].get("image_size", 224)
+        sizes[name] = size
         for crop in args.crops:
             print(f"model {name} on {crop} ...", file=sys.stderr, flush=True)
             s = E.summarise(test_counts(module, variables, crop, args, size))
@@ -99,6 +103,17 @@ def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
                       "paper IoU": _fmt(PAPER[crop][1]), "our accuracy": _fmt(acc),
                       "our IoU [0, 1]": _fmt(iou), "model": own if len(hit) else "none",
                       "test images": int(hit["images"].iloc[0]) if len(hit) else 0})
+    for row in table:  # the crop's own model at other input sizes
+        own = row["model"]
+        if own == "none":
+            continue
+        row["input [px]"] = sizes[own]
+        module, variables = C.load(found[own])
+        for size in args.also_sizes:
+            print(f"model {own} on {row['crop']} at {size} px ...", file=sys.stderr, flush=True)
+            s = E.summarise(test_counts(module, variables, row["crop"], args, size))
+            total = s[(s["crop"] == "all") & (s["condition"] == "all")].iloc[0]
+            row[f"IoU at {size} px"] = _fmt(float(total["iou"]))
     table = pd.DataFrame(table)
     matrix = cross.pivot(index="trained_on", columns="tested_on", values="iou")
     matrix = matrix.reindex(index=[n for n in found], columns=args.crops)
