@@ -23,6 +23,7 @@ import dataclasses
 import datetime
 import functools
 import math
+import os
 import signal
 import sys
 import threading
@@ -31,7 +32,15 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import jax
+if "jax" not in sys.modules and "xla_force_host_platform_device_count" not in os.environ.get(
+        "XLA_FLAGS", ""):
+    # one XLA CPU device per core: on a CPU-only machine the batch is sharded over the cores
+    # (XLA runs most of one device's program on one thread); accelerators are unaffected
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") +
+                               f" --xla_force_host_platform_device_count={os.cpu_count() or 1}"
+                               ).strip()
+
+import jax  # noqa: E402
 import jax.numpy as jnp
 import numpy as np
 import pandas as pd
