@@ -90,8 +90,8 @@ class ControllerSection:
                        "(paper 1, public 3)", "count", "positive", static=True, kind=int)
     smooth: int = _k(11, "segmin: moving-average width of the column histogram (odd)", "px",
                      "positive", static=True, kind=int)
-    on_end: str = _k("straight", "at the end of a row: drive straight on, stop, or hold the "
-                     "last command", static=True, choices=ON_END, kind=str)
+    on_end: str = _k("straight", "at the end of a row: drive on holding the in-row heading, "
+                     "stop, or hold the last command", static=True, choices=ON_END, kind=str)
     lookahead: float = _k(1.0, "oracle: pure-pursuit look-ahead distance", "m", "positive")
 
 
