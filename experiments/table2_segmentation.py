@@ -81,9 +81,9 @@ def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
         raise SystemExit(f"no checkpoints in {args.ckpt_root}: train them with `python -m "
                          "mjxrow.seg.train --crop CROP --on-the-fly --export-to "
                          f"{args.ckpt_root}/CROP`")
-    rows, sizes = [], {}
+    rows, sizes, loaded = [], {}, {}
     for name, path in found.items():
-        module, variables = C.load(path)
+        module, variables = loaded[name] = C.load(path)
         size = C.read_config(path)["meta"].get("image_size", 224)
         sizes[name] = size
         for crop in args.crops:
@@ -108,7 +108,7 @@ def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
         if own == "none":
             continue
         row["input [px]"] = sizes[own]
-        module, variables = C.load(found[own])
+        module, variables = loaded[own]
         for size in args.also_sizes:
             print(f"model {own} on {row['crop']} at {size} px ...", file=sys.stderr, flush=True)
             s = E.summarise(test_counts(module, variables, row["crop"], args, size))

@@ -164,10 +164,6 @@ def pixel_rays(intr: Intrinsics) -> np.ndarray:
     return np.stack([xx, yy, -np.ones_like(xx)], -1).reshape(-1, 3).astype(np.float32)
 
 
-def _xyz(v):
-    return tuple(v[..., i] for i in range(3))
-
-
 def _trace(field, shape, tab, obst, rays, cfg):
     """Nearest surface of each ray (flat, tile-major [N = T·P]): (t, class, point, normal,
     plant, primitive k, is_branch, point in the plant primitive's frame)."""
@@ -206,7 +202,7 @@ def _trace_plants(shape, tab, cam, d, c, tan_a, t_far, cfg):
                                cfg.block_keep, cfg.keep)
     oc = tuple(jnp.reshape(cam[i], (1, 1)) for i in range(3))
     t_min = jnp.full(t_far.shape, cfg.near, jnp.float32)
-    t, plant, k = RT.exact(tab, ids, jnp.isfinite(entry), oc, _xyz(d), t_min, t_far)
+    t, plant, k = RT.exact(tab, ids, jnp.isfinite(entry), oc, G.xyz(d), t_min, t_far)
     n_deep = min(nt, int(np.ceil(cfg.deep_share * nt)))
     if cfg.deep_keep > 0 and n_deep > 0:
         u = jnp.minimum(t, t_far)  # nothing beyond a ray's current hit matters
@@ -218,7 +214,7 @@ def _trace_plants(shape, tab, cam, d, c, tan_a, t_far, cfg):
         ids2, entry2, _ = RT.cull(tab, P, o[sel], cc[sel], g[sel], tau[sel], cut[sel],
                                   cfg.deep_row_blocks, cfg.deep_block_keep, cfg.deep_keep)
         t2, plant2, k2 = RT.exact(tab, ids2, jnp.isfinite(entry2) & (score[:, None] > 0), oc,
-                                  _xyz(d[sel]), t_min[sel], u[sel])
+                                  G.xyz(d[sel]), t_min[sel], u[sel])
         better = t2 < t[sel]
         t = t.at[sel].set(jnp.where(better, t2, t[sel]))
         plant = plant.at[sel].set(jnp.where(better, plant2, plant[sel]))
@@ -242,7 +238,7 @@ def _shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, nt):
     ids, entry, _ = RT.cull(tab, shape.max_plants_per_row, *sweep, t_max,
                             cfg.shadow_row_blocks, cfg.shadow_block_keep, cfg.shadow_keep)
     ls = tuple(jnp.reshape(l[i], (1, 1)) for i in range(3))
-    t_pl = RT.exact(tab, ids, jnp.isfinite(entry), _xyz(ot), ls, t_min.reshape(nt, -1),
+    t_pl = RT.exact(tab, ids, jnp.isfinite(entry), G.xyz(ot), ls, t_min.reshape(nt, -1),
                     jnp.full(ot.shape[:2], SHADOW_REACH, jnp.float32),
                     any_hit=True).reshape(-1)
     t_ob = G.trace_obstacles(obst, o, jnp.broadcast_to(l, p.shape), t_min, any_hit=True)

@@ -71,7 +71,7 @@ def _sub3(a, b):
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
-def _xyz(v: jax.Array):
+def xyz(v: jax.Array):
     """[..., 3] → (x, y, z) components."""
     return v[..., 0], v[..., 1], v[..., 2]
 
@@ -248,10 +248,10 @@ def plant_normal(tab: PlantTable, plant, k, p):
     K, RP = tab.prim.shape[:2]
     row = tab.prim.reshape(K * RP, 12)[k * RP + plant]  # [N, 12]
     c, A = row[:, :3], [row[:, 3 + i] for i in range(9)]
-    r = _xyz(p - c)
+    r = xyz(p - c)
     u = [A[3 * i] * r[0] + A[3 * i + 1] * r[1] + A[3 * i + 2] * r[2] for i in range(3)]  # A r
     n_e = [A[j] * u[0] + A[3 + j] * u[1] + A[6 + j] * u[2] for j in range(3)]  # Aᵀ A r
-    axis = _xyz(row[:, 3:6])
+    axis = xyz(row[:, 3:6])
     half = row[:, 7]
     along = _dot3(r, axis)
     s = jnp.clip(along, -half, half)
@@ -289,7 +289,7 @@ def trace_obstacles(obst, o, d, t_min, any_hit: bool = False):
     """Nearest obstacle hit: (t [N] (+inf: none), normal [N, 3], is_branch bool [N]); with
     any_hit, t only. One obstacle at a time (elementwise over the rays, no [N, n] arrays)."""
     c, axis, rad, half, ok, branch = obst
-    oc, dc = _xyz(o), _xyz(d)
+    oc, dc = xyz(o), xyz(d)
     n = c.shape[0]
     t_best = jnp.full(t_min.shape, INF)
     j_best = jnp.zeros(t_min.shape, jnp.int32)
@@ -297,7 +297,7 @@ def trace_obstacles(obst, o, d, t_min, any_hit: bool = False):
     def body(carry, x):
         t_b, j_b = carry
         cj, aj, rj, hj, okj, j = x
-        t = capsule_hit(oc, dc, _xyz(cj), _xyz(aj), rj, hj, t_min)
+        t = capsule_hit(oc, dc, xyz(cj), xyz(aj), rj, hj, t_min)
         better = okj & (t < t_b)
         return (jnp.where(better, t, t_b), jnp.where(better, j, j_b)), None
 
