@@ -33,14 +33,13 @@ class Prims:
 
 
 def _rot(yaw, pitch):
-    """Rz(yaw) @ Ry(-pitch): local x tilted up by `pitch`, then turned by `yaw`. [..., 3, 3]"""
+    """Rz(yaw) @ Ry(-pitch): local x tilted up by `pitch`, then turned by `yaw`. [..., 3, 3]
+    (written out element by element: no tiny matrix products)."""
     cy, sy, cp, sp = jnp.cos(yaw), jnp.sin(yaw), jnp.cos(pitch), jnp.sin(pitch)
-    z, o = jnp.zeros_like(cy), jnp.ones_like(cy)
-    rz = jnp.stack([jnp.stack([cy, -sy, z], -1), jnp.stack([sy, cy, z], -1),
-                    jnp.stack([z, z, o], -1)], -2)
-    ry = jnp.stack([jnp.stack([cp, z, -sp], -1), jnp.stack([z, o, z], -1),
-                    jnp.stack([sp, z, cp], -1)], -2)
-    return rz @ ry
+    z = jnp.zeros_like(cy)
+    return jnp.stack([jnp.stack([cy * cp, -sy, -cy * sp], -1),
+                      jnp.stack([sy * cp, cy, -sy * sp], -1),
+                      jnp.stack([sp, z, cp], -1)], -2)
 
 
 def _rosette(L, W, H, yaw, phase, n, reach, leaf_len, leaf_wid, leaf_thick, tilt, z_frac,

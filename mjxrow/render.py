@@ -173,9 +173,11 @@ def _trace(field, shape, tab, obst, rays, cfg):
     o = jnp.broadcast_to(cam, d.shape)
     t_min = jnp.full((n,), cfg.near, jnp.float32)
     far = jnp.full((n,), cfg.far, jnp.float32)
-    t_ter, n_ter = T.trace_terrain(field.terrain, field.terrain_size, o, d, t_min, far,
-                                   cfg.terrain_steps, cfg.terrain_refine)
-    t_obs, n_obs, branch = G.trace_obstacles(obst, o, d, t_min)
+    with jax.named_scope("rd_terrain"):
+        t_ter, n_ter = T.trace_terrain(field.terrain, field.terrain_size, o, d, t_min, far,
+                                       cfg.terrain_steps, cfg.terrain_refine)
+    with jax.named_scope("rd_obstacles"):
+        t_obs, n_obs, branch = G.trace_obstacles(obst, o, d, t_min)
     t_far = jnp.minimum(jnp.minimum(t_ter, t_obs), far)
     t_pl, plant, k = _trace_plants(shape, tab, cam, d.reshape(nt, npx, 3), c, tan_a,
                                    t_far.reshape(nt, npx), cfg)
@@ -185,7 +187,8 @@ def _trace(field, shape, tab, obst, rays, cfg):
     t = jnp.where(cls == PLANT, t_pl, jnp.where(cls == OBSTACLE, t_obs, t_ter))
     t = jnp.where(cls == SKY, 0.0, t)
     p = o + t[:, None] * d
-    n_pl, local = G.plant_normal(tab, plant, k, p)
+    with jax.named_scope("rd_plant_normal"):
+        n_pl, local = G.plant_normal(tab, plant, k, p)
     normal = jnp.where((cls == PLANT)[:, None], n_pl,
                        jnp.where((cls == OBSTACLE)[:, None], n_obs, n_ter))
     return t, cls, p, normal, plant, k, branch, local
@@ -198,27 +201,30 @@ def _trace_plants(shape, tab, cam, d, c, tan_a, t_far, cfg):
     nt = d.shape[0]
     P = shape.max_plants_per_row
     o, cc, g, tau = RT.camera_sweep(cam, c, tan_a)
-    ids, entry, rest = RT.cull(tab, P, o, cc, g, tau, jnp.max(t_far, axis=1), cfg.row_blocks,
-                               cfg.block_keep, cfg.keep)
+    with jax.named_scope("rd_cull"):
+        ids, entry, rest = RT.cull(tab, P, o, cc, g, tau, jnp.max(t_far, axis=1),
+                                   cfg.row_blocks, cfg.block_keep, cfg.keep)
     oc = tuple(jnp.reshape(cam[i], (1, 1)) for i in range(3))
     t_min = jnp.full(t_far.shape, cfg.near, jnp.float32)
-    t, plant, k = RT.exact(tab, ids, jnp.isfinite(entry), oc, G.xyz(d), t_min, t_far)
+    with jax.named_scope("rd_exact"):
+        t, plant, k = RT.exact(tab, ids, jnp.isfinite(entry), oc, G.xyz(d), t_min, t_far)
     n_deep = min(nt, int(np.ceil(cfg.deep_share * nt)))
-    if cfg.deep_keep > 0 and n_deep > 0:
-        u = jnp.minimum(t, t_far)  # nothing beyond a ray's current hit matters
-        cut = jnp.max(u, axis=1)
-        # plants that may still be nearer than some ray's hit: past the kept ones, or kept
-        # plants entered before the cut beyond the first `keep`
-        score = jnp.where(rest > 0, rest + jnp.sum(entry < cut[:, None], 1), 0)
-        score, sel = jax.lax.top_k(score.astype(jnp.float32), n_deep)
-        ids2, entry2, _ = RT.cull(tab, P, o[sel], cc[sel], g[sel], tau[sel], cut[sel],
-                                  cfg.deep_row_blocks, cfg.deep_block_keep, cfg.deep_keep)
-        t2, plant2, k2 = RT.exact(tab, ids2, jnp.isfinite(entry2) & (score[:, None] > 0), oc,
-                                  G.xyz(d[sel]), t_min[sel], u[sel])
-        better = t2 < t[sel]
-        t = t.at[sel].set(jnp.where(better, t2, t[sel]))
-        plant = plant.at[sel].set(jnp.where(better, plant2, plant[sel]))
-        k = k.at[sel].set(jnp.where(better, k2, k[sel]))
+    with jax.named_scope("rd_deep"):
+        if cfg.deep_keep > 0 and n_deep > 0:
+            u = jnp.minimum(t, t_far)  # nothing beyond a ray's current hit matters
+            cut = jnp.max(u, axis=1)
+            # plants that may still be nearer than some ray's hit: past the kept ones, or kept
+            # plants entered before the cut beyond the first `keep`
+            score = jnp.where(rest > 0, rest + jnp.sum(entry < cut[:, None], 1), 0)
+            score, sel = jax.lax.top_k(score.astype(jnp.float32), n_deep)
+            ids2, entry2, _ = RT.cull(tab, P, o[sel], cc[sel], g[sel], tau[sel], cut[sel],
+                                      cfg.deep_row_blocks, cfg.deep_block_keep, cfg.deep_keep)
+            ok2 = jnp.isfinite(entry2) & (score[:, None] > 0)
+            t2, plant2, k2 = RT.exact(tab, ids2, ok2, oc, G.xyz(d[sel]), t_min[sel], u[sel])
+            better = t2 < t[sel]
+            t = t.at[sel].set(jnp.where(better, t2, t[sel]))
+            plant = plant.at[sel].set(jnp.where(better, plant2, plant[sel]))
+            k = k.at[sel].set(jnp.where(better, k2, k[sel]))
     return t.reshape(-1), plant.reshape(-1), k.reshape(-1)
 
 
@@ -235,8 +241,9 @@ def _shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, nt):
     hi = jnp.max(jnp.where(seen, ot, -INF), axis=1)
     sweep, live = RT.shadow_sweep(lo, hi, l)
     t_max = jnp.where(live, SHADOW_REACH, -1.0)
-    ids, entry, _ = RT.cull(tab, shape.max_plants_per_row, *sweep, t_max,
-                            cfg.shadow_row_blocks, cfg.shadow_block_keep, cfg.shadow_keep)
+    with jax.named_scope("rd_shadow_cull"):
+        ids, entry, _ = RT.cull(tab, shape.max_plants_per_row, *sweep, t_max,
+                                cfg.shadow_row_blocks, cfg.shadow_block_keep, cfg.shadow_keep)
     ls = tuple(jnp.reshape(l[i], (1, 1)) for i in range(3))
     t_pl = RT.exact(tab, ids, jnp.isfinite(entry), G.xyz(ot), ls, t_min.reshape(nt, -1),
                     jnp.full(ot.shape[:2], SHADOW_REACH, jnp.float32),
@@ -270,7 +277,8 @@ def _setup(field, shape, cam_pos, cam_rot, intr, cfg, table=None):
     cam_rot = jnp.asarray(cam_rot, jnp.float32)
     d = _rotate(jnp.asarray(dirs.reshape(-1, 3)), cam_rot)
     c = _rotate(jnp.asarray(centre), cam_rot)
-    tab = G.plant_table(field, shape) if table is None else table
+    with jax.named_scope("rd_table"):
+        tab = G.plant_table(field, shape) if table is None else table
     obst = G.obstacle_table(field, cam_pos, -cam_rot[:, 2],
                             min(cfg.obstacles, shape.obstacle_slots))
     rays = (cam_pos, d, c, jnp.asarray(tan_a))
@@ -308,12 +316,14 @@ def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax
     (augmentation). table: `plant_table(field, shape)` computed once for many frames of the
     same field (an episode), or None to compute it here. Returns a `Frame` of [H, W] images."""
     cfg = resolve(cfg, shape.crop)
-    field, tab, obst, rays, norm, tiles = _setup(field, shape, cam_pos, cam_rot, intr, cfg,
-                                                 table)
+    with jax.named_scope("rd_setup"):
+        field, tab, obst, rays, norm, tiles = _setup(field, shape, cam_pos, cam_rot, intr, cfg,
+                                                     table)
     d = rays[1]
     t, cls, p, normal, plant, k, is_branch, local = _trace(field, shape, tab, obst, rays, cfg)
-    vis = (_shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, tiles[0] * tiles[1])
-           if cfg.shadows else jnp.ones_like(t))
+    with jax.named_scope("rd_shadow"):
+        vis = (_shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, tiles[0] * tiles[1])
+               if cfg.shadows else jnp.ones_like(t))
 
     # albedo
     material = jnp.asarray(tab.material)[k]
