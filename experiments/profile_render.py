@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import dataclasses
 import gzip
 import json
 import re
@@ -95,6 +96,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--batch", type=int, default=1024)
     p.add_argument("--res", type=int, nargs="+", default=[64, 128])
     p.add_argument("--tile", type=int, default=RD.DEFAULT_CONFIG.tile)
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="a RenderConfig field, e.g. --set terrain_steps=16 (repeatable)")
     p.add_argument("--calls", type=int, default=3, help="profiled calls (after the timed ones)")
     p.add_argument("--out", default="runs/profile_render")
     args = p.parse_args(argv)
@@ -104,7 +107,10 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     shape, fields, pos, rot, conds = BR.worlds(args.preset, args.batch)
     inputs = (fields, pos, rot, conds)
-    cfg = RD.RenderConfig(tile=args.tile)
+    try:
+        cfg = dataclasses.replace(RD.RenderConfig(tile=args.tile), **BR.parse_sets(args.set))
+    except ValueError as e:
+        p.error(str(e))
     result = {"preset": args.preset, "batch": args.batch, "device": str(jax.devices()[0]),
               "command": "python experiments/profile_render.py " + " ".join(argv or sys.argv[1:]),
               "res": {}}
@@ -125,7 +131,8 @@ def main(argv: list[str] | None = None) -> int:
                               "frames_per_s": args.batch / wall, "stages_ms": stages,
                               "kernels_ms": [[k[0], k[1], v] for k, v in kernels]}
         (out / "profile.json").write_text(json.dumps(result, indent=1))
-        print(f"\n{args.preset} {res}x{res}, B={args.batch}, tile {cfg.tile}: compile "
+        print(f"\n{args.preset} {res}x{res}, B={args.batch}, tile {cfg.tile} "
+              f"{' '.join(args.set)}: compile "
               f"{compile_s:.1f} s, wall {wall * 1e3:.1f} ms/call ({args.batch / wall:,.0f} "
               f"frames/s), device {sum(stages.values()):.1f} ms/call")
         print("| stage | device ms | share |\n|---|---|---|")

@@ -97,6 +97,7 @@ class RenderConfig:
     terrain_refine: int = 6  # bisections of the first bracket before the exact triangle
     obstacles: int = 8  # nearest obstacles (ahead of the camera) tested per frame
     shadows: bool = True  # plants and obstacles cast sun shadows
+    fused: bool | None = None  # plant tests in one reduction (None: on accelerators; see exact)
     near: float = 0.01  # m, nothing nearer the camera is drawn
     far: float = 150.0  # m, nothing further is drawn
 
@@ -207,7 +208,8 @@ def _trace_plants(shape, tab, cam, d, c, tan_a, t_far, cfg):
     oc = tuple(jnp.reshape(cam[i], (1, 1)) for i in range(3))
     t_min = jnp.full(t_far.shape, cfg.near, jnp.float32)
     with jax.named_scope("rd_exact"):
-        t, plant, k = RT.exact(tab, ids, jnp.isfinite(entry), oc, G.xyz(d), t_min, t_far)
+        t, plant, k = RT.exact(tab, ids, jnp.isfinite(entry), oc, G.xyz(d), t_min, t_far,
+                               fused=cfg.fused)
     n_deep = min(nt, int(np.ceil(cfg.deep_share * nt)))
     with jax.named_scope("rd_deep"):
         if cfg.deep_keep > 0 and n_deep > 0:
@@ -220,7 +222,8 @@ def _trace_plants(shape, tab, cam, d, c, tan_a, t_far, cfg):
             ids2, entry2, _ = RT.cull(tab, P, o[sel], cc[sel], g[sel], tau[sel], cut[sel],
                                       cfg.deep_row_blocks, cfg.deep_block_keep, cfg.deep_keep)
             ok2 = jnp.isfinite(entry2) & (score[:, None] > 0)
-            t2, plant2, k2 = RT.exact(tab, ids2, ok2, oc, G.xyz(d[sel]), t_min[sel], u[sel])
+            t2, plant2, k2 = RT.exact(tab, ids2, ok2, oc, G.xyz(d[sel]), t_min[sel], u[sel],
+                                      fused=cfg.fused)
             better = t2 < t[sel]
             t = t.at[sel].set(jnp.where(better, t2, t[sel]))
             plant = plant.at[sel].set(jnp.where(better, plant2, plant[sel]))
@@ -247,7 +250,7 @@ def _shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, nt):
     ls = tuple(jnp.reshape(l[i], (1, 1)) for i in range(3))
     t_pl = RT.exact(tab, ids, jnp.isfinite(entry), G.xyz(ot), ls, t_min.reshape(nt, -1),
                     jnp.full(ot.shape[:2], SHADOW_REACH, jnp.float32),
-                    any_hit=True).reshape(-1)
+                    any_hit=True, fused=cfg.fused).reshape(-1)
     t_ob = G.trace_obstacles(obst, o, jnp.broadcast_to(l, p.shape), t_min, any_hit=True)
     return jnp.where(jnp.isfinite(t_pl) | jnp.isfinite(t_ob), 0.0, 1.0)
 

@@ -4,6 +4,7 @@ field (the preset varied as in the dataset), camera pose and lighting condition.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -28,9 +29,44 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--table", action="store_true",
                    help="plant tables computed outside the timed call (as an episode does once "
                         "per field)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="a RenderConfig field, e.g. --set terrain_steps=16 (repeatable)")
     p.add_argument("--chunk", type=int, default=0,
                    help="frames per vmapped chunk (lax.map over chunks); 0: as many as keep "
                         f"the rays per chunk at most {MAX_RAYS}")
+
+
+def parse_sets(items: list[str]) -> dict:
+    """`KEY=VALUE` overrides of RenderConfig fields (ints, floats, true/false, none); an
+    unknown key or a missing `=` raises ValueError naming it."""
+    names = {f.name for f in dataclasses.fields(RD.RenderConfig)}
+    out = {}
+    for item in items:
+        key, sep, val = item.partition("=")
+        if not sep or key not in names:
+            raise ValueError(f"--set {item!r}: expected KEY=VALUE with KEY one of "
+                             f"{sorted(names)}")
+        low = val.lower()
+        if low in ("true", "false"):
+            out[key] = low == "true"
+        elif low == "none":
+            out[key] = None
+        else:
+            try:
+                out[key] = int(val)
+            except ValueError:
+                try:
+                    out[key] = float(val)
+                except ValueError:
+                    raise ValueError(f"--set {item!r}: {val!r} is not a number, true, false "
+                                     f"or none") from None
+    return out
+
+
+def render_config(args: argparse.Namespace) -> RD.RenderConfig:
+    """RenderConfig of the command line (--no-shadows, --tile, --set)."""
+    return dataclasses.replace(RD.RenderConfig(shadows=not args.no_shadows, tile=args.tile),
+                               **parse_sets(args.set))
 
 
 def worlds(preset: str, b: int):
@@ -63,7 +99,10 @@ def batched_render(shape: F.FieldShape, intr: RD.Intrinsics, cfg: RD.RenderConfi
 
 
 def run(args: argparse.Namespace) -> list[dict]:
-    cfg = RD.RenderConfig(shadows=not args.no_shadows, tile=args.tile)
+    try:
+        cfg = render_config(args)
+    except ValueError as e:
+        raise SystemExit(f"bench render: {e}") from None
     rows = []
     for b in args.batch:
         shape, fields, pos, rot, conds = worlds(args.preset, b)
@@ -79,7 +118,8 @@ def run(args: argparse.Namespace) -> list[dict]:
             t = time_call(fn, *inputs, repeats=args.repeats)
             config = (f"{args.preset} {res}x{res}, fovy {intr.fovy:g}, "
                       f"{'no shadows' if args.no_shadows else 'shadows'}, tile {cfg.tile}, "
-                      f"{'tables given, ' if args.table else ''}chunk {chunk}")
+                      f"{'tables given, ' if args.table else ''}chunk {chunk}"
+                      + "".join(f", {x}" for x in args.set))
             rows.append({"stage": "render", "config": config, "batch": b,
                          "value": b / t["median_s"], "unit": "frames/s",
                          "compile_s": t["compile_s"], "runs_s": t["runs_s"]})
