@@ -44,22 +44,22 @@ def trace_terrain(terrain, size, o, d, t_min, t_max, steps: int, refine: int):
     t1 = jnp.minimum(jnp.minimum(tx1, ty1), jnp.minimum(tz1, t_max))
     live = t0 < t1
     t1 = jnp.where(live, t1, t0)
-    ox, oy, oz = (o[:, i:i + 1] for i in range(3))
-    dx, dy, dz = (d[:, i:i + 1] for i in range(3))
+    ox, oy, oz = (o[:, i] for i in range(3))
+    dx, dy, dz = (d[:, i] for i in range(3))
 
-    def f(t):  # height of the ray above the terrain at t (broadcast against [N, 1])
+    def f(t):  # height of the ray above the terrain at t (broadcast against [N])
         return oz + t * dz - terrain_eval(terrain, size, ox + t * dx, oy + t * dy)[0]
 
     # the samples and the first one below the surface in closed form: no [N, S, 3] points,
-    # no gathers from the samples
-    frac = jnp.arange(0, steps + 1, dtype=jnp.float32) / steps
-    span = (t1 - t0)[:, None]
-    below = f(t0[:, None] + span * frac) <= 0.0  # [N, S + 1]
-    first = jnp.min(jnp.where(below, jnp.arange(steps + 1), steps + 1), axis=1, keepdims=True)
-    found = live & (first[:, 0] <= steps)
-    b = (t0[:, None] + span * (first.astype(jnp.float32) / steps))
-    a = jnp.where(first > 0, t0[:, None] + span * ((first - 1).astype(jnp.float32) / steps),
-                  t0[:, None])
+    # no gathers from the samples. Samples lead ([S + 1, N]) so that the reduction runs over
+    # a major axis, every ray in its own lane.
+    frac = (jnp.arange(0, steps + 1, dtype=jnp.float32) / steps)[:, None]
+    span = t1 - t0
+    below = f(t0 + span * frac) <= 0.0  # [S + 1, N]
+    first = jnp.min(jnp.where(below, jnp.arange(steps + 1)[:, None], steps + 1), axis=0)
+    found = live & (first <= steps)
+    b = t0 + span * (first.astype(jnp.float32) / steps)
+    a = jnp.where(first > 0, t0 + span * ((first - 1).astype(jnp.float32) / steps), t0)
 
     def bisect(_, ab):
         a, b = ab
@@ -68,7 +68,6 @@ def trace_terrain(terrain, size, o, d, t_min, t_max, steps: int, refine: int):
         return jnp.where(above, m, a), jnp.where(above, b, m)
 
     a, b = jax.lax.fori_loop(0, refine, bisect, (a, b), unroll=refine if unroll() else 1)
-    a, b = a[:, 0], b[:, 0]
     m = 0.5 * (a + b)
     pm = o + m[:, None] * d
     h, gx, gy = terrain_eval(terrain, size, pm[:, 0], pm[:, 1])

@@ -194,30 +194,31 @@ def shadow_sweep(lo, hi, sun):
 
 
 def _nearest(t):
-    """Minimum over axis 1 of t [T, M, P] (t > 0 or +inf) and the index where it is reached,
-    in one plain min-reduction (which the hit tests producing t fuse into on CPU and GPU, so t
-    never lands in memory): the index replaces the low mantissa bits of t's float32 bits, which
-    order like the floats. The minimum loses those bits (relative error below 2^(b − 23) for
-    M ≤ 2^b: 6e-5 for 512 candidates' primitives), and among hits closer than that the lower
-    index wins. Returns (t_min [T, P] (+inf: none), m int32 [T, P])."""
-    nbits = max(1, (t.shape[1] - 1).bit_length())
+    """Minimum over axis 0 of t [M, T, P] (t > 0 or +inf) and the index where it is reached,
+    in one plain min-reduction (which the hit tests producing t fuse into, so t never lands in
+    memory; the reduced axis leads, so every ray has its own lane): the index replaces the low
+    mantissa bits of t's float32 bits, which order like the floats. The minimum loses those
+    bits (relative error below 2^(b − 23) for M ≤ 2^b: 6e-5 for 512 candidates' primitives),
+    and among hits closer than that the lower index wins. Returns (t_min [T, P] (+inf: none),
+    m int32 [T, P])."""
+    nbits = max(1, (t.shape[0] - 1).bit_length())
     if nbits > 16:
-        raise ValueError(f"render: {t.shape[1]} primitive tests per tile ray, at most 65536")
+        raise ValueError(f"render: {t.shape[0]} primitive tests per tile ray, at most 65536")
     low = (1 << nbits) - 1
-    idx = jax.lax.broadcasted_iota(jnp.int32, t.shape, 1)
+    idx = jax.lax.broadcasted_iota(jnp.int32, t.shape, 0)
     bits = jax.lax.bitcast_convert_type(t.astype(jnp.float32), jnp.int32)
     key = jnp.where(jnp.isfinite(t), (bits & ~low) | idx, jnp.iinfo(jnp.int32).max)
-    best = jnp.min(key, axis=1)
+    best = jnp.min(key, axis=0)
     t_min = jax.lax.bitcast_convert_type(best & ~low, jnp.float32)
     hit = best != jnp.iinfo(jnp.int32).max
     return jnp.where(hit, t_min, INF), jnp.where(hit, best & low, 0)
 
 
 def _exact_fused(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool = False):
-    """`exact` as one [T, M = K·C, P] computation reduced over M in one pass (`_nearest`)."""
+    """`exact` as one [M = K·C, T, P] computation reduced over M in one pass (`_nearest`)."""
     nt, C = ids.shape
-    ray = lambda v: tuple(x[:, None, :] for x in v)  # noqa: E731  [T, P] → [T, 1, P]
-    o, d, t_lo, t_hi = ray(o), ray(d), t_min[:, None, :], t_max[:, None, :]
+    ray = lambda v: tuple(x[None] for x in v)  # noqa: E731  [T, P] → [1, T, P]
+    o, d, t_lo, t_hi = ray(o), ray(d), t_min[None], t_max[None]
     t_best = jnp.full(t_max.shape, INF)
     plant = jnp.zeros(t_max.shape, jnp.int32)
     k_best = jnp.zeros(t_max.shape, jnp.int32)
@@ -225,17 +226,17 @@ def _exact_fused(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: boo
         ks = np.flatnonzero(tab.kind == kd)
         if not len(ks):
             continue
-        # [T, nk·C, 12], m = j·C + c: primitive ks[j] of candidate c
-        q = jnp.moveaxis(tab.prim[ks][:, ids], 0, 1).reshape(nt, len(ks) * C, 12)
-        ok = jnp.tile(valid, (1, len(ks)))[..., None]  # [T, M, 1]
+        # [M, T, 12], m = j·C + c: primitive ks[j] of candidate c
+        q = jnp.swapaxes(tab.prim[ks][:, ids], 1, 2).reshape(len(ks) * C, nt, 12)
+        ok = jnp.tile(valid.T, (len(ks), 1))[..., None]  # [M, T, 1]
         p = [q[..., i:i + 1] for i in range(12)]
         if kd == PL.CAPSULE:
             t = G.capsule_hit(o, d, p[0:3], p[3:6], p[6], p[7], t_lo)
         else:
             t = G.ellipsoid_hit(o, d, p[0:3], p[3:12], t_lo)
-        t = jnp.where(ok & (t < t_hi), t, INF)  # [T, M, P]
+        t = jnp.where(ok & (t < t_hi), t, INF)  # [M, T, P]
         if any_hit:
-            t_best = jnp.minimum(t_best, jnp.min(t, axis=1))
+            t_best = jnp.minimum(t_best, jnp.min(t, axis=0))
             continue
         tm, m = _nearest(t)
         better = tm < t_best
