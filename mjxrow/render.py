@@ -93,8 +93,8 @@ class RenderConfig:
     shadow_row_blocks: int = 2  # the same for the shadow rays of a tile
     shadow_block_keep: int = 4
     shadow_keep: int = 6
-    terrain_steps: int = 32  # march samples over the ray's part in the terrain's height band
-    terrain_refine: int = 6  # bisections of the first bracket before the exact triangle
+    terrain_steps: int = 16  # march samples over the ray's part in the terrain's height band
+    terrain_refine: int = 7  # bisections of the first bracket before the exact triangle
     obstacles: int = 8  # nearest obstacles (ahead of the camera) tested per frame
     shadows: bool = True  # plants and obstacles cast sun shadows
     fused: bool | None = None  # plant tests in one reduction (None: on accelerators; see exact)

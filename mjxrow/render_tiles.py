@@ -215,8 +215,11 @@ def _nearest(t):
 
 
 def _exact_fused(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool = False):
-    """`exact` as one [M = K·C, T, P] computation reduced over M in one pass (`_nearest`)."""
+    """`exact` as one [M = K·C, T, P] computation reduced over M in one pass (`_nearest`).
+    The rays are put in memory first: computed in the same jit, they would otherwise be
+    recomputed for each of the M tests."""
     nt, C = ids.shape
+    o, d, t_min, t_max = G.materialise((o, d, t_min, t_max))
     ray = lambda v: tuple(x[None] for x in v)  # noqa: E731  [T, P] → [1, T, P]
     o, d, t_lo, t_hi = ray(o), ray(d), t_min[None], t_max[None]
     t_best = jnp.full(t_max.shape, INF)
