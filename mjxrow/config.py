@@ -30,7 +30,7 @@ from mjxrow import field as F
 
 CONTROLLERS = ("segzeros", "segmin", "oracle")
 VARIANTS = ("paper", "public")
-ON_END = ("straight", "stop", "hold")
+ON_END = ("straight", "lane", "stop", "hold")
 SOURCES = ("learned", "ground_truth")
 CONDITIONS = ("sunny", "cloudy", "crepuscular", "long_shadows")
 
@@ -90,8 +90,10 @@ class ControllerSection:
                        "(paper 1, public 3)", "count", "positive", static=True, kind=int)
     smooth: int = _k(11, "segmin: moving-average width of the column histogram (odd)", "px",
                      "positive", static=True, kind=int)
-    on_end: str = _k("straight", "at the end of a row: drive on holding the in-row heading, "
-                     "stop, or hold the last command", static=True, choices=ON_END, kind=str)
+    on_end: str = _k("straight", "at the end of a row: drive on holding the in-row heading "
+                     "(straight), drive on following the in-row line, heading and lateral "
+                     "position from odometry (lane), stop, or hold the last command",
+                     static=True, choices=ON_END, kind=str)
     lookahead: float = _k(1.0, "oracle: pure-pursuit look-ahead distance", "m", "positive")
 
 

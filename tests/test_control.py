@@ -9,6 +9,7 @@ from mjxrow import control as C
 
 H, W = 4, 40
 PAPER = C.seg_params("zeros")
+HOLD01 = C.seg_params("zeros", heading_alpha=0.1)  # on_end "straight", short heading EMA
 
 
 def mask_with_free(*spans, h=H, w=W):
@@ -69,18 +70,19 @@ def test_end_of_row():
 
 def test_end_of_row_holds_the_in_row_heading():
     lane, end_mask = mask_with_free((15, 25)), mask_with_free()  # centred lane; row end
-    state = C.seg_init(PAPER)
+    # heading EMA factor 0.1 (the default, 0.005, averages over ~13 s)
+    state = C.seg_init(HOLD01)
     assert not bool(state.has_ref)
-    state, cmd = seg_act(PAPER, state, obs(lane, pose=(0.0, 0.0, 0.1)))  # first yaw taken
+    state, cmd = seg_act(HOLD01, state, obs(lane, pose=(0.0, 0.0, 0.1)))  # first yaw taken
     assert float(state.yaw_ref) == pytest.approx(0.1) and bool(state.has_ref)
     np.testing.assert_allclose(np.asarray(cmd), [0.5, 0.0], atol=1e-6)
-    state, _ = seg_act(PAPER, state, obs(lane, pose=(0.0, 0.0, 0.2)))  # EMA: 0.1 + 0.1·0.1
+    state, _ = seg_act(HOLD01, state, obs(lane, pose=(0.0, 0.0, 0.2)))  # EMA: 0.1 + 0.1·0.1
     assert float(state.yaw_ref) == pytest.approx(0.11, abs=1e-6)
     # the row ends: the reference freezes, ω = −3·(0.2 − 0.11) = −0.27 turns back to it
-    state, cmd = seg_act(PAPER, state, obs(end_mask, pose=(0.0, 0.0, 0.2)))
+    state, cmd = seg_act(HOLD01, state, obs(end_mask, pose=(0.0, 0.0, 0.2)))
     assert bool(state.end_of_row) and float(state.yaw_ref) == pytest.approx(0.11, abs=1e-6)
     np.testing.assert_allclose(np.asarray(cmd), [0.5, -0.27], atol=1e-5)
-    state, cmd = seg_act(PAPER, state, obs(end_mask, pose=(0.0, 0.0, -0.5)))  # 1.83 → 1.0
+    state, cmd = seg_act(HOLD01, state, obs(end_mask, pose=(0.0, 0.0, -0.5)))  # 1.83 → 1.0
     np.testing.assert_allclose(np.asarray(cmd), [0.5, 1.0], atol=1e-6)
     assert float(state.yaw_ref) == pytest.approx(0.11, abs=1e-6)
     # "hold" keeps the last command instead; no reference yet: straight with ω = 0
@@ -88,14 +90,14 @@ def test_end_of_row_holds_the_in_row_heading():
     s2, _ = seg_act(hold, C.seg_init(hold), obs(mask_with_free((14, 22))))
     _, cmd = seg_act(hold, s2, obs(end_mask, pose=(0.0, 0.0, 0.3)))
     np.testing.assert_allclose(np.asarray(cmd), [0.5, 0.3], atol=1e-6)
-    _, cmd = seg_act(PAPER, C.seg_init(PAPER), obs(end_mask, pose=(0.0, 0.0, 0.3)))
+    _, cmd = seg_act(HOLD01, C.seg_init(HOLD01), obs(end_mask, pose=(0.0, 0.0, 0.3)))
     np.testing.assert_allclose(np.asarray(cmd), [0.5, 0.0], atol=1e-6)
 
 
 def test_heading_reference_across_pi():
     # ref 3.1, yaw −3.1 (0.0832 rad further on, across ±π): ref 3.1 + 0.1·0.0832, not a jump
-    state = C.seg_init(PAPER).replace(yaw_ref=jnp.float32(3.1), has_ref=jnp.bool_(True))
-    ref = C.heading_reference(PAPER, state, jnp.float32(-3.1), jnp.bool_(False))
+    state = C.seg_init(HOLD01).replace(yaw_ref=jnp.float32(3.1), has_ref=jnp.bool_(True))
+    ref = C.heading_reference(HOLD01, state, jnp.float32(-3.1), jnp.bool_(False))
     assert float(ref) == pytest.approx(3.1 + 0.1 * (2 * np.pi - 6.2), abs=1e-5)
     assert float(C.wrap_angle(jnp.float32(3 * np.pi / 2))) == pytest.approx(-np.pi / 2)
     with pytest.raises(ValueError, match="heading_alpha"):
