@@ -94,6 +94,9 @@ class ControllerSection:
                      "(straight), drive on following the in-row line, heading and lateral "
                      "position from odometry (lane), stop, or hold the last command",
                      static=True, choices=ON_END, kind=str)
+    heading_alpha: float = _k(0.005, "on_end straight: EMA factor per control step of the "
+                              "in-row heading it holds (0.005 at 15 Hz: about 13 s)", "-",
+                              "rate")
     lookahead: float = _k(1.0, "oracle: pure-pursuit look-ahead distance", "m", "positive")
 
 
@@ -197,9 +200,10 @@ def _scalar(path: str, v: Any, meta: dict) -> Any:
         if not math.isfinite(v):
             raise ConfigError(f"{path}: must be finite, got {v}")
     ok = {None: True, "positive": v > 0, "nonneg": v >= 0, "unit": 0 <= v <= 1,
-          "prob": 0 <= v < 1, "pitch": -90 < v < 90, "fov": 0 < v < 180}[check]
+          "rate": 0 < v <= 1, "prob": 0 <= v < 1, "pitch": -90 < v < 90, "fov": 0 < v < 180}[check]
     if not ok:
-        need = {"positive": "> 0", "nonneg": ">= 0", "unit": "in [0, 1]", "prob": "in [0, 1)",
+        need = {"positive": "> 0", "nonneg": ">= 0", "unit": "in [0, 1]", "rate": "in (0, 1]",
+                "prob": "in [0, 1)",
                 "pitch": "in (-90, 90)", "fov": "in (0, 180)"}
         raise ConfigError(f"{path}: must be {need[check]}, got {v}")
     return v

@@ -203,7 +203,7 @@ def controller_params(cfg: C.SweepConfig):
                         v_max=c.v_gain, omega_gain=c.omega_gain, v_limit=ep.v_max,
                         omega_limit=ep.omega_max, min_run=c.min_run, end_frac=c.end_fraction,
                         ema_alpha=c.ema, depth_max=c.depth_cut, n_frames=c.n_frames,
-                        smooth=c.smooth, on_end=c.on_end,
+                        smooth=c.smooth, on_end=c.on_end, heading_alpha=c.heading_alpha,
                         image_hw=(cfg.camera.height, cfg.camera.width))
 
 

@@ -66,6 +66,15 @@ def test_impossible_values():
         "episode.path_length: 60.0 m is longer than the rows (50 m)")
     assert error_of({**GT, "controller": {"name": "segmin", "smooth": 4}}).startswith(
         "controller.smooth: must be odd")
+    assert error_of({**GT, "controller": {"heading_alpha": 0}}) == (
+        "controller.heading_alpha: must be in (0, 1], got 0.0")
+
+
+def test_heading_alpha_reaches_the_controller():
+    from mjxrow import sweep as S
+    cell = C.expand(cfg_of({"controller": {"heading_alpha": 0.02}}))[0]
+    assert float(S.controller_params(cell.cfg).heading_alpha) == pytest.approx(0.02)
+    assert float(S.controller_params(cfg_of({})).heading_alpha) == pytest.approx(0.005)
 
 
 def test_missing_checkpoint(tmp_path):
