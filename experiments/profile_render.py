@@ -21,10 +21,8 @@ import dataclasses
 import gzip
 import json
 import re
-import statistics
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import jax
@@ -32,6 +30,7 @@ import jax
 from mjxrow import field as F
 from mjxrow import render as RD
 from mjxrow.bench import render as BR
+from mjxrow.bench import time_call
 
 SCOPE = re.compile(r"\brd_[a-z_]+")
 FUSION = re.compile(r"^\s*(?:ROOT )?%?([\w.\-]+) = .*?metadata=\{[^}]*op_name=\"([^\"]*)\"",
@@ -117,15 +116,8 @@ def main(argv: list[str] | None = None) -> int:
     for res in args.res:
         intr = RD.Intrinsics(res, res)
         fn = BR.batched_render(shape, intr, cfg, args.batch, args.batch)
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn(*inputs))
-        compile_s = time.perf_counter() - t0
-        runs = []
-        for _ in range(5):
-            t0 = time.perf_counter()
-            jax.block_until_ready(fn(*inputs))
-            runs.append(time.perf_counter() - t0)
-        wall = statistics.median(runs)
+        timing = time_call(fn, *inputs, repeats=5)
+        compile_s, wall = timing["compile_s"], timing["median_s"]
         stages, kernels = profile(fn, inputs, args.calls)
         result["res"][res] = {"compile_s": compile_s, "wall_ms": wall * 1e3,
                               "frames_per_s": args.batch / wall, "stages_ms": stages,

@@ -20,25 +20,16 @@ import sys
 import jax
 import numpy as np
 
-from mjxrow import dataset as DS
 from mjxrow import field as F
 from mjxrow import render as RD
-from mjxrow.bench.render import parse_sets
+from mjxrow.bench import render as BR
 
 REFERENCE = RD.RenderConfig(tile=1, row_blocks=16, block_keep=64, keep=64, deep_keep=0,
                             terrain_steps=128, terrain_refine=10)
 
 
 def compare(preset: str, n: int, res: int, cfg: RD.RenderConfig, seed: int = 0) -> dict:
-    shape = DS.dataset_shape(preset)
-    keys = jax.random.split(jax.random.key(seed), 3 * n).reshape(n, 3)
-
-    def one(k):
-        fld = F.generate(DS.random_params(preset, k[0]), shape, k[1])
-        pos, rot, _ = DS.sample_pose(fld, k[2])
-        return fld, pos, rot
-
-    fields, pos, rot = jax.jit(jax.vmap(one))(keys)
+    shape, fields, pos, rot, _ = BR.worlds(preset, n, seed)
     intr = RD.Intrinsics(res, res)
 
     def geo(c):
@@ -65,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.poses < 1 or args.res < 1:
         p.error("--poses and --res must be positive")
     try:
-        cfg = dataclasses.replace(RD.DEFAULT_CONFIG, **parse_sets(args.set))
+        cfg = dataclasses.replace(RD.DEFAULT_CONFIG, **BR.parse_sets(args.set))
     except ValueError as e:
         p.error(str(e))
     print(f"candidate: {' '.join(args.set) or 'defaults'}; {args.poses} poses per preset, "

@@ -402,12 +402,12 @@ def seg_act(params: SegParams, state: SegState, obs: Obs) -> tuple[SegState, jax
     yaw_ref = heading_reference(params, state, yaw, end)
     lane_yaw, lane_xy = lane_reference(params, state, obs.pose, end)
     has_ref = state.has_ref | ~end
-    if params.on_end == "straight":
-        hold = -params.omega_gain * wrap_angle(yaw - yaw_ref)
-        hold = jnp.clip(hold, -params.omega_limit, params.omega_limit)
-        new = jnp.where(end & has_ref, new.at[1].set(hold), new).astype(jnp.float32)
-    elif params.on_end == "lane":
-        hold = lane_command(params, obs.pose, lane_yaw, lane_xy)
+    if params.on_end in ("straight", "lane"):
+        if params.on_end == "straight":
+            hold = jnp.clip(-params.omega_gain * wrap_angle(yaw - yaw_ref),
+                            -params.omega_limit, params.omega_limit)
+        else:
+            hold = lane_command(params, obs.pose, lane_yaw, lane_xy)
         new = jnp.where(end & has_ref, new.at[1].set(hold), new).astype(jnp.float32)
     cmd = params.ema_alpha * new + (1.0 - params.ema_alpha) * state.cmd
     return SegState(cmd=cmd, masks=masks, end_of_row=end, yaw_ref=yaw_ref, has_ref=has_ref,

@@ -123,6 +123,15 @@ def capsule_hit(o, d, c, axis, radius, half, t_min):
     return jnp.minimum(jnp.where(cyl, t_cyl, INF), t_caps)
 
 
+def prim_hit(kind: int, o, d, q, t_min):
+    """Nearest t > t_min where o + t·d meets one plant primitive of `kind` (plants.ELLIPSOID or
+    plants.CAPSULE) whose 12 table values are q (a sequence of broadcastable arrays: centre,
+    then A row-major for an ellipsoid, or axis, radius, half length for a capsule), else +inf."""
+    if kind == PL.CAPSULE:
+        return capsule_hit(o, d, q[0:3], q[3:6], q[6], q[7], t_min)
+    return ellipsoid_hit(o, d, q[0:3], q[3:12], t_min)
+
+
 def capsule_normal(p, c, axis, half):
     """Outward unit normal [N, 3] at p [N, 3] on a capsule's surface (c, axis [N, 3], half [N])."""
     s = jnp.clip(_dot(p - c, axis), -half, half)
@@ -227,11 +236,7 @@ def nearest_prim(tab: PlantTable, flat, o, d, t_min, t_max):
         def body(carry, x, kd=kd):
             t_b, k_b = carry
             rows, k = x
-            p = [rows[:, i][flat] for i in range(12)]  # 12 × [N, C]
-            if kd == PL.CAPSULE:
-                t = capsule_hit(o, d, p[0:3], p[3:6], p[6], p[7], t_min)
-            else:
-                t = ellipsoid_hit(o, d, p[0:3], p[3:12], t_min)
+            t = prim_hit(kd, o, d, [rows[:, i][flat] for i in range(12)], t_min)  # [N, C]
             better = t < jnp.minimum(t_b, t_max)
             return (jnp.where(better, t, t_b), jnp.where(better, k, k_b)), None
 

@@ -232,11 +232,7 @@ def _exact_fused(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: boo
         # [M, T, 12], m = j·C + c: primitive ks[j] of candidate c
         q = jnp.swapaxes(tab.prim[ks][:, ids], 1, 2).reshape(len(ks) * C, nt, 12)
         ok = jnp.tile(valid.T, (len(ks), 1))[..., None]  # [M, T, 1]
-        p = [q[..., i:i + 1] for i in range(12)]
-        if kd == PL.CAPSULE:
-            t = G.capsule_hit(o, d, p[0:3], p[3:6], p[6], p[7], t_lo)
-        else:
-            t = G.ellipsoid_hit(o, d, p[0:3], p[3:12], t_lo)
+        t = G.prim_hit(kd, o, d, [q[..., i:i + 1] for i in range(12)], t_lo)
         t = jnp.where(ok & (t < t_hi), t, INF)  # [M, T, P]
         if any_hit:
             t_best = jnp.minimum(t_best, jnp.min(t, axis=0))
@@ -281,11 +277,7 @@ def _exact_scan(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool
         def body(carry, x, kd=kd):
             t_b, s_b = carry
             q, okq, b = x
-            p = [q[..., i:i + 1] for i in range(12)]  # [T, g, 1]
-            if kd == PL.CAPSULE:
-                t = G.capsule_hit(o, d, p[0:3], p[3:6], p[6], p[7], t_lo)
-            else:
-                t = G.ellipsoid_hit(o, d, p[0:3], p[3:12], t_lo)
+            t = G.prim_hit(kd, o, d, [q[..., i:i + 1] for i in range(12)], t_lo)
             t = jnp.where(okq, t, INF)  # [T, g, P]
             tm = jnp.min(t, axis=1)
             better = tm < jnp.minimum(t_b, t_max)

@@ -8,6 +8,7 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
+import yaml
 
 from mjxrow import dataset as DS
 from mjxrow import field as F
@@ -37,8 +38,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
 
 
 def parse_sets(items: list[str]) -> dict:
-    """`KEY=VALUE` overrides of RenderConfig fields (ints, floats, true/false, none); an
-    unknown key or a missing `=` raises ValueError naming it."""
+    """`KEY=VALUE` overrides of RenderConfig fields, values read as YAML scalars (numbers,
+    true/false, null); an unknown key, a missing `=` or another value raises ValueError naming
+    it."""
     names = {f.name for f in dataclasses.fields(RD.RenderConfig)}
     out = {}
     for item in items:
@@ -46,20 +48,10 @@ def parse_sets(items: list[str]) -> dict:
         if not sep or key not in names:
             raise ValueError(f"--set {item!r}: expected KEY=VALUE with KEY one of "
                              f"{sorted(names)}")
-        low = val.lower()
-        if low in ("true", "false"):
-            out[key] = low == "true"
-        elif low == "none":
-            out[key] = None
-        else:
-            try:
-                out[key] = int(val)
-            except ValueError:
-                try:
-                    out[key] = float(val)
-                except ValueError:
-                    raise ValueError(f"--set {item!r}: {val!r} is not a number, true, false "
-                                     f"or none") from None
+        v = yaml.safe_load(val)
+        if v is not None and not isinstance(v, (bool, int, float)):
+            raise ValueError(f"--set {item!r}: {val!r} is not a number, true, false or null")
+        out[key] = v
     return out
 
 
@@ -69,10 +61,10 @@ def render_config(args: argparse.Namespace) -> RD.RenderConfig:
                                **parse_sets(args.set))
 
 
-def worlds(preset: str, b: int):
+def worlds(preset: str, b: int, seed: int = 0):
     """B fields, camera poses (the dataset's sampler) and conditions (the four in turn)."""
     shape = DS.dataset_shape(preset)
-    keys = jax.random.split(jax.random.key(0), 4 * b).reshape(b, 4)
+    keys = jax.random.split(jax.random.key(seed), 4 * b).reshape(b, 4)
 
     def one(k):
         fld = F.generate(DS.random_params(preset, k[0]), shape, k[1])
