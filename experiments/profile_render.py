@@ -123,7 +123,8 @@ def main(argv: list[str] | None = None) -> int:
                               "frames_per_s": args.batch / wall, "stages_ms": stages,
                               "kernels_ms": [[k[0], k[1], v] for k, v in kernels]}
         (out / "profile.json").write_text(json.dumps(result, indent=1))
-        print(f"\n{args.preset} {res}x{res}, B={args.batch}, tile {cfg.tile} "
+        used = RD.resolve(cfg, shape.crop, intr)
+        print(f"\n{args.preset} {res}x{res}, B={args.batch}, tile {used.tile}, {used.kernel} "
               f"{' '.join(args.set)}: compile "
               f"{compile_s:.1f} s, wall {wall * 1e3:.1f} ms/call ({args.batch / wall:,.0f} "
               f"frames/s), device {sum(stages.values()):.1f} ms/call")

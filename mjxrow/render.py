@@ -48,6 +48,7 @@ from flax import struct
 
 from mjxrow import field as F
 from mjxrow import render_geom as G
+from mjxrow import render_pallas as RP
 from mjxrow import render_shade as S
 from mjxrow import render_terrain as T
 from mjxrow import render_tiles as RT
@@ -62,6 +63,10 @@ SKY, SOIL, PLANT, OBSTACLE = 0, 1, 2, 3
 INF = jnp.inf
 SKY_DEPTH = 1000.0  # m, depth of sky pixels (finite, larger than any field)
 SHADOW_REACH = 60.0  # m, how far a shadow ray looks for a plant toward the sun
+# how the per-ray tests run: "scan" (XLA loops over groups of candidates; fastest on CPU),
+# "fused" (XLA, all candidates in one reduction), "pallas" (Triton kernels: plant tests and
+# terrain march; on CPU they run in Pallas' interpreter, for tests only)
+KERNELS = ("scan", "fused", "pallas")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,7 +89,8 @@ class Intrinsics:
 class RenderConfig:
     """Static knobs of the ray caster (speed against completeness; see render_tiles)."""
 
-    tile: int = 4  # tile side [px]: plants are culled once per tile of tile × tile pixels
+    tile: int | None = None  # tile side [px]: plants are culled once per tile of tile × tile
+    # pixels (None: by resolution, `default_tile`)
     row_blocks: int = 8  # blocks of BLOCK plants per row whose boxes a tile tests
     block_keep: int = 16  # blocks per tile whose plants' boxes are tested
     keep: int = 8  # candidate plants per tile that every ray intersects exactly
@@ -99,7 +105,7 @@ class RenderConfig:
     terrain_refine: int = 7  # bisections of the first bracket before the exact triangle
     obstacles: int = 8  # nearest obstacles (ahead of the camera) tested per frame
     shadows: bool = True  # plants and obstacles cast sun shadows
-    fused: bool | None = None  # plant tests in one reduction (None: on accelerators; see exact)
+    kernel: str | None = None  # how the per-ray tests run (KERNELS; None: `default_kernel`)
     near: float = 0.01  # m, nothing nearer the camera is drawn
     far: float = 150.0  # m, nothing further is drawn
 
@@ -114,6 +120,9 @@ class RenderConfig:
             raise ValueError(f"render.deep_keep: must be at least 0, got {self.deep_keep}")
         if self.deep_share is not None and not 0.0 <= self.deep_share <= 1.0:
             raise ValueError(f"render.deep_share: must lie in [0, 1], got {self.deep_share}")
+        if self.kernel is not None and self.kernel not in KERNELS:
+            raise ValueError(f"render.kernel: one of {', '.join(KERNELS)} or None, got "
+                             f"{self.kernel!r}")
         if not 0.0 < self.near < self.far:
             raise ValueError(f"render.near/far: need 0 < near < far, got {self.near}, {self.far}")
 
@@ -126,12 +135,34 @@ DEEP = {"lettuce": (0.25, 24, 32, 96), "chard": (0.25, 24, 32, 96)}
 DEEP_OTHERS = (0.125, 12, 16, 48)
 
 
-def resolve(cfg: RenderConfig, crop: str) -> RenderConfig:
-    """`cfg` with the deep-tile knobs left at None set for `crop` (DEEP)."""
+def default_tile(intr: Intrinsics) -> int:
+    """Tile side for an image: 4 px at 64 × 64, doubled whenever the resolution doubles (a
+    power of two, so that a tile's cone never spans more than that of a 4-px tile at 64 px and
+    the Pallas kernels take it)."""
+    return 4 * 2 ** max(0, int(np.floor(np.log2(min(intr.width, intr.height) / 64.0))))
+
+
+def default_kernel(tile: int) -> str:
+    """Pallas kernels on a GPU (for power-of-two pixels per tile), else the XLA reduction on
+    accelerators and the scan on CPU."""
+    backend = jax.default_backend()
+    if backend == "gpu" and RP.supported(tile * tile):
+        return "pallas"
+    return "scan" if backend == "cpu" else "fused"
+
+
+def resolve(cfg: RenderConfig, crop: str, intr: Intrinsics | None = None) -> RenderConfig:
+    """`cfg` with the knobs left at None set: the deep-tile ones for `crop` (DEEP), the tile
+    side for `intr` (`default_tile`; 4 without intr) and the kernels (`default_kernel`)."""
     names = ("deep_share", "deep_row_blocks", "deep_block_keep", "deep_keep")
     by_crop = dict(zip(names, DEEP.get(crop, DEEP_OTHERS), strict=True))
-    return dataclasses.replace(cfg, **{k: v for k, v in by_crop.items()
-                                       if getattr(cfg, k) is None})
+    cfg = dataclasses.replace(cfg, **{k: v for k, v in by_crop.items()
+                                      if getattr(cfg, k) is None})
+    if cfg.tile is None:
+        cfg = dataclasses.replace(cfg, tile=default_tile(intr) if intr is not None else 4)
+    if cfg.kernel is None:
+        cfg = dataclasses.replace(cfg, kernel=default_kernel(cfg.tile))
+    return cfg
 
 
 @struct.dataclass
@@ -176,11 +207,19 @@ def _trace(field, shape, tab, obst, rays, cfg):
     o = jnp.broadcast_to(cam, d.shape)
     t_min = jnp.full((n,), cfg.near, jnp.float32)
     far = jnp.full((n,), cfg.far, jnp.float32)
-    with jax.named_scope("rd_terrain"):
-        t_ter, n_ter = T.trace_terrain(field.terrain, field.terrain_size, o, d, t_min, far,
-                                       cfg.terrain_steps, cfg.terrain_refine)
-    with jax.named_scope("rd_obstacles"):
-        t_obs, n_obs, branch = G.trace_obstacles(obst, o, d, t_min)
+    if cfg.kernel == "pallas":  # terrain and obstacles in one kernel
+        with jax.named_scope("rd_terrain"):
+            t_ter, n_ter, t_obs, j_obs = RP.trace_ground(
+                field.terrain, field.terrain_size, RP.pack_obstacles(obst), o, d, t_min, far,
+                cfg.terrain_steps, cfg.terrain_refine, npx)
+        with jax.named_scope("rd_obstacles"):
+            n_obs, branch = G.obstacle_normal(obst, o, d, t_obs, j_obs)
+    else:
+        with jax.named_scope("rd_terrain"):
+            t_ter, n_ter = T.trace_terrain(field.terrain, field.terrain_size, o, d, t_min, far,
+                                           cfg.terrain_steps, cfg.terrain_refine)
+        with jax.named_scope("rd_obstacles"):
+            t_obs, n_obs, branch = G.trace_obstacles(obst, o, d, t_min)
     t_far = jnp.minimum(jnp.minimum(t_ter, t_obs), far)
     t_pl, plant, k = _trace_plants(shape, tab, cam, d.reshape(nt, npx, 3), c, tan_a,
                                    t_far.reshape(nt, npx), cfg)
@@ -211,7 +250,7 @@ def _trace_plants(shape, tab, cam, d, c, tan_a, t_far, cfg):
     t_min = jnp.full(t_far.shape, cfg.near, jnp.float32)
     with jax.named_scope("rd_exact"):
         t, plant, k = RT.exact(tab, ids, jnp.isfinite(entry), oc, G.xyz(d), t_min, t_far,
-                               fused=cfg.fused)
+                               kernel=cfg.kernel)
     n_deep = min(nt, int(np.ceil(cfg.deep_share * nt)))
     with jax.named_scope("rd_deep"):
         if cfg.deep_keep > 0 and n_deep > 0:
@@ -225,7 +264,7 @@ def _trace_plants(shape, tab, cam, d, c, tan_a, t_far, cfg):
                                       cfg.deep_row_blocks, cfg.deep_block_keep, cfg.deep_keep)
             ok2 = jnp.isfinite(entry2) & (score[:, None] > 0)
             t2, plant2, k2 = RT.exact(tab, ids2, ok2, oc, G.xyz(d[sel]), t_min[sel], u[sel],
-                                      fused=cfg.fused)
+                                      kernel=cfg.kernel)
             better = t2 < t[sel]
             t = t.at[sel].set(jnp.where(better, t2, t[sel]))
             plant = plant.at[sel].set(jnp.where(better, plant2, plant[sel]))
@@ -250,11 +289,15 @@ def _shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, nt):
         ids, entry, _ = RT.cull(tab, shape.max_plants_per_row, *sweep, t_max,
                                 cfg.shadow_row_blocks, cfg.shadow_block_keep, cfg.shadow_keep)
     ls = tuple(jnp.reshape(l[i], (1, 1)) for i in range(3))
-    t_pl = RT.exact(tab, ids, jnp.isfinite(entry), G.xyz(ot), ls, t_min.reshape(nt, -1),
-                    jnp.full(ot.shape[:2], SHADOW_REACH, jnp.float32),
-                    any_hit=True, fused=cfg.fused).reshape(-1)
-    t_ob = G.trace_obstacles(obst, o, jnp.broadcast_to(l, p.shape), t_min, any_hit=True)
-    return jnp.where(jnp.isfinite(t_pl) | jnp.isfinite(t_ob), 0.0, 1.0)
+    args = (tab, ids, jnp.isfinite(entry), G.xyz(ot), ls, t_min.reshape(nt, -1),
+            jnp.full(ot.shape[:2], SHADOW_REACH, jnp.float32))
+    if cfg.kernel == "pallas":  # obstacles in the same kernel
+        t = RP.exact(*args, any_hit=True, obstacles=RP.pack_obstacles(obst)).reshape(-1)
+    else:
+        t_pl = RT.exact(*args, any_hit=True, kernel=cfg.kernel).reshape(-1)
+        t = jnp.minimum(t_pl, G.trace_obstacles(obst, o, jnp.broadcast_to(l, p.shape), t_min,
+                                                any_hit=True))
+    return jnp.where(jnp.isfinite(t), 0.0, 1.0)
 
 
 def _ground_occlusion(tab, p):
@@ -295,7 +338,7 @@ def geometry(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: j
              table: PlantTable | None = None) -> tuple[jax.Array, jax.Array]:
     """What `render` sees, without shading: (depth float32 [H, W] (metres along the optical
     axis, SKY_DEPTH for sky), classes uint8 [H, W]). Same arguments as `render`."""
-    cfg = resolve(cfg, shape.crop)
+    cfg = resolve(cfg, shape.crop, intr)
     field, tab, obst, rays, norm, tiles = _setup(field, shape, cam_pos, cam_rot, intr, cfg,
                                                  table)
     t, cls, *_ = _trace(field, shape, tab, obst, rays, cfg)
@@ -320,7 +363,7 @@ def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax
     for a deterministic image, or a PRNG key for sensor noise and exposure variation
     (augmentation). table: `plant_table(field, shape)` computed once for many frames of the
     same field (an episode), or None to compute it here. Returns a `Frame` of [H, W] images."""
-    cfg = resolve(cfg, shape.crop)
+    cfg = resolve(cfg, shape.crop, intr)
     with jax.named_scope("rd_setup"):
         field, tab, obst, rays, norm, tiles = _setup(field, shape, cam_pos, cam_rot, intr, cfg,
                                                      table)

@@ -41,6 +41,7 @@ import numpy as np
 
 from mjxrow import plants as PL
 from mjxrow import render_geom as G
+from mjxrow import render_pallas as RP
 
 INF = jnp.inf
 
@@ -297,14 +298,17 @@ def _exact_scan(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool
 
 
 def exact(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool = False,
-          fused: bool | None = None):
+          kernel: str | None = None):
     """Nearest exact primitive hit of tile rays among their tile's candidates.
     ids int32 [T, C], valid bool [T, C]; o, d: (x, y, z) tuples of [T, P] arrays (or [1, 1]:
     the same for every ray), |d| = 1; t_min, t_max: [T, P]. Returns (t [T, P] (+inf: none in
     (t_min, t_max)), plant int32 [T, P], k int32 [T, P]); with any_hit, t only.
-    fused: every ray against every candidate primitive in one reduction (`_exact_fused`), or a
-    scan over groups of candidates (`_exact_scan`); None: fused on accelerators."""
-    if fused is None:
-        fused = G.unroll()
-    fn = _exact_fused if fused else _exact_scan
+    kernel: "fused" (every ray against every candidate primitive in one reduction,
+    `_exact_fused`), "scan" (over groups of candidates, `_exact_scan`) or "pallas" (one Triton
+    kernel, `render_pallas.exact`); None: fused on accelerators, scan on CPU."""
+    if kernel is None:
+        kernel = "fused" if G.unroll() else "scan"
+    if kernel == "pallas":
+        return RP.exact(tab, ids, valid, o, d, t_min, t_max, any_hit=any_hit)
+    fn = {"fused": _exact_fused, "scan": _exact_scan}[kernel]
     return fn(tab, ids, valid, o, d, t_min, t_max, any_hit=any_hit)

@@ -142,8 +142,8 @@ def test_deep_tiles_complete_grazing_views(lane_scene):
     assert np.sum(cls != ref) <= 2
 
 
-@pytest.mark.parametrize("fused", [False, True])
-def test_tiled_exact_matches_per_plant_reference(lane_scene, fused):
+@pytest.mark.parametrize("kernel", ["scan", "fused", "pallas"])
+def test_tiled_exact_matches_per_plant_reference(lane_scene, kernel):
     fld, shape, _ = lane_scene
     tab = G.plant_table(fld, shape)
     rng = np.random.default_rng(2)
@@ -153,31 +153,31 @@ def test_tiled_exact_matches_per_plant_reference(lane_scene, fused):
     # rays aimed at the candidates' plant centres, from one side
     cb = np.asarray(tab.box_t)
     ctr = np.stack([0.5 * (cb[0] + cb[1]), 0.5 * (cb[2] + cb[3]), 0.5 * (cb[4] + cb[5])], -1)
-    target = ctr[np.asarray(ids)][:, rng.integers(0, 7, 5)] + rng.normal(0, 0.1, (6, 5, 3))
+    target = ctr[np.asarray(ids)][:, rng.integers(0, 7, 4)] + rng.normal(0, 0.1, (6, 4, 3))
     o = target + np.array([0.0, 2.0, 0.6])
     d = (target - o) / np.linalg.norm(target - o, axis=-1, keepdims=True)
     o, d = jnp.asarray(o, jnp.float32), jnp.asarray(d, jnp.float32)
-    t_min, t_max = jnp.full((6, 5), 0.01), jnp.full((6, 5), 50.0)
+    t_min, t_max = jnp.full((6, 4), 0.01), jnp.full((6, 4), 50.0)
     xyz = lambda v: tuple(v[..., i] for i in range(3))  # noqa: E731
-    t, plant, k = RT.exact(tab, ids, valid, xyz(o), xyz(d), t_min, t_max, fused=fused)
-    t_any = RT.exact(tab, ids, valid, xyz(o), xyz(d), t_min, t_max, any_hit=True, fused=fused)
+    t, plant, k = RT.exact(tab, ids, valid, xyz(o), xyz(d), t_min, t_max, kernel=kernel)
+    t_any = RT.exact(tab, ids, valid, xyz(o), xyz(d), t_min, t_max, any_hit=True, kernel=kernel)
     # reference: every candidate of the ray's tile through nearest_prim
-    flat = jnp.repeat(ids, 5, axis=0)
+    flat = jnp.repeat(ids, 4, axis=0)
     col = lambda v: tuple(v.reshape(-1, 3)[:, i:i + 1] for i in range(3))  # noqa: E731
     tr, kr = G.nearest_prim(tab, flat, col(o), col(d), t_min.reshape(-1, 1),
                             t_max.reshape(-1, 1))
-    tr = jnp.where(jnp.repeat(valid, 5, axis=0), tr, jnp.inf)
+    tr = jnp.where(jnp.repeat(valid, 4, axis=0), tr, jnp.inf)
     best = np.argmin(np.asarray(tr), 1)
-    t_ref = np.asarray(tr)[np.arange(30), best]
+    t_ref = np.asarray(tr)[np.arange(24), best]
     assert np.isfinite(t_ref).sum() >= 10
     # the fused reduction keeps the index in t's low mantissa bits (relative error < 2^-17
     # for 7 candidates × up to 8 primitives)
     assert np.allclose(np.asarray(t).reshape(-1), t_ref, rtol=1e-5)
     assert np.array_equal(np.isfinite(np.asarray(t_any)).reshape(-1), np.isfinite(t_ref))
     hit = np.isfinite(t_ref)
-    assert np.array_equal(np.asarray(plant).reshape(-1)[hit], np.asarray(flat)[np.arange(30),
+    assert np.array_equal(np.asarray(plant).reshape(-1)[hit], np.asarray(flat)[np.arange(24),
                                                                               best][hit])
-    assert np.array_equal(np.asarray(k).reshape(-1)[hit], np.asarray(kr)[np.arange(30),
+    assert np.array_equal(np.asarray(k).reshape(-1)[hit], np.asarray(kr)[np.arange(24),
                                                                           best][hit])
 
 
@@ -195,18 +195,19 @@ def test_precomputed_table_gives_the_same_frame(lane_scene):
     assert np.asarray(a.mask).any()
 
 
-def test_fused_and_scanned_plant_tests_render_the_same_frame(lane_scene):
+def test_every_kernel_renders_the_same_frame(lane_scene):
     fld, shape, pos = lane_scene
     intr = RD.Intrinsics(24, 16, 45.0)
     rot = np.asarray(RD.camera_rot(0.3, np.deg2rad(-12.0)))
     cond = RD.conditions("long_shadows")
     frames = [jax.jit(lambda f, p, r, c=c: RD.render(f, shape, p, r, intr, cond, cfg=c))(
-        fld, pos, rot) for c in (RD.RenderConfig(fused=False), RD.RenderConfig(fused=True))]
-    a, b = frames
+        fld, pos, rot) for c in (RD.RenderConfig(kernel=k) for k in RD.KERNELS)]
+    a = frames[0]
     assert np.asarray(a.mask).any()
-    assert np.array_equal(np.asarray(a.classes), np.asarray(b.classes))
-    assert np.allclose(np.asarray(a.depth), np.asarray(b.depth), rtol=1e-4, atol=1e-5)
-    assert np.max(np.abs(np.asarray(a.rgb, int) - np.asarray(b.rgb, int))) <= 1
+    for b in frames[1:]:
+        assert np.array_equal(np.asarray(a.classes), np.asarray(b.classes))
+        assert np.allclose(np.asarray(a.depth), np.asarray(b.depth), rtol=1e-4, atol=1e-5)
+        assert np.max(np.abs(np.asarray(a.rgb, int) - np.asarray(b.rgb, int))) <= 1
 
 
 def test_config_validates():

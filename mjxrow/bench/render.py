@@ -26,7 +26,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--no-shadows", action="store_true", help="skip the shadow rays")
     p.add_argument("--tile", type=int, default=RD.DEFAULT_CONFIG.tile,
-                   help="tile side [px] of the renderer's culling")
+                   help="tile side [px] of the renderer's culling (default: by resolution, "
+                        "4 at 64 px)")
     p.add_argument("--table", action="store_true",
                    help="plant tables computed outside the timed call (as an episode does once "
                         "per field)")
@@ -108,8 +109,10 @@ def run(args: argparse.Namespace) -> list[dict]:
             chunk = min(b, args.chunk or max(1, auto))
             fn = batched_render(shape, intr, cfg, b, chunk)
             t = time_call(fn, *inputs, repeats=args.repeats)
+            used = RD.resolve(cfg, shape.crop, intr)
             config = (f"{args.preset} {res}x{res}, fovy {intr.fovy:g}, "
-                      f"{'no shadows' if args.no_shadows else 'shadows'}, tile {cfg.tile}, "
+                      f"{'no shadows' if args.no_shadows else 'shadows'}, tile {used.tile}, "
+                      f"{used.kernel} kernels, "
                       f"{'tables given, ' if args.table else ''}chunk {chunk}"
                       + "".join(f", {x}" for x in args.set))
             rows.append({"stage": "render", "config": config, "batch": b,
