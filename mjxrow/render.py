@@ -18,19 +18,24 @@ What is not drawn: anything beyond `RenderConfig.far` metres (150 m: every prese
 the terrain's side walls; a plant primitive that contains the camera (seen from inside).
 
 How it stays fast (`render_tiles`): plants are culled once per tile of `tile × tile` pixels
-through the row structure (per row the stretch of the tile's cone inside the row's slab gives
-the blocks of plants it can meet; block and plant boxes grown by the cone give lower bounds of
-the entry distances), every ray of a tile tests its tile's `keep` candidates exactly (on
-accelerators all of them in one fused min-reduction, `RenderConfig.fused`), and the tiles
-where more plants may lie in front of a ray's hit (grazing views along rows) test a longer
-list. Shadow rays are culled the same way per tile (the box of the tile's surface
+(`default_tile`: 4 at 64 × 64, 8 at 128 and 224, so that a tile's cone stays as narrow as at
+64 px) through the row structure (per row the stretch of the tile's cone inside the row's slab
+gives the blocks of plants it can meet; block and plant boxes grown by the cone give lower
+bounds of the entry distances), every ray of a tile tests its tile's `keep` candidates exactly,
+and the tiles where more plants may lie in front of a ray's hit (grazing views along rows) test
+a longer list. Shadow rays are culled the same way per tile (the box of the tile's surface
 points swept toward the sun). The terrain is marched (`terrain_steps` samples over the ray's
 part in the terrain's height band, `terrain_refine` bisections, then the triangle's exact
-plane). Limits: a plant can be missed where a tile's rays meet more plants than its lists hold
+plane). The per-ray tests run as `RenderConfig.kernel` says: on a GPU as Pallas (Triton)
+kernels that keep a block of tiles' rays in registers and loop over the candidates, march
+samples and obstacles (`render_pallas`), on other accelerators as one fused XLA reduction, on
+CPU as an XLA scan; all three give the same images (tests).
+
+Limits: a plant can be missed where a tile's rays meet more plants than its lists hold
 before their hits (far, nearly horizontal views over many rows of small plants); a march step
 can step over a thin terrain feature on grazing rays. Against an all-plants reference, on the
-dataset's camera poses (`dataset.sample_pose`, 16 per preset, 64×64) the plant masks agree
-with IoU ≥ 0.996 for every preset (the deep-tile knobs are set per crop: `DEEP`), and the
+dataset's camera poses (`dataset.sample_pose`, 16 per preset at 64×64, 8 at 128×128 and
+224×224) the plant masks agree with IoU ≥ 0.996 for every preset (the deep-tile knobs are set per crop: `DEEP`), and the
 terrain depths with a 128-sample march exactly (`experiments/render_accuracy.py`). Shadows are
 cast by plants and obstacles, not by the terrain (which is only shaded by its slope). Sky
 pixels have `depth = SKY_DEPTH`, `mask = False`, `classes = SKY`.

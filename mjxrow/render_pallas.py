@@ -36,8 +36,19 @@ def supported(pixels_per_tile: int) -> bool:
     return pixels_per_tile >= 1 and pixels_per_tile & (pixels_per_tile - 1) == 0
 
 
+def _interpret() -> bool:
+    return jax.default_backend() == "cpu"
+
+
+def _inputs(args):
+    """Kernel inputs; for the interpreter put in memory first (XLA on CPU would otherwise fuse
+    their producers, e.g. a whole trace, into the interpreted kernel's loads, and its compile
+    time explodes)."""
+    return G.materialise(args) if _interpret() else args
+
+
 def _params():
-    if jax.default_backend() == "cpu":
+    if _interpret():
         return {"interpret": True}
     from jax.experimental.pallas import triton as plt
     return {"compiler_params": plt.CompilerParams(num_warps=4, num_stages=1)}
@@ -159,7 +170,7 @@ def exact(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool = Fal
     out = pl.pallas_call(
         kernel, grid=(ntp // tb,), in_specs=specs, out_specs=[tile] * len(out_shape),
         out_shape=out_shape, **_params(),
-    )(*args)
+    )(*_inputs(args))
     t = out[0][:nt]
     if any_hit:
         return t
@@ -214,6 +225,6 @@ def trace_ground(terrain, size, obstacles, o, d, t_min, t_max, steps: int, refin
         out_specs=[tile, pl.BlockSpec((3, tb, P), lambda i: (0, i, 0)), tile, tile],
         out_shape=[flat, jax.ShapeDtypeStruct((3, ntp, P), jnp.float32), flat,
                    jax.ShapeDtypeStruct((ntp, P), jnp.int32)], **_params(),
-    )(sc, terrain.reshape(-1), obstacles, ray, lo, hi)
+    )(*_inputs([sc, terrain.reshape(-1), obstacles, ray, lo, hi]))
     return (t[:nt].reshape(n), nrm[:, :nt].reshape(3, n).T, t_obs[:nt].reshape(n),
             j_obs[:nt].reshape(n))

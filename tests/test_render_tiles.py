@@ -13,6 +13,7 @@ import pytest
 from mjxrow import field as F
 from mjxrow import render as RD
 from mjxrow import render_geom as G
+from mjxrow import render_pallas as RP
 from mjxrow import render_tiles as RT
 
 COMMON = F.FieldShape(crop="zucchini", max_rows=16, max_plants_per_row=40,
@@ -210,9 +211,47 @@ def test_every_kernel_renders_the_same_frame(lane_scene):
         assert np.max(np.abs(np.asarray(a.rgb, int) - np.asarray(b.rgb, int))) <= 1
 
 
+def test_every_kernel_draws_obstacles_and_their_shadows_alike(lane_scene):
+    fld, shape, pos = lane_scene
+    x, y = float(pos[0]), float(pos[1])
+    ground = [float(F.terrain_height(fld.terrain, fld.terrain_size, x + dx, y + dy))
+              for dx, dy in ((1.2, 0.0), (2.2, 0.3))]
+    n = fld.obst_pos.shape[0]
+    opos = np.zeros((n, 3), np.float32)
+    opos[0] = (x + 1.2, y, ground[0] + 0.08)  # a stone ahead
+    opos[1] = (x + 2.2, y + 0.3, ground[1] + 0.04)  # a branch across the lane
+    size = np.zeros((n, 2), np.float32)
+    size[0], size[1] = (0.08, 0.0), (0.04, 0.3)
+    fld = fld.replace(obst_pos=opos, obst_size=size, obst_yaw=np.full(n, 1.2, np.float32),
+                      obst_kind=np.array([0, 1] + [0] * (n - 2), np.int32),
+                      obst_active=np.arange(n) < 2)
+    intr = RD.Intrinsics(16, 16, 50.0)
+    rot = np.asarray(RD.camera_rot(0.0, np.deg2rad(-20.0)))
+    cond = RD.conditions("long_shadows")
+    frames = [jax.jit(lambda f, p, r, c=c: RD.render(f, shape, p, r, intr, cond, cfg=c))(
+        fld, pos, rot) for c in (RD.RenderConfig(kernel=k) for k in ("scan", "pallas"))]
+    a, b = frames
+    assert np.sum(np.asarray(a.classes) == RD.OBSTACLE) >= 4
+    assert np.array_equal(np.asarray(a.classes), np.asarray(b.classes))
+    assert np.allclose(np.asarray(a.depth), np.asarray(b.depth), rtol=1e-4, atol=1e-5)
+    assert np.max(np.abs(np.asarray(a.rgb, int) - np.asarray(b.rgb, int))) <= 1
+
+
+def test_default_tile_follows_the_resolution():
+    assert [RD.default_tile(RD.Intrinsics(r, r)) for r in (32, 64, 100, 128, 224, 256)] == [
+        4, 4, 4, 8, 8, 16]
+    cfg = RD.resolve(RD.DEFAULT_CONFIG, "zucchini", RD.Intrinsics(128, 96))
+    assert cfg.tile == 4 and cfg.kernel == "scan"  # the narrower side decides; CPU: scan
+
+
 def test_config_validates():
     with pytest.raises(ValueError, match="tile"):
         RD.RenderConfig(tile=0)
     with pytest.raises(ValueError, match="deep_share"):
         RD.RenderConfig(deep_share=1.5)
+    with pytest.raises(ValueError, match="render.kernel"):
+        RD.RenderConfig(kernel="cuda")
+    with pytest.raises(ValueError, match="power-of-two"):
+        RP.exact(None, jnp.zeros((2, 3), jnp.int32), jnp.ones((2, 3), bool), (0.0,) * 3,
+                 (0.0,) * 3, jnp.zeros((2, 9)), jnp.ones((2, 9)))
     assert dataclasses.replace(RD.DEFAULT_CONFIG, deep_keep=0).deep_keep == 0
