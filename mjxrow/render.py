@@ -35,16 +35,18 @@ Limits: a plant can be missed where a tile's rays meet more plants than its list
 before their hits (far, nearly horizontal views over many rows of small plants); a march step
 can step over a thin terrain feature on grazing rays. Against an all-plants reference, on the
 dataset's camera poses (`dataset.sample_pose`, 16 per preset at 64×64, 8 at 128×128 and
-224×224) the plant masks agree with IoU ≥ 0.996 for every preset (the deep-tile knobs are set per crop: `DEEP`), and the
-terrain depths with a 128-sample march exactly (`experiments/render_accuracy.py`). Shadows are
-cast by plants and obstacles, not by the terrain (which is only shaded by its slope). Sky
-pixels have `depth = SKY_DEPTH`, `mask = False`, `classes = SKY`.
+224×224) the plant masks agree with IoU ≥ 0.996 for every preset (the deep-tile knobs are
+set per crop: `DEEP`), and the terrain depths with a 128-sample march exactly
+(`experiments/render_accuracy.py`). Shadows are cast by plants and obstacles, not by the
+terrain (which is only shaded by its slope). Sky pixels have `depth = SKY_DEPTH`,
+`mask = False`, `classes = SKY`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+import os
 
 import jax
 import jax.numpy as jnp
@@ -149,7 +151,13 @@ def default_tile(intr: Intrinsics) -> int:
 
 def default_kernel(tile: int) -> str:
     """Pallas kernels on a GPU (for power-of-two pixels per tile), else the XLA reduction on
-    accelerators and the scan on CPU."""
+    accelerators and the scan on CPU. The environment variable MJXROW_RENDER_KERNEL (one of
+    KERNELS) overrides this for every command, e.g. to compare or to sidestep a compiler."""
+    env = os.environ.get("MJXROW_RENDER_KERNEL", "").strip()
+    if env:
+        if env not in KERNELS:
+            raise ValueError(f"MJXROW_RENDER_KERNEL: one of {', '.join(KERNELS)}, got {env!r}")
+        return env
     backend = jax.default_backend()
     if backend == "gpu" and RP.supported(tile * tile):
         return "pallas"

@@ -49,7 +49,7 @@ def march(heights, shape, size, band, o, d, t_min, t_max, steps: int, refine: in
     t0 = jnp.maximum(jnp.maximum(tx0, ty0), jnp.maximum(tz0, t_min))
     t1 = jnp.minimum(jnp.minimum(tx1, ty1), jnp.minimum(tz1, t_max))
     live = t0 < t1
-    span = jnp.where(live, t1 - t0, 0.0)
+    span = jnp.where(live, t1, t0) - t0
 
     def f(t):  # height of the ray above the terrain at t (broadcast against the rays)
         return o[2] + t * d[2] - _eval(heights, shape, size, o[0] + t * d[0], o[1] + t * d[1])[0]

@@ -244,6 +244,15 @@ def test_default_tile_follows_the_resolution():
     assert cfg.tile == 4 and cfg.kernel == "scan"  # the narrower side decides; CPU: scan
 
 
+def test_kernel_environment_override(monkeypatch):
+    monkeypatch.setenv("MJXROW_RENDER_KERNEL", "fused")
+    assert RD.resolve(RD.DEFAULT_CONFIG, "pear").kernel == "fused"
+    assert RD.resolve(RD.RenderConfig(kernel="scan"), "pear").kernel == "scan"  # explicit wins
+    monkeypatch.setenv("MJXROW_RENDER_KERNEL", "triton")
+    with pytest.raises(ValueError, match="MJXROW_RENDER_KERNEL"):
+        RD.resolve(RD.DEFAULT_CONFIG, "pear")
+
+
 def test_config_validates():
     with pytest.raises(ValueError, match="tile"):
         RD.RenderConfig(tile=0)
