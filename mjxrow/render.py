@@ -27,8 +27,8 @@ a longer list. Shadow rays are culled the same way per tile (the box of the tile
 points swept toward the sun). The terrain is marched (`terrain_steps` samples over the ray's
 part in the terrain's height band, `terrain_refine` bisections, then the triangle's exact
 plane). The per-ray tests run as `RenderConfig.kernel` says: on a GPU as Pallas (Triton)
-kernels that keep a block of tiles' rays in registers and loop over the candidates, march
-samples and obstacles (`render_pallas`), on other accelerators as one fused XLA reduction, on
+kernels that keep a block of tiles' rays in registers and loop over the candidates or the
+march samples (`render_pallas`), on other accelerators as one fused XLA reduction, on
 CPU as an XLA scan; all three give the same images (tests).
 
 Limits: a plant can be missed where a tile's rays meet more plants than its lists hold
@@ -71,8 +71,8 @@ INF = jnp.inf
 SKY_DEPTH = 1000.0  # m, depth of sky pixels (finite, larger than any field)
 SHADOW_REACH = 60.0  # m, how far a shadow ray looks for a plant toward the sun
 # how the per-ray tests run: "scan" (XLA loops over groups of candidates; fastest on CPU),
-# "fused" (XLA, all candidates in one reduction), "pallas" (Triton kernels: plant tests and
-# terrain march; on CPU they run in Pallas' interpreter, for tests only)
+# "fused" (XLA, all candidates in one reduction), "pallas" (Triton kernels for the plant tests
+# and the terrain march; on CPU they run in Pallas' interpreter, for tests only)
 KERNELS = ("scan", "fused", "pallas")
 
 
@@ -220,19 +220,15 @@ def _trace(field, shape, tab, obst, rays, cfg):
     o = jnp.broadcast_to(cam, d.shape)
     t_min = jnp.full((n,), cfg.near, jnp.float32)
     far = jnp.full((n,), cfg.far, jnp.float32)
-    if cfg.kernel == "pallas":  # terrain and obstacles in one kernel
-        with jax.named_scope("rd_terrain"):
-            t_ter, n_ter, t_obs, j_obs = RP.trace_ground(
-                field.terrain, field.terrain_size, RP.pack_obstacles(obst), o, d, t_min, far,
-                cfg.terrain_steps, cfg.terrain_refine, npx)
-        with jax.named_scope("rd_obstacles"):
-            n_obs, branch = G.obstacle_normal(obst, o, d, t_obs, j_obs)
-    else:
-        with jax.named_scope("rd_terrain"):
+    with jax.named_scope("rd_terrain"):
+        if cfg.kernel == "pallas":
+            t_ter, n_ter = RP.trace_terrain(field.terrain, field.terrain_size, o, d, t_min, far,
+                                            cfg.terrain_steps, cfg.terrain_refine, npx)
+        else:
             t_ter, n_ter = T.trace_terrain(field.terrain, field.terrain_size, o, d, t_min, far,
                                            cfg.terrain_steps, cfg.terrain_refine)
-        with jax.named_scope("rd_obstacles"):
-            t_obs, n_obs, branch = G.trace_obstacles(obst, o, d, t_min)
+    with jax.named_scope("rd_obstacles"):
+        t_obs, n_obs, branch = G.trace_obstacles(obst, o, d, t_min)
     t_far = jnp.minimum(jnp.minimum(t_ter, t_obs), far)
     t_pl, plant, k = _trace_plants(shape, tab, cam, d.reshape(nt, npx, 3), c, tan_a,
                                    t_far.reshape(nt, npx), cfg)
@@ -302,15 +298,11 @@ def _shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, nt):
         ids, entry, _ = RT.cull(tab, shape.max_plants_per_row, *sweep, t_max,
                                 cfg.shadow_row_blocks, cfg.shadow_block_keep, cfg.shadow_keep)
     ls = tuple(jnp.reshape(l[i], (1, 1)) for i in range(3))
-    args = (tab, ids, jnp.isfinite(entry), G.xyz(ot), ls, t_min.reshape(nt, -1),
-            jnp.full(ot.shape[:2], SHADOW_REACH, jnp.float32))
-    if cfg.kernel == "pallas":  # obstacles in the same kernel
-        t = RP.exact(*args, any_hit=True, obstacles=RP.pack_obstacles(obst)).reshape(-1)
-    else:
-        t_pl = RT.exact(*args, any_hit=True, kernel=cfg.kernel).reshape(-1)
-        t = jnp.minimum(t_pl, G.trace_obstacles(obst, o, jnp.broadcast_to(l, p.shape), t_min,
-                                                any_hit=True))
-    return jnp.where(jnp.isfinite(t), 0.0, 1.0)
+    t_pl = RT.exact(tab, ids, jnp.isfinite(entry), G.xyz(ot), ls, t_min.reshape(nt, -1),
+                    jnp.full(ot.shape[:2], SHADOW_REACH, jnp.float32),
+                    any_hit=True, kernel=cfg.kernel).reshape(-1)
+    t_ob = G.trace_obstacles(obst, o, jnp.broadcast_to(l, p.shape), t_min, any_hit=True)
+    return jnp.where(jnp.isfinite(t_pl) | jnp.isfinite(t_ob), 0.0, 1.0)
 
 
 def _ground_occlusion(tab, p):

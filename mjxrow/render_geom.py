@@ -293,7 +293,7 @@ def obstacle_table(field: F.Field, cam_pos, forward, n: int):
 def trace_obstacles(obst, o, d, t_min, any_hit: bool = False):
     """Nearest obstacle hit: (t [N] (+inf: none), normal [N, 3], is_branch bool [N]); with
     any_hit, t only. One obstacle at a time (elementwise over the rays, no [N, n] arrays)."""
-    c, axis, rad, half, ok, _ = obst
+    c, axis, rad, half, ok, branch = obst
     oc, dc = xyz(o), xyz(d)
     n = c.shape[0]
     t_best = jnp.full(t_min.shape, INF)
@@ -310,12 +310,5 @@ def trace_obstacles(obst, o, d, t_min, any_hit: bool = False):
     (t_best, j_best), _ = jax.lax.scan(body, (t_best, j_best), xs, unroll=n if unroll() else 1)
     if any_hit:
         return t_best
-    return (t_best,) + obstacle_normal(obst, o, d, t_best, j_best)
-
-
-def obstacle_normal(obst, o, d, t, j):
-    """(unit normal [N, 3], is_branch bool [N]) where rays o + t·d ([N, 3], t [N]; +inf:
-    none) meet obstacle j [N] of the table `obst`."""
-    c, axis, _, half, _, branch = obst
-    p = o + jnp.where(jnp.isfinite(t), t, 0.0)[:, None] * d
-    return capsule_normal(p, c[j], axis[j], half[j]), branch[j]
+    p = o + jnp.where(jnp.isfinite(t_best), t_best, 0.0)[:, None] * d
+    return t_best, capsule_normal(p, c[j_best], axis[j_best], half[j_best]), branch[j_best]

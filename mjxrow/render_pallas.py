@@ -64,38 +64,21 @@ def _blocks(nt: int, P: int, block_rays: int) -> tuple[int, int]:
     return tb, -(-nt // tb) * tb
 
 
-def _pad(x, n: int, value=0):
-    """Pad axis 0 of x up to n."""
-    if x.shape[0] == n:
+def _pad(x, n: int, value=0, axis: int = 0):
+    """Pad `axis` of x up to n."""
+    if x.shape[axis] == n:
         return x
-    return jnp.pad(x, [(0, n - x.shape[0])] + [(0, 0)] * (x.ndim - 1), constant_values=value)
+    width = [(0, 0)] * x.ndim
+    width[axis] = (0, n - x.shape[axis])
+    return jnp.pad(x, width, constant_values=value)
 
 
-def _obstacle_hits(ob_ref, n_obst: int, o, d, t_lo, any_hit: bool):
-    """Nearest (or any) hit of the rays with the obstacles packed in ob_ref [n, 9] (centre,
-    axis, radius, half length, ok): (t, index int32)."""
-    best = jnp.full(t_lo.shape, INF, jnp.float32)
-    idx = jnp.zeros(t_lo.shape, jnp.int32)
-    for j in range(n_obst):
-        q = [ob_ref[j, i] for i in range(9)]
-        t = G.capsule_hit(o, d, q[0:3], q[3:6], q[6], q[7], t_lo)
-        better = (q[8] > 0.0) & (t < best)
-        best = jnp.where(better, t, best)
-        if not any_hit:
-            idx = jnp.where(better, j, idx)
-    return best, idx
-
-
-def _exact_kernel(prim_ref, ids_ref, ray_ref, lo_ref, hi_ref, *refs, groups, n_cand, any_hit,
-                  n_obst):
-    ob_ref, out_refs = (refs[0], refs[1:]) if n_obst else (None, refs)
+def _exact_kernel(prim_ref, ids_ref, ray_ref, lo_ref, hi_ref, *out_refs, groups, n_cand,
+                  any_hit):
     o = tuple(ray_ref[i] for i in range(3))  # [TB, P]
     d = tuple(ray_ref[3 + i] for i in range(3))
     t_lo, t_hi = lo_ref[...], hi_ref[...]
     best = jnp.full(t_lo.shape, INF, jnp.float32)
-    if n_obst:  # shadow rays: obstacles cast shadows too
-        best = jnp.where(jnp.isfinite(_obstacle_hits(ob_ref, n_obst, o, d, t_lo, True)[0]),
-                         0.0, INF)
     cand = jnp.zeros(t_lo.shape, jnp.int32)
     kbest = jnp.zeros(t_lo.shape, jnp.int32)
 
@@ -126,51 +109,34 @@ def _exact_kernel(prim_ref, ids_ref, ray_ref, lo_ref, hi_ref, *refs, groups, n_c
         out_refs[2][...] = kbest
 
 
-def pack_obstacles(obst) -> jax.Array:
-    """`render_geom.obstacle_table` → float32 [n, 9] (centre, axis, radius, half length, ok)."""
-    c, axis, rad, half, ok, _ = obst
-    return jnp.concatenate([c, axis, rad[:, None], half[:, None],
-                            ok[:, None].astype(jnp.float32)], 1).astype(jnp.float32)
-
-
 def exact(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool = False,
-          obstacles=None, block_rays: int = BLOCK_RAYS):
+          block_rays: int = BLOCK_RAYS):
     """`render_tiles.exact` as one kernel (same arguments and results): each program holds a
     block of tiles' rays and loops over their candidates, gathering each candidate's
-    primitives from the table. obstacles (any_hit only): `pack_obstacles` of the obstacles
-    that also block the rays."""
+    primitives from the table."""
     nt, C = ids.shape
     P = t_max.shape[1]
     tb, ntp = _blocks(nt, P, block_rays)
     ray = jnp.stack([jnp.broadcast_to(v, t_max.shape).astype(jnp.float32)
                      for v in tuple(o) + tuple(d)])  # [6, T, P]
-    ray = jnp.moveaxis(_pad(jnp.moveaxis(ray, 1, 0), ntp), 0, 1)
+    ray = _pad(ray, ntp, axis=1)
     ids_t = _pad(jnp.where(valid, ids, -1).astype(jnp.int32), ntp, -1).T  # [C, Tp]
     lo = _pad(t_min.astype(jnp.float32), ntp)
     hi = _pad(t_max.astype(jnp.float32), ntp, -1.0)
     groups = tuple((kd, tuple(int(k) for k in np.flatnonzero(tab.kind == kd)))
                    for kd in (PL.ELLIPSOID, PL.CAPSULE) if np.any(tab.kind == kd))
     tile = pl.BlockSpec((tb, P), lambda i: (i, 0))
-    cand = pl.BlockSpec((C, tb), lambda i: (0, i))
-    args = [tab.prim, ids_t, ray, lo, hi]
-    specs = [pl.BlockSpec(tab.prim.shape, lambda i: (0, 0, 0)), cand,
-             pl.BlockSpec((6, tb, P), lambda i: (0, i, 0)), tile, tile]
-    n_obst = 0
-    if obstacles is not None:
-        if not any_hit:
-            raise ValueError("render_pallas.exact: obstacles are for any_hit (shadow) rays")
-        n_obst = obstacles.shape[0]
-        args.append(obstacles)
-        specs.append(pl.BlockSpec(obstacles.shape, lambda i: (0, 0)))
     out_shape = [jax.ShapeDtypeStruct((ntp, P), jnp.float32)]
     if not any_hit:
         out_shape += [jax.ShapeDtypeStruct((ntp, P), jnp.int32)] * 2
-    kernel = functools.partial(_exact_kernel, groups=groups, n_cand=C, any_hit=any_hit,
-                               n_obst=n_obst)
+    kernel = functools.partial(_exact_kernel, groups=groups, n_cand=C, any_hit=any_hit)
     out = pl.pallas_call(
-        kernel, grid=(ntp // tb,), in_specs=specs, out_specs=[tile] * len(out_shape),
-        out_shape=out_shape, **_params(),
-    )(*_inputs(args))
+        kernel, grid=(ntp // tb,),
+        in_specs=[pl.BlockSpec(tab.prim.shape, lambda i: (0, 0, 0)),
+                  pl.BlockSpec((C, tb), lambda i: (0, i)),
+                  pl.BlockSpec((6, tb, P), lambda i: (0, i, 0)), tile, tile],
+        out_specs=[tile] * len(out_shape), out_shape=out_shape, **_params(),
+    )(*_inputs([tab.prim, ids_t, ray, lo, hi]))
     t = out[0][:nt]
     if any_hit:
         return t
@@ -178,53 +144,41 @@ def exact(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool = Fal
     return t, plant, out[2][:nt]
 
 
-def _ground_kernel(sc_ref, hf_ref, ob_ref, ray_ref, lo_ref, hi_ref, t_ref, n_ref, to_ref,
-                   jo_ref, *, shape, steps, refine, n_obst):
+def _terrain_kernel(sc_ref, hf_ref, ray_ref, lo_ref, hi_ref, t_ref, n_ref, *, shape, steps,
+                    refine):
     o = tuple(ray_ref[i] for i in range(3))  # [TB, P]
     d = tuple(ray_ref[3 + i] for i in range(3))
-    t_lo, t_hi = lo_ref[...], hi_ref[...]
-    size = (sc_ref[0], sc_ref[1])
-    band = (sc_ref[2], sc_ref[3])
-    t, n = RTer.march(lambda idx: hf_ref[idx], shape, size, band, o, d, t_lo, t_hi, steps,
-                      refine, unrolled=True)
+    t, n = RTer.march(lambda idx: hf_ref[idx], shape, (sc_ref[0], sc_ref[1]),
+                      (sc_ref[2], sc_ref[3]), o, d, lo_ref[...], hi_ref[...], steps, refine,
+                      unrolled=True)
     t_ref[...] = t
     for i in range(3):
         n_ref[i] = n[i]
-    t_obs, j_obs = _obstacle_hits(ob_ref, n_obst, o, d, t_lo, False)
-    to_ref[...] = t_obs
-    jo_ref[...] = j_obs
 
 
-def trace_ground(terrain, size, obstacles, o, d, t_min, t_max, steps: int, refine: int, P: int,
-                 block_rays: int = BLOCK_RAYS):
-    """`render_terrain.trace_terrain` and `render_geom.trace_obstacles` in one kernel: flat
-    tile-major rays o, d [N, 3] (P per tile), t_min, t_max [N]; obstacles: `pack_obstacles`.
-    Each program marches a block of rays, gathering heights from the terrain, and tests the
-    obstacles. Returns (terrain t [N] (+inf: none), terrain normal [N, 3], obstacle t [N]
-    (+inf: none, not cut at t_max), obstacle index int32 [N])."""
+def trace_terrain(terrain, size, o, d, t_min, t_max, steps: int, refine: int, P: int,
+                  block_rays: int = BLOCK_RAYS):
+    """`render_terrain.trace_terrain` as one kernel (same arguments and results; the flat rays
+    are tile-major, P per tile): each program marches a block of rays, gathering heights from
+    the terrain."""
     n = d.shape[0]
     nt = n // P
     tb, ntp = _blocks(nt, P, block_rays)
-    ray = jnp.concatenate([o, d], 1).T.reshape(6, nt, P).astype(jnp.float32)
-    ray = jnp.moveaxis(_pad(jnp.moveaxis(ray, 1, 0), ntp), 0, 1)
+    ray = _pad(jnp.concatenate([o, d], 1).T.reshape(6, nt, P).astype(jnp.float32), ntp, axis=1)
     lo = _pad(t_min.reshape(nt, P).astype(jnp.float32), ntp)
     hi = _pad(t_max.reshape(nt, P).astype(jnp.float32), ntp, -1.0)
     terrain = jnp.asarray(terrain, jnp.float32)
     sc = jnp.stack([jnp.asarray(size[0], jnp.float32), jnp.asarray(size[1], jnp.float32),
                     jnp.min(terrain), jnp.max(terrain)])
     tile = pl.BlockSpec((tb, P), lambda i: (i, 0))
-    kernel = functools.partial(_ground_kernel, shape=terrain.shape, steps=steps, refine=refine,
-                               n_obst=obstacles.shape[0])
-    flat = jax.ShapeDtypeStruct((ntp, P), jnp.float32)
-    t, nrm, t_obs, j_obs = pl.pallas_call(
+    kernel = functools.partial(_terrain_kernel, shape=terrain.shape, steps=steps, refine=refine)
+    t, nrm = pl.pallas_call(
         kernel, grid=(ntp // tb,),
         in_specs=[pl.BlockSpec((4,), lambda i: (0,)),
                   pl.BlockSpec((terrain.size,), lambda i: (0,)),
-                  pl.BlockSpec(obstacles.shape, lambda i: (0, 0)),
                   pl.BlockSpec((6, tb, P), lambda i: (0, i, 0)), tile, tile],
-        out_specs=[tile, pl.BlockSpec((3, tb, P), lambda i: (0, i, 0)), tile, tile],
-        out_shape=[flat, jax.ShapeDtypeStruct((3, ntp, P), jnp.float32), flat,
-                   jax.ShapeDtypeStruct((ntp, P), jnp.int32)], **_params(),
-    )(*_inputs([sc, terrain.reshape(-1), obstacles, ray, lo, hi]))
-    return (t[:nt].reshape(n), nrm[:, :nt].reshape(3, n).T, t_obs[:nt].reshape(n),
-            j_obs[:nt].reshape(n))
+        out_specs=[tile, pl.BlockSpec((3, tb, P), lambda i: (0, i, 0))],
+        out_shape=[jax.ShapeDtypeStruct((ntp, P), jnp.float32),
+                   jax.ShapeDtypeStruct((3, ntp, P), jnp.float32)], **_params(),
+    )(*_inputs([sc, terrain.reshape(-1), ray, lo, hi]))
+    return t[:nt].reshape(n), nrm[:, :nt].reshape(3, n).T

@@ -297,18 +297,14 @@ def _exact_scan(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool
     return t_best, plant, s_best % K
 
 
-def exact(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool = False,
-          kernel: str | None = None):
+def exact(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool = False, *,
+          kernel: str):
     """Nearest exact primitive hit of tile rays among their tile's candidates.
     ids int32 [T, C], valid bool [T, C]; o, d: (x, y, z) tuples of [T, P] arrays (or [1, 1]:
     the same for every ray), |d| = 1; t_min, t_max: [T, P]. Returns (t [T, P] (+inf: none in
     (t_min, t_max)), plant int32 [T, P], k int32 [T, P]); with any_hit, t only.
-    kernel: "fused" (every ray against every candidate primitive in one reduction,
-    `_exact_fused`), "scan" (over groups of candidates, `_exact_scan`) or "pallas" (one Triton
-    kernel, `render_pallas.exact`); None: fused on accelerators, scan on CPU."""
-    if kernel is None:
-        kernel = "fused" if G.unroll() else "scan"
-    if kernel == "pallas":
-        return RP.exact(tab, ids, valid, o, d, t_min, t_max, any_hit=any_hit)
-    fn = {"fused": _exact_fused, "scan": _exact_scan}[kernel]
+    kernel (`render.KERNELS`; `render.resolve` picks it): "fused" (every ray against every
+    candidate primitive in one reduction, `_exact_fused`), "scan" (over groups of candidates,
+    `_exact_scan`) or "pallas" (one Triton kernel, `render_pallas.exact`)."""
+    fn = {"fused": _exact_fused, "scan": _exact_scan, "pallas": RP.exact}[kernel]
     return fn(tab, ids, valid, o, d, t_min, t_max, any_hit=any_hit)
