@@ -100,7 +100,7 @@ class RenderConfig:
     # pixels (None: by resolution, `default_tile`)
     row_blocks: int = 8  # blocks of BLOCK plants per row whose boxes a tile tests
     block_keep: int = 16  # blocks per tile whose plants' boxes are tested
-    keep: int = 8  # candidate plants per tile that every ray intersects exactly
+    keep: int = 16  # candidate plants per tile that every ray intersects exactly
     deep_share: float | None = None  # share of a frame's tiles that may be deep (None: by crop)
     deep_row_blocks: int | None = None  # the same for the deep tiles (None: by crop)
     deep_block_keep: int | None = None
@@ -138,15 +138,16 @@ DEFAULT_CONFIG = RenderConfig()
 
 # deep tiles (share, row_blocks, block_keep, keep) per crop: small plants in many rows put more
 # plants in front of a far ray's hit than large ones
-DEEP = {"lettuce": (0.25, 24, 32, 96), "chard": (0.25, 24, 32, 96)}
-DEEP_OTHERS = (0.125, 12, 16, 48)
+DEEP = {"lettuce": (0.25, 24, 64, 192), "chard": (0.25, 24, 64, 192)}
+DEEP_OTHERS = (0.25, 12, 16, 48)
 
 
 def default_tile(intr: Intrinsics) -> int:
-    """Tile side for an image: 4 px at 64 × 64, doubled whenever the resolution doubles (a
-    power of two, so that a tile's cone never spans more than that of a 4-px tile at 64 px and
-    the Pallas kernels take it)."""
-    return 4 * 2 ** max(0, int(np.floor(np.log2(min(intr.width, intr.height) / 64.0))))
+    """Tile side for an image: 8 px at 64 × 64, doubled whenever the resolution doubles, 4 px
+    below 64 and at most 16 px (a power of two, so that a tile's cone never spans more than
+    that of an 8-px tile at 64 px and the Pallas kernels take it)."""
+    side = 8 * 2.0 ** np.floor(np.log2(min(intr.width, intr.height) / 64.0))
+    return int(np.clip(side, 4, 16))
 
 
 def default_kernel(tile: int) -> str:
@@ -258,7 +259,7 @@ def _trace_plants(shape, tab, cam, d, c, tan_a, t_far, cfg):
     oc = tuple(jnp.reshape(cam[i], (1, 1)) for i in range(3))
     t_min = jnp.full(t_far.shape, cfg.near, jnp.float32)
     with jax.named_scope("rd_exact"):
-        t, plant, k = RT.exact(tab, ids, jnp.isfinite(entry), oc, G.xyz(d), t_min, t_far,
+        t, plant, k = RT.exact(tab, ids, entry, oc, G.xyz(d), t_min, t_far,
                                kernel=cfg.kernel)
     n_deep = min(nt, int(np.ceil(cfg.deep_share * nt)))
     with jax.named_scope("rd_deep"):
@@ -271,8 +272,8 @@ def _trace_plants(shape, tab, cam, d, c, tan_a, t_far, cfg):
             score, sel = jax.lax.top_k(score.astype(jnp.float32), n_deep)
             ids2, entry2, _ = RT.cull(tab, P, o[sel], cc[sel], g[sel], tau[sel], cut[sel],
                                       cfg.deep_row_blocks, cfg.deep_block_keep, cfg.deep_keep)
-            ok2 = jnp.isfinite(entry2) & (score[:, None] > 0)
-            t2, plant2, k2 = RT.exact(tab, ids2, ok2, oc, G.xyz(d[sel]), t_min[sel], u[sel],
+            entry2 = jnp.where(score[:, None] > 0, entry2, INF)
+            t2, plant2, k2 = RT.exact(tab, ids2, entry2, oc, G.xyz(d[sel]), t_min[sel], u[sel],
                                       kernel=cfg.kernel)
             better = t2 < t[sel]
             t = t.at[sel].set(jnp.where(better, t2, t[sel]))
@@ -298,7 +299,7 @@ def _shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, nt):
         ids, entry, _ = RT.cull(tab, shape.max_plants_per_row, *sweep, t_max,
                                 cfg.shadow_row_blocks, cfg.shadow_block_keep, cfg.shadow_keep)
     ls = tuple(jnp.reshape(l[i], (1, 1)) for i in range(3))
-    t_pl = RT.exact(tab, ids, jnp.isfinite(entry), G.xyz(ot), ls, t_min.reshape(nt, -1),
+    t_pl = RT.exact(tab, ids, entry, G.xyz(ot), ls, t_min.reshape(nt, -1),
                     jnp.full(ot.shape[:2], SHADOW_REACH, jnp.float32),
                     any_hit=True, kernel=cfg.kernel).reshape(-1)
     t_ob = G.trace_obstacles(obst, o, jnp.broadcast_to(l, p.shape), t_min, any_hit=True)

@@ -73,8 +73,8 @@ def _pad(x, n: int, value=0, axis: int = 0):
     return jnp.pad(x, width, constant_values=value)
 
 
-def _exact_kernel(prim_ref, ids_ref, ray_ref, lo_ref, hi_ref, *out_refs, groups, n_cand,
-                  any_hit):
+def _exact_kernel(prim_ref, ids_ref, ent_ref, ray_ref, lo_ref, hi_ref, *out_refs, groups,
+                  n_cand, any_hit):
     o = tuple(ray_ref[i] for i in range(3))  # [TB, P]
     d = tuple(ray_ref[3 + i] for i in range(3))
     t_lo, t_hi = lo_ref[...], hi_ref[...]
@@ -84,11 +84,10 @@ def _exact_kernel(prim_ref, ids_ref, ray_ref, lo_ref, hi_ref, *out_refs, groups,
 
     for kd, ks in groups:
 
-        def body(c, carry, kd=kd, ks=ks):
+        def test(c, ent, carry, kd=kd, ks=ks):
             best, cand, kbest = carry
-            idv = ids_ref[c, :]  # [TB], -1: no candidate
-            ok = (idv >= 0)[:, None]
-            row = jnp.maximum(idv, 0)
+            row = ids_ref[c, :]  # [TB]
+            ok = ent[:, None] < t_hi
             for k in ks:
                 q = [prim_ref[k, row, i][:, None] for i in range(12)]  # gathers of [TB]
                 t = G.prim_hit(kd, o, d, q, t_lo)
@@ -100,8 +99,20 @@ def _exact_kernel(prim_ref, ids_ref, ray_ref, lo_ref, hi_ref, *out_refs, groups,
                     kbest = jnp.where(better, k, kbest)
             return best, cand, kbest
 
-        # (a while loop stopping at the first candidate beyond every ray's hit crashes the
-        # Triton compiler of jax 0.11; all C candidates are tested)
+        def body(c, carry, test=test):
+            # the block skips a candidate none of its rays can still use: its entry bound is
+            # beyond every ray's hit so far (or, for any-hit rays, every open ray's reach);
+            # the candidates come sorted by that bound, so after the first skip all are
+            # skipped (a while loop that stops there crashes the Triton compiler of jax 0.11)
+            ent = ent_ref[c, :]  # [TB], +inf: no candidate
+            best = carry[0]
+            if any_hit:
+                live = (best == INF) & (ent[:, None] < t_hi)
+            else:
+                live = ent[:, None] < jnp.minimum(best, t_hi)
+            go = jnp.max(live.astype(jnp.int32)) > 0
+            return jax.lax.cond(go, functools.partial(test, c, ent), lambda x: x, carry)
+
         best, cand, kbest = jax.lax.fori_loop(0, n_cand, body, (best, cand, kbest))
     out_refs[0][...] = best
     if not any_hit:
@@ -109,34 +120,37 @@ def _exact_kernel(prim_ref, ids_ref, ray_ref, lo_ref, hi_ref, *out_refs, groups,
         out_refs[2][...] = kbest
 
 
-def exact(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool = False,
+def exact(tab: G.PlantTable, ids, entry, o, d, t_min, t_max, any_hit: bool = False,
           block_rays: int = BLOCK_RAYS):
     """`render_tiles.exact` as one kernel (same arguments and results): each program holds a
     block of tiles' rays and loops over their candidates, gathering each candidate's
-    primitives from the table."""
+    primitives from the table, and skips the candidates whose entry bound lies beyond all its
+    rays' hits."""
     nt, C = ids.shape
     P = t_max.shape[1]
     tb, ntp = _blocks(nt, P, block_rays)
     ray = jnp.stack([jnp.broadcast_to(v, t_max.shape).astype(jnp.float32)
                      for v in tuple(o) + tuple(d)])  # [6, T, P]
     ray = _pad(ray, ntp, axis=1)
-    ids_t = _pad(jnp.where(valid, ids, -1).astype(jnp.int32), ntp, -1).T  # [C, Tp]
+    ent = jnp.asarray(entry, jnp.float32)
+    ids_t = _pad(jnp.where(jnp.isfinite(ent), ids, 0).astype(jnp.int32), ntp).T  # [C, Tp]
+    ent_t = _pad(ent, ntp, INF).T
     lo = _pad(t_min.astype(jnp.float32), ntp)
     hi = _pad(t_max.astype(jnp.float32), ntp, -1.0)
     groups = tuple((kd, tuple(int(k) for k in np.flatnonzero(tab.kind == kd)))
                    for kd in (PL.ELLIPSOID, PL.CAPSULE) if np.any(tab.kind == kd))
     tile = pl.BlockSpec((tb, P), lambda i: (i, 0))
+    cand = pl.BlockSpec((C, tb), lambda i: (0, i))
     out_shape = [jax.ShapeDtypeStruct((ntp, P), jnp.float32)]
     if not any_hit:
         out_shape += [jax.ShapeDtypeStruct((ntp, P), jnp.int32)] * 2
     kernel = functools.partial(_exact_kernel, groups=groups, n_cand=C, any_hit=any_hit)
     out = pl.pallas_call(
         kernel, grid=(ntp // tb,),
-        in_specs=[pl.BlockSpec(tab.prim.shape, lambda i: (0, 0, 0)),
-                  pl.BlockSpec((C, tb), lambda i: (0, i)),
+        in_specs=[pl.BlockSpec(tab.prim.shape, lambda i: (0, 0, 0)), cand, cand,
                   pl.BlockSpec((6, tb, P), lambda i: (0, i, 0)), tile, tile],
         out_specs=[tile] * len(out_shape), out_shape=out_shape, **_params(),
-    )(*_inputs([tab.prim, ids_t, ray, lo, hi]))
+    )(*_inputs([tab.prim, ids_t, ent_t, ray, lo, hi]))
     t = out[0][:nt]
     if any_hit:
         return t

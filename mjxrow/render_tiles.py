@@ -215,7 +215,7 @@ def _nearest(t):
     return jnp.where(hit, t_min, INF), jnp.where(hit, best & low, 0)
 
 
-def _exact_fused(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool = False):
+def _exact_fused(tab: G.PlantTable, ids, entry, o, d, t_min, t_max, any_hit: bool = False):
     """`exact` as one [M = K·C, T, P] computation reduced over M in one pass (`_nearest`).
     The rays are put in memory first: computed in the same jit, they would otherwise be
     recomputed for each of the M tests."""
@@ -232,7 +232,7 @@ def _exact_fused(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: boo
             continue
         # [M, T, 12], m = j·C + c: primitive ks[j] of candidate c
         q = jnp.swapaxes(tab.prim[ks][:, ids], 1, 2).reshape(len(ks) * C, nt, 12)
-        ok = jnp.tile(valid.T, (len(ks), 1))[..., None]  # [M, T, 1]
+        ok = jnp.tile(entry.T, (len(ks), 1))[..., None] < t_hi  # [M, T, P]
         t = G.prim_hit(kd, o, d, [q[..., i:i + 1] for i in range(12)], t_lo)
         t = jnp.where(ok & (t < t_hi), t, INF)  # [M, T, P]
         if any_hit:
@@ -248,7 +248,7 @@ def _exact_fused(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: boo
     return t_best, plant, k_best
 
 
-def _exact_scan(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool = False,
+def _exact_scan(tab: G.PlantTable, ids, entry, o, d, t_min, t_max, any_hit: bool = False,
                 group: int = 4):
     """`exact` as a scan over `group` candidates at a time (one primitive slot k of each),
     elementwise over [T, group, P] (faster on CPU)."""
@@ -259,9 +259,9 @@ def _exact_scan(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool
     pad = ng * g - C
     if pad:
         ids = jnp.concatenate([ids, jnp.zeros((nt, pad), ids.dtype)], 1)
-        valid = jnp.concatenate([valid, jnp.zeros((nt, pad), bool)], 1)
+        entry = jnp.concatenate([entry, jnp.full((nt, pad), INF, entry.dtype)], 1)
     ids_g = jnp.swapaxes(ids.reshape(nt, ng, g), 0, 1)  # [ng, T, g]
-    ok_g = jnp.swapaxes(valid.reshape(nt, ng, g), 0, 1)[..., None]  # [ng, T, g, 1]
+    ent_g = jnp.swapaxes(entry.reshape(nt, ng, g), 0, 1)[..., None]  # [ng, T, g, 1]
     ray = lambda v: tuple(x[:, None, :] for x in v)  # noqa: E731  [T, P] → [T, 1, P]
     o, d, t_lo = ray(o), ray(d), t_min[:, None, :]
     t_best = jnp.full(t_max.shape, INF)
@@ -271,15 +271,15 @@ def _exact_scan(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool
         if not len(ks):
             continue
         data = tab.prim[ks][:, ids_g].reshape((-1, nt, g, 12))  # [nk·ng, T, g, 12]
-        ok = jnp.broadcast_to(ok_g, (len(ks),) + ok_g.shape).reshape((-1, nt, g, 1))
+        ent = jnp.broadcast_to(ent_g, (len(ks),) + ent_g.shape).reshape((-1, nt, g, 1))
         kk, gg = np.meshgrid(ks, np.arange(ng), indexing="ij")
         base = jnp.asarray((gg * g * K + kk).reshape(-1), jnp.int32)  # step → (group, k)
 
         def body(carry, x, kd=kd):
             t_b, s_b = carry
-            q, okq, b = x
+            q, ent_q, b = x
             t = G.prim_hit(kd, o, d, [q[..., i:i + 1] for i in range(12)], t_lo)
-            t = jnp.where(okq, t, INF)  # [T, g, P]
+            t = jnp.where(ent_q < t_max[:, None, :], t, INF)  # [T, g, P]
             tm = jnp.min(t, axis=1)
             better = tm < jnp.minimum(t_b, t_max)
             if any_hit:
@@ -289,7 +289,7 @@ def _exact_scan(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool
             return (jnp.where(better, tm, t_b), jnp.where(better, s, s_b)), None
 
         n_steps = base.shape[0]
-        (t_best, s_best), _ = jax.lax.scan(body, (t_best, s_best), (data, ok, base),
+        (t_best, s_best), _ = jax.lax.scan(body, (t_best, s_best), (data, ent, base),
                                            unroll=min(n_steps, 64) if G.unroll() else 1)
     if any_hit:
         return t_best
@@ -297,14 +297,17 @@ def _exact_scan(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool
     return t_best, plant, s_best % K
 
 
-def exact(tab: G.PlantTable, ids, valid, o, d, t_min, t_max, any_hit: bool = False, *,
+def exact(tab: G.PlantTable, ids, entry, o, d, t_min, t_max, any_hit: bool = False, *,
           kernel: str):
     """Nearest exact primitive hit of tile rays among their tile's candidates.
-    ids int32 [T, C], valid bool [T, C]; o, d: (x, y, z) tuples of [T, P] arrays (or [1, 1]:
-    the same for every ray), |d| = 1; t_min, t_max: [T, P]. Returns (t [T, P] (+inf: none in
-    (t_min, t_max)), plant int32 [T, P], k int32 [T, P]); with any_hit, t only.
+    ids int32 [T, C]; entry float32 [T, C]: a lower bound of every tile ray's distance to
+    the candidate (`cull`'s; +inf: no candidate; a ray tests only the candidates whose bound
+    lies before its t_max, and the Pallas kernel skips those beyond its hits so far);
+    o, d: (x, y, z) tuples of [T, P] arrays (or [1, 1]: the same for every ray), |d| = 1;
+    t_min, t_max: [T, P]. Returns (t [T, P] (+inf: none in (t_min, t_max)), plant int32
+    [T, P], k int32 [T, P]); with any_hit, t only.
     kernel (`render.KERNELS`; `render.resolve` picks it): "fused" (every ray against every
     candidate primitive in one reduction, `_exact_fused`), "scan" (over groups of candidates,
     `_exact_scan`) or "pallas" (one Triton kernel, `render_pallas.exact`)."""
     fn = {"fused": _exact_fused, "scan": _exact_scan, "pallas": RP.exact}[kernel]
-    return fn(tab, ids, valid, o, d, t_min, t_max, any_hit=any_hit)
+    return fn(tab, ids, jnp.asarray(entry, jnp.float32), o, d, t_min, t_max, any_hit=any_hit)

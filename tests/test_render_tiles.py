@@ -160,14 +160,27 @@ def test_tiled_exact_matches_per_plant_reference(lane_scene, kernel):
     o, d = jnp.asarray(o, jnp.float32), jnp.asarray(d, jnp.float32)
     t_min, t_max = jnp.full((6, 4), 0.01), jnp.full((6, 4), 50.0)
     xyz = lambda v: tuple(v[..., i] for i in range(3))  # noqa: E731
-    t, plant, k = RT.exact(tab, ids, valid, xyz(o), xyz(d), t_min, t_max, kernel=kernel)
-    t_any = RT.exact(tab, ids, valid, xyz(o), xyz(d), t_min, t_max, any_hit=True, kernel=kernel)
     # reference: every candidate of the ray's tile through nearest_prim
     flat = jnp.repeat(ids, 4, axis=0)
     col = lambda v: tuple(v.reshape(-1, 3)[:, i:i + 1] for i in range(3))  # noqa: E731
     tr, kr = G.nearest_prim(tab, flat, col(o), col(d), t_min.reshape(-1, 1),
                             t_max.reshape(-1, 1))
     tr = jnp.where(jnp.repeat(valid, 4, axis=0), tr, jnp.inf)
+    # entry bounds: 0 (no skipping), or the tightest lower bound (each candidate's nearest hit
+    # over its tile's rays; the Pallas kernel skips a candidate once every ray's hit is nearer)
+    tight = np.min(np.asarray(tr).reshape(6, 4, 7), axis=1)
+    for entry in (jnp.where(valid, 0.0, jnp.inf), jnp.where(valid, tight, jnp.inf)):
+        args = (tab, ids, entry, xyz(o), xyz(d), t_min, t_max)
+        t, plant, k = RT.exact(*args, kernel=kernel)
+        t_any = RT.exact(*args, any_hit=True, kernel=kernel)
+        _check_exact(t, plant, k, t_any, tr, kr, flat)
+    # a bound beyond the rays' reach: nothing is tested
+    far = RT.exact(tab, ids, jnp.full((6, 7), 60.0), xyz(o), xyz(d), t_min, t_max,
+                   kernel=kernel)[0]
+    assert np.all(np.isinf(np.asarray(far)))
+
+
+def _check_exact(t, plant, k, t_any, tr, kr, flat):
     best = np.argmin(np.asarray(tr), 1)
     t_ref = np.asarray(tr)[np.arange(24), best]
     assert np.isfinite(t_ref).sum() >= 10
@@ -238,10 +251,10 @@ def test_every_kernel_draws_obstacles_and_their_shadows_alike(lane_scene):
 
 
 def test_default_tile_follows_the_resolution():
-    assert [RD.default_tile(RD.Intrinsics(r, r)) for r in (32, 64, 100, 128, 224, 256)] == [
-        4, 4, 4, 8, 8, 16]
+    assert [RD.default_tile(RD.Intrinsics(r, r)) for r in (16, 32, 64, 100, 128, 224, 512)] == [
+        4, 4, 8, 8, 16, 16, 16]
     cfg = RD.resolve(RD.DEFAULT_CONFIG, "zucchini", RD.Intrinsics(128, 96))
-    assert cfg.tile == 4 and cfg.kernel == "scan"  # the narrower side decides; CPU: scan
+    assert cfg.tile == 8 and cfg.kernel == "scan"  # the narrower side decides; CPU: scan
 
 
 def test_kernel_environment_override(monkeypatch):
@@ -261,6 +274,6 @@ def test_config_validates():
     with pytest.raises(ValueError, match="render.kernel"):
         RD.RenderConfig(kernel="cuda")
     with pytest.raises(ValueError, match="power-of-two"):
-        RP.exact(None, jnp.zeros((2, 3), jnp.int32), jnp.ones((2, 3), bool), (0.0,) * 3,
+        RP.exact(None, jnp.zeros((2, 3), jnp.int32), jnp.zeros((2, 3)), (0.0,) * 3,
                  (0.0,) * 3, jnp.zeros((2, 9)), jnp.ones((2, 9)))
     assert dataclasses.replace(RD.DEFAULT_CONFIG, deep_keep=0).deep_keep == 0
