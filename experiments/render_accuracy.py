@@ -28,7 +28,7 @@ from mjxrow.bench import render as BR
 
 REFERENCE = RD.RenderConfig(tile=1, row_blocks=16, block_keep=64, keep=64, deep_keep=0,
                             terrain_steps=128, terrain_refine=10, shadow_row_blocks=8,
-                            shadow_block_keep=32, shadow_keep=32)
+                            shadow_block_keep=32, shadow_keep=32, obstacle_keep=8)
 
 
 def compare(preset: str, n: int, res: int, cfg: RD.RenderConfig, seed: int = 0,

@@ -111,6 +111,7 @@ class RenderConfig:
     terrain_steps: int = 16  # march samples over the ray's part in the terrain's height band
     terrain_refine: int = 7  # bisections of the first bracket before the exact triangle
     obstacles: int = 8  # nearest obstacles (ahead of the camera) tested per frame
+    obstacle_keep: int = 2  # of those, the ones per tile that its rays test (entered first)
     shadows: bool = True  # plants and obstacles cast sun shadows
     kernel: str | None = None  # how the per-ray tests run (KERNELS; None: `default_kernel`)
     near: float = 0.01  # m, nothing nearer the camera is drawn
@@ -119,7 +120,7 @@ class RenderConfig:
     def __post_init__(self):
         for name in ("tile", "row_blocks", "block_keep", "keep", "deep_row_blocks",
                      "deep_block_keep", "shadow_row_blocks", "shadow_block_keep", "shadow_keep",
-                     "terrain_steps", "obstacles"):
+                     "terrain_steps", "obstacles", "obstacle_keep"):
             v = getattr(self, name)
             if v is not None and int(v) < 1:
                 raise ValueError(f"render.{name}: must be at least 1, got {v}")
@@ -229,7 +230,13 @@ def _trace(field, shape, tab, obst, rays, cfg):
             t_ter, n_ter = T.trace_terrain(field.terrain, field.terrain_size, o, d, t_min, far,
                                            cfg.terrain_steps, cfg.terrain_refine)
     with jax.named_scope("rd_obstacles"):
-        t_obs, n_obs, branch = G.trace_obstacles(obst, o, d, t_min)
+        oid, oent = RT.cull_obstacles(obst, *RT.camera_sweep(cam, c, tan_a),
+                                      jnp.full((nt,), cfg.far, jnp.float32), cfg.obstacle_keep)
+        oc = tuple(jnp.reshape(cam[i], (1, 1)) for i in range(3))
+        t_obs, n_obs, branch = G.trace_obstacles_tiled(obst, oid, oent, oc,
+                                                       G.xyz(d.reshape(nt, npx, 3)),
+                                                       t_min.reshape(nt, npx))
+        t_obs, branch = t_obs.reshape(-1), branch.reshape(-1)
     t_far = jnp.minimum(jnp.minimum(t_ter, t_obs), far)
     t_pl, plant, k = _trace_plants(shape, tab, cam, d.reshape(nt, npx, 3), c, tan_a,
                                    t_far.reshape(nt, npx), cfg)
@@ -302,7 +309,9 @@ def _shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, nt):
     t_pl = RT.exact(tab, ids, entry, G.xyz(ot), ls, t_min.reshape(nt, -1),
                     jnp.full(ot.shape[:2], SHADOW_REACH, jnp.float32),
                     any_hit=True, kernel=cfg.kernel).reshape(-1)
-    t_ob = G.trace_obstacles(obst, o, jnp.broadcast_to(l, p.shape), t_min, any_hit=True)
+    oid, oent = RT.cull_obstacles(obst, *sweep, t_max, cfg.obstacle_keep)
+    t_ob = G.trace_obstacles_tiled(obst, oid, oent, G.xyz(ot), ls, t_min.reshape(nt, -1),
+                                   any_hit=True).reshape(-1)
     return jnp.where(jnp.isfinite(t_pl) | jnp.isfinite(t_ob), 0.0, 1.0)
 
 

@@ -290,6 +290,42 @@ def obstacle_table(field: F.Field, cam_pos, forward, n: int):
             field.obst_kind[idx] == F.BRANCH)
 
 
+def obstacle_boxes(obst):
+    """Axis-aligned boxes of an obstacle table's capsules (6 arrays [n]: x lo, x hi, y lo, ...;
+    empty (lo > hi) where not ok)."""
+    c, axis, rad, half, ok, _ = obst
+    ext = jnp.abs(axis) * half[:, None] + rad[:, None]
+    lo = jnp.where(ok[:, None], c - ext, 1e9)
+    hi = jnp.where(ok[:, None], c + ext, -1e9)
+    return [lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1], lo[:, 2], hi[:, 2]]
+
+
+def trace_obstacles_tiled(obst, ids, entry, o, d, t_min, any_hit: bool = False):
+    """`trace_obstacles` for tile rays ([T, P] arrays; o, d: (x, y, z) tuples, o may be
+    [1, 1]) against their tile's obstacles: ids int32 [T, m] into the table, entry [T, m] a
+    lower bound of the tile rays' distances (+inf: none). Returns (t [T, P] (+inf: none),
+    normal [T·P, 3] (flat), is_branch [T, P]); with any_hit, t only."""
+    c, axis, rad, half, ok, branch = obst
+    t_best = jnp.full(t_min.shape, INF)
+    j_best = jnp.zeros(t_min.shape, jnp.int32)
+    col = lambda v: v[:, None]  # noqa: E731  [T] → [T, 1]
+    for m in range(ids.shape[1]):
+        j = ids[:, m]
+        cj, aj = xyz(c[j]), xyz(axis[j])
+        t = capsule_hit(o, d, tuple(map(col, cj)), tuple(map(col, aj)), col(rad[j]),
+                        col(half[j]), t_min)
+        better = col(jnp.isfinite(entry[:, m])) & (t < t_best)
+        t_best = jnp.where(better, t, t_best)
+        j_best = jnp.where(better, col(j), j_best)
+    if any_hit:
+        return t_best
+    t0 = jnp.where(jnp.isfinite(t_best), t_best, 0.0)
+    p = jnp.stack([o[i] + t0 * d[i] for i in range(3)], -1).reshape(-1, 3)
+    jb = j_best.reshape(-1)
+    normal = capsule_normal(p, c[jb], axis[jb], half[jb])
+    return t_best, normal, branch[jb].reshape(t_best.shape)
+
+
 def trace_obstacles(obst, o, d, t_min, any_hit: bool = False):
     """Nearest obstacle hit: (t [N] (+inf: none), normal [N, 3], is_branch bool [N]); with
     any_hit, t only. One obstacle at a time (elementwise over the rays, no [N, n] arrays)."""

@@ -179,6 +179,15 @@ def cull(tab: G.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks: int,
     return ids, ent, rest
 
 
+def cull_obstacles(obst, o, c, g, tau, t_max, n: int):
+    """The n obstacles of a frame's table (`render_geom.obstacle_table`) a tile's sweep enters
+    first, by the same entry bound as the plants': (ids int32 [T, n], entry [T, n] (+inf:
+    none))."""
+    ent = _sweep_entry(o, c, g, tau, G.obstacle_boxes(obst), t_max)
+    ids = jnp.broadcast_to(jnp.arange(ent.shape[1], dtype=jnp.int32), ent.shape)
+    return _first(ent, ids, n)
+
+
 def camera_sweep(cam, c, tan_a):
     """Sweep of camera tiles: (o [T, 3], c [T, 3], g [T, 3], tau [T])."""
     return jnp.broadcast_to(cam, c.shape), c, jnp.zeros_like(c), tan_a
