@@ -27,7 +27,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-shadows", action="store_true", help="skip the shadow rays")
     p.add_argument("--tile", type=int, default=RD.DEFAULT_CONFIG.tile,
                    help="tile side [px] of the renderer's culling (default: by resolution, "
-                        "4 at 64 px)")
+                        "8 at 64 px, 16 from 128)")
     p.add_argument("--table", action="store_true",
                    help="plant tables computed outside the timed call (as an episode does once "
                         "per field)")
