@@ -234,16 +234,17 @@ def _trace(field, shape, tab, obst, rays, cfg):
         else:
             t_ter, n_ter = T.trace_terrain(field.terrain, field.terrain_size, o, d, t_min, far,
                                            cfg.terrain_steps, cfg.terrain_refine)
+    sweep = RT.camera_sweep(cam, c, tan_a)
+    oc = tuple(jnp.reshape(cam[i], (1, 1)) for i in range(3))
     with jax.named_scope("rd_obstacles"):
-        oid, oent = RT.cull_obstacles(obst, *RT.camera_sweep(cam, c, tan_a),
-                                      jnp.full((nt,), cfg.far, jnp.float32), cfg.obstacle_keep)
-        oc = tuple(jnp.reshape(cam[i], (1, 1)) for i in range(3))
+        oid, oent = RT.cull_obstacles(obst, *sweep, jnp.full((nt,), cfg.far, jnp.float32),
+                                      cfg.obstacle_keep)
         t_obs, n_obs, branch = G.trace_obstacles_tiled(obst, oid, oent, oc,
                                                        G.xyz(d.reshape(nt, npx, 3)),
                                                        t_min.reshape(nt, npx))
         t_obs, branch = t_obs.reshape(-1), branch.reshape(-1)
     t_far = jnp.minimum(jnp.minimum(t_ter, t_obs), far)
-    t_pl, plant, k = _trace_plants(shape, tab, cam, d.reshape(nt, npx, 3), c, tan_a,
+    t_pl, plant, k = _trace_plants(shape, tab, sweep, oc, d.reshape(nt, npx, 3),
                                    t_far.reshape(nt, npx), cfg)
     cls = jnp.where(jnp.isfinite(t_pl), PLANT,
                     jnp.where((t_obs < t_ter) & (t_obs < cfg.far), OBSTACLE,
@@ -258,17 +259,17 @@ def _trace(field, shape, tab, obst, rays, cfg):
     return t, cls, p, normal, plant, k, branch, local
 
 
-def _trace_plants(shape, tab, cam, d, c, tan_a, t_far, cfg):
-    """Nearest plant hit of the camera rays d [T, P, 3] (t_far [T, P]): every tile's first
+def _trace_plants(shape, tab, sweep, oc, d, t_far, cfg):
+    """Nearest plant hit of the camera rays d [T, P, 3] (t_far [T, P]; `sweep` the tiles'
+    `camera_sweep`, oc the camera as (x, y, z) of [1, 1]): every tile's first
     `keep` candidates, then the deep tiles' first `deep_keep` of a longer window. Returns
     flat (t [N] (+inf: none), plant int32 [N], k int32 [N])."""
     nt = d.shape[0]
     P = shape.max_plants_per_row
-    o, cc, g, tau = RT.camera_sweep(cam, c, tan_a)
+    o, cc, g, tau = sweep
     with jax.named_scope("rd_cull"):
         ids, entry, rest = RT.cull(tab, P, o, cc, g, tau, jnp.max(t_far, axis=1),
                                    cfg.row_blocks, cfg.block_keep, cfg.keep)
-    oc = tuple(jnp.reshape(cam[i], (1, 1)) for i in range(3))
     t_min = jnp.full(t_far.shape, cfg.near, jnp.float32)
     with jax.named_scope("rd_exact"):
         t, plant, k = RT.exact(tab, ids, entry, oc, G.xyz(d), t_min, t_far,

@@ -301,22 +301,26 @@ def obstacle_boxes(obst):
 
 
 def trace_obstacles_tiled(obst, ids, entry, o, d, t_min, any_hit: bool = False):
-    """`trace_obstacles` for tile rays ([T, P] arrays; o, d: (x, y, z) tuples, o may be
-    [1, 1]) against their tile's obstacles: ids int32 [T, m] into the table, entry [T, m] a
-    lower bound of the tile rays' distances (+inf: none). Returns (t [T, P] (+inf: none),
-    normal [T·P, 3] (flat), is_branch [T, P]); with any_hit, t only."""
-    c, axis, rad, half, ok, branch = obst
-    t_best = jnp.full(t_min.shape, INF)
-    j_best = jnp.zeros(t_min.shape, jnp.int32)
+    """Nearest obstacle hit of tile rays ([T, P] arrays; o, d: (x, y, z) tuples, o may be
+    [1, 1]) among their tile's obstacles: ids int32 [T, m] into the table (`obstacle_table`),
+    entry [T, m] a lower bound of the tile rays' distances (+inf: none). One obstacle slot at
+    a time (elementwise over the rays). Returns (t [T, P] (+inf: none), normal [T·P, 3]
+    (flat), is_branch [T, P]); with any_hit, t only."""
+    c, axis, rad, half, _, branch = obst
     col = lambda v: v[:, None]  # noqa: E731  [T] → [T, 1]
-    for m in range(ids.shape[1]):
-        j = ids[:, m]
-        cj, aj = xyz(c[j]), xyz(axis[j])
-        t = capsule_hit(o, d, tuple(map(col, cj)), tuple(map(col, aj)), col(rad[j]),
-                        col(half[j]), t_min)
-        better = col(jnp.isfinite(entry[:, m])) & (t < t_best)
-        t_best = jnp.where(better, t, t_best)
-        j_best = jnp.where(better, col(j), j_best)
+
+    def body(carry, x):
+        t_b, j_b = carry
+        j, ent = x
+        t = capsule_hit(o, d, tuple(map(col, xyz(c[j]))), tuple(map(col, xyz(axis[j]))),
+                        col(rad[j]), col(half[j]), t_min)
+        better = col(jnp.isfinite(ent)) & (t < t_b)
+        return (jnp.where(better, t, t_b), jnp.where(better, col(j), j_b)), None
+
+    m = ids.shape[1]
+    init = (jnp.full(t_min.shape, INF), jnp.zeros(t_min.shape, jnp.int32))
+    (t_best, j_best), _ = jax.lax.scan(body, init, (ids.T, entry.T),
+                                       unroll=m if unroll() else 1)
     if any_hit:
         return t_best
     t0 = jnp.where(jnp.isfinite(t_best), t_best, 0.0)
@@ -327,24 +331,15 @@ def trace_obstacles_tiled(obst, ids, entry, o, d, t_min, any_hit: bool = False):
 
 
 def trace_obstacles(obst, o, d, t_min, any_hit: bool = False):
-    """Nearest obstacle hit: (t [N] (+inf: none), normal [N, 3], is_branch bool [N]); with
-    any_hit, t only. One obstacle at a time (elementwise over the rays, no [N, n] arrays)."""
-    c, axis, rad, half, ok, branch = obst
-    oc, dc = xyz(o), xyz(d)
-    n = c.shape[0]
-    t_best = jnp.full(t_min.shape, INF)
-    j_best = jnp.zeros(t_min.shape, jnp.int32)
-
-    def body(carry, x):
-        t_b, j_b = carry
-        cj, aj, rj, hj, okj, j = x
-        t = capsule_hit(oc, dc, xyz(cj), xyz(aj), rj, hj, t_min)
-        better = okj & (t < t_b)
-        return (jnp.where(better, t, t_b), jnp.where(better, j, j_b)), None
-
-    xs = (c, axis, rad, half, ok, jnp.arange(n, dtype=jnp.int32))
-    (t_best, j_best), _ = jax.lax.scan(body, (t_best, j_best), xs, unroll=n if unroll() else 1)
+    """Nearest hit of rays o, d [N, 3] (t_min [N]) among all of a table's obstacles:
+    (t [N] (+inf: none), normal [N, 3], is_branch bool [N]); with any_hit, t only.
+    `trace_obstacles_tiled` with one tile holding every ray and every obstacle."""
+    n = obst[0].shape[0]
+    ids = jnp.arange(n, dtype=jnp.int32)[None]
+    entry = jnp.where(obst[4], 0.0, INF)[None]
+    row = lambda v: tuple(v[None, :, i] for i in range(3))  # noqa: E731  [N, 3] → [1, N] ×3
+    out = trace_obstacles_tiled(obst, ids, entry, row(o), row(d), t_min[None], any_hit)
     if any_hit:
-        return t_best
-    p = o + jnp.where(jnp.isfinite(t_best), t_best, 0.0)[:, None] * d
-    return t_best, capsule_normal(p, c[j_best], axis[j_best], half[j_best]), branch[j_best]
+        return out[0]
+    t, normal, branch = out
+    return t[0], normal, branch[0]
