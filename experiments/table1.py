@@ -24,7 +24,7 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
 from mjxrow import field as F  # noqa: E402
-from mjxrow import plants as PL  # noqa: E402
+from mjxrow.crops import prims as PL  # noqa: E402
 
 # Martini et al., Table 1: terrain L×W [m], |ΔH| [m]; plant L×W×H [m]; d_rr, d_RR, d_pp [m]; rows
 PAPER: dict[str, tuple] = {

@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--ckpt-root", default=str(C.CHECKPOINT_DIR))
-    p.add_argument("--data-root", help="dataset folder(s) written by python -m mjxrow.dataset")
+    p.add_argument("--data-root", help="dataset folder(s) written by python -m mjxrow.seg.synth")
     p.add_argument("--n", type=int, default=512, help="renders per crop without --data-root")
     p.add_argument("--batch", type=int, default=32)
     p.add_argument("--seed", type=int, default=0)

@@ -18,7 +18,7 @@ file per finished cell, so an interrupted run resumes where it stopped and a fin
 only re-assembled. The markdown table goes to `OUT/table3.md` and, except with `--smoke`, to
 `docs/table3.md` (`--doc`), and is printed.
 
-Metrics (mjxrow.metrics, as the authors' public code computes them): CHA [rad], the mean over
+Metrics (mjxrow.rollout.metrics, as the authors' public code computes them): CHA [rad], the mean over
 steps of the goal's signed bearing atan2(y_g, x_g) in the robot frame; MAE [m] and MSE [m²],
 mean |dev| and mean dev² of the lateral offset from the lane centre line; ω std [rad/s], the
 population std of the ω commands; success, the episode ended within 0.40 m of the goal. Each is
@@ -45,9 +45,9 @@ from tqdm.auto import tqdm
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from a checkout, uninstalled
-from mjxrow import config as C  # noqa: E402
-from mjxrow import metrics as M  # noqa: E402
 from mjxrow.field import CROPS  # noqa: E402
+from mjxrow.rollout import metrics as M  # noqa: E402
+from mjxrow.sweep import config as C  # noqa: E402
 
 BASE_YAML = ROOT / "sweeps" / "presets.yaml"
 
@@ -287,7 +287,7 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
     inject a fake). Returns (markdown, stats by (controller, preset))."""
     import jax
 
-    from mjxrow import sweep as S
+    from mjxrow.sweep import run as S
 
     out = Path(out)
     base = base if base is not None else load_base()

@@ -8,11 +8,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjxrow import closed_loop as CL
 from mjxrow import control as K
-from mjxrow import episode as E
 from mjxrow import field as F
-from mjxrow import render, sim
+from mjxrow import render
+from mjxrow.control import perception as CL
+from mjxrow.physics import sim
+from mjxrow.rollout import episode as E
 
 N = 2
 INTR = render.Intrinsics(40, 8, 42.0)

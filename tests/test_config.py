@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from mjxrow import config as C
+from mjxrow.sweep import config as C
 
 GT = {"perception": {"source": "ground_truth"}}
 
@@ -71,7 +71,7 @@ def test_impossible_values():
 
 
 def test_heading_alpha_reaches_the_controller():
-    from mjxrow import sweep as S
+    from mjxrow.sweep import run as S
     cell = C.expand(cfg_of({"controller": {"heading_alpha": 0.02}}))[0]
     assert float(S.controller_params(cell.cfg).heading_alpha) == pytest.approx(0.02)
     assert float(S.controller_params(cfg_of({})).heading_alpha) == pytest.approx(0.005)

@@ -6,8 +6,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjxrow import config as CFG
 from mjxrow import control as C
+from mjxrow.sweep import config as CFG
 
 H, W = 4, 40
 LANE = C.seg_params("zeros", on_end="lane", lane_alpha=0.02, lane_xy_alpha=0.1,

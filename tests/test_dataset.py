@@ -7,9 +7,9 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-from mjxrow import dataset as DS
 from mjxrow import field as F
 from mjxrow import render as RD
+from mjxrow.seg import synth as DS
 
 N, SIZE = 8, 16
 

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from mjxrow import control as C
-from mjxrow import episode as E
 from mjxrow import field as F
-from mjxrow import metrics as M
-from mjxrow import sim
+from mjxrow.physics import sim
+from mjxrow.rollout import episode as E
+from mjxrow.rollout import metrics as M
 
 B = 8
 SHAPE = F.FieldShape(crop="vineyard", max_rows=8, max_plants_per_row=32, terrain_cells=(56, 112),
@@ -289,7 +289,8 @@ def test_cli_writes_episodes_csv(tmp_path, capsys):
 def test_segzeros_on_rendered_masks_steers_back():
     """Closed loop through the renderer's ground-truth mask: from a lateral offset SegZeros
     turns back toward the lane centre (image column 0 is the left: signs end to end)."""
-    from mjxrow import closed_loop, render
+    from mjxrow import render
+    from mjxrow.control import perception as closed_loop
 
     n = 2
     params = F.make_params("vineyard", **FLAT)

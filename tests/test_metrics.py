@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mjxrow import field as F
-from mjxrow import metrics as M
+from mjxrow.rollout import metrics as M
 
 DT = 1.0 / 15.0
 summarise = jax.jit(M.summarise, static_argnums=1)

@@ -16,9 +16,9 @@ import pytest
 
 from mjxrow import field as F
 from mjxrow import render as RD
-from mjxrow import render_geom as G
-from mjxrow import render_terrain as T
-from mjxrow import worlds as WD
+from mjxrow.field import export as WD
+from mjxrow.render import geom as G
+from mjxrow.render import terrain as T
 
 H, W = 48, 64
 INTR = RD.Intrinsics(W, H, 45.0)

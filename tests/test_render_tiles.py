@@ -12,10 +12,10 @@ import pytest
 
 from mjxrow import field as F
 from mjxrow import render as RD
-from mjxrow import render_geom as G
-from mjxrow import render_pallas as RP
-from mjxrow import render_tiles as RT
 from mjxrow.bench import render as BR
+from mjxrow.render import geom as G
+from mjxrow.render import pallas as RP
+from mjxrow.render import tiles as RT
 
 COMMON = F.FieldShape(crop="zucchini", max_rows=16, max_plants_per_row=40,
                       terrain_cells=(96, 88), obstacle_slots=8)

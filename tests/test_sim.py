@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from mjxrow import field as F
-from mjxrow import robot as R
-from mjxrow import sim as S
+from mjxrow.physics import robot as R
+from mjxrow.physics import sim as S
 
 T = 45  # control periods
 BASE = dict(terrain_length=30.0, row_length=24.0, terrain_width=8.0, rows_per_group=2,

@@ -11,8 +11,8 @@ import pandas as pd
 import pytest
 import yaml
 
-from mjxrow import config as C
-from mjxrow import sweep as S
+from mjxrow.sweep import config as C
+from mjxrow.sweep import run as S
 
 BASE = {"name": "fake", "seeds": 3, "batch_size": 3,
         "perception": {"source": "ground_truth"},
@@ -206,7 +206,7 @@ REAL = {"name": "real", "seeds": 2, "batch_size": 4, "controller": {"name": "ora
 
 @pytest.fixture(scope="module")
 def real_run(tmp_path_factory):
-    from mjxrow import episode as E
+    from mjxrow.rollout import episode as E
 
     out = tmp_path_factory.mktemp("real")
     before = E.TRACES
@@ -231,7 +231,7 @@ def test_real_sweep_compiles_once_and_writes_results(real_run):
 
 
 def test_real_sweep_is_deterministic_and_resumes(real_run, tmp_path):
-    from mjxrow import episode as E
+    from mjxrow.rollout import episode as E
 
     out, _, _ = real_run
     before = E.TRACES
@@ -261,7 +261,7 @@ def test_learned_weights_are_shared_params_of_one_policy(tmp_path):
     """A learned-mask group: the checkpoint is loaded once and its weights are the shared part
     of every cell's params; another checkpoint of the same architecture gets the same policy
     (so the same compiled rollout) with other weights."""
-    from mjxrow import episode as E
+    from mjxrow.rollout import episode as E
     from mjxrow.seg import checkpoint as ckpt
     from mjxrow.seg import model as segmodel
 

@@ -16,8 +16,8 @@ import pytest  # noqa: E402
 from PIL import Image  # noqa: E402
 
 from mjxrow import field as F  # noqa: E402
-from mjxrow import plants as PL  # noqa: E402
-from mjxrow import worlds as Wd  # noqa: E402
+from mjxrow.crops import prims as PL  # noqa: E402
+from mjxrow.field import export as Wd  # noqa: E402
 
 # 12 × 12 m terrain, 2 groups of 2 rows: rows at y = -3.6, -1.8, 1.8, 3.6 (gaps 1.8, 3.6, 1.8),
 # 8 m rows with a plant every 0.7 m → 12 plants per row.

@@ -14,9 +14,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxrow import episode as E
 from mjxrow import field as F
-from mjxrow import sim
+from mjxrow.physics import sim
+from mjxrow.rollout import episode as E
 
 
 def add_args(p: argparse.ArgumentParser) -> None:

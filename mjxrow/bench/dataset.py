@@ -9,8 +9,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from mjxrow import dataset as DS
 from mjxrow import field as F
+from mjxrow.seg import synth as DS
 
 
 def add_args(p: argparse.ArgumentParser) -> None:

@@ -19,8 +19,8 @@ import jax
 import jax.numpy as jnp
 
 from mjxrow import field as F
-from mjxrow import sim as S
 from mjxrow.bench import time_call
+from mjxrow.physics import sim as S
 
 
 def add_args(p: argparse.ArgumentParser) -> None:

@@ -10,10 +10,10 @@ import jax
 import jax.numpy as jnp
 import yaml
 
-from mjxrow import dataset as DS
 from mjxrow import field as F
 from mjxrow import render as RD
 from mjxrow.bench import time_call
+from mjxrow.seg import synth as DS
 
 MAX_RAYS = 1 << 24  # rays per vmapped chunk when --chunk is 0 (bounds the [rays, ...] buffers)
 

@@ -1,6 +1,6 @@
 """Segmentation data: the dataset folder on disk (host side) and jittable batch augmentation.
 
-A dataset folder (written by `python -m mjxrow.dataset`) holds `index.csv` with columns
+A dataset folder (written by `python -m mjxrow.seg.synth`) holds `index.csv` with columns
 `rgb,mask,crop,condition,x,y,z,yaw,pitch,lateral,split` (image paths relative to the folder),
 RGB PNGs and 8-bit masks (0 / 255). Splits: the `split` column (`train` / `test`, optionally `val`).
 """
@@ -223,10 +223,11 @@ def augment(key: jax.Array, rgb: jax.Array, mask: jax.Array, *, flip: float = 0.
 
 def onthefly(crop: str, size: int, batch: int, fovy: float | None = None):
     """Jittable `fn(key) -> (rgb uint8 [batch, size, size, 3], mask bool [batch, size, size])`
-    rendered by `mjxrow.dataset.make_batch_fn`; crop "all" mixes every crop in equal parts.
+    rendered by `mjxrow.seg.synth.make_batch_fn`; crop "all" mixes every crop in equal parts.
     fovy: vertical field of view [deg], default the robot camera's."""
-    from mjxrow import dataset, render
+    from mjxrow import render
     from mjxrow.field import CROPS
+    from mjxrow.seg import synth as dataset
 
     crops = CROPS if crop == "all" else (crop,)
     if crop != "all" and crop not in CROPS:
@@ -235,7 +236,7 @@ def onthefly(crop: str, size: int, batch: int, fovy: float | None = None):
         raise ValueError(f"batch: {batch} must be a multiple of {len(crops)} with crop {crop!r}")
     if fovy is None:
         try:
-            from mjxrow.robot import RobotConfig
+            from mjxrow.physics.robot import RobotConfig
             fovy = float(RobotConfig().cam_fovy)
         except ImportError:
             fovy = 42.0

@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--crop", default="zucchini", choices=(*CROPS, "all"),
                    help="crop to evaluate on (and shipped model to load without --ckpt)")
-    p.add_argument("--data", help="dataset folder written by python -m mjxrow.dataset")
+    p.add_argument("--data", help="dataset folder written by python -m mjxrow.seg.synth")
     p.add_argument("--ckpt", help="checkpoint folder (default: the shipped model of --crop)")
     p.add_argument("--split", default="test", help="split of the folder ('all' for every row)")
     p.add_argument("--size", type=int, help="resize images to this side (default: model's)")

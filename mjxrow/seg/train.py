@@ -341,7 +341,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--crop", default="zucchini", choices=(*CROPS, "all"))
     src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--data", help="dataset folder written by python -m mjxrow.dataset")
+    src.add_argument("--data", help="dataset folder written by python -m mjxrow.seg.synth")
     src.add_argument("--on-the-fly", action="store_true", help="render batches on the device")
     p.add_argument("--arch", default="small", choices=ARCHS)
     p.add_argument("--width", type=float, default=1.0, help="width multiplier")

@@ -23,9 +23,9 @@ import jax.numpy as jnp
 import numpy as np
 from jax.experimental import pallas as pl
 
-from mjxrow import plants as PL
-from mjxrow import render_geom as G
-from mjxrow import render_terrain as RTer
+from mjxrow.crops import prims as PL
+from mjxrow.render import geom as G
+from mjxrow.render import terrain as RTer
 
 INF = jnp.inf
 BLOCK_RAYS = 512  # rays per program

@@ -39,9 +39,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxrow import plants as PL
-from mjxrow import render_geom as G
-from mjxrow import render_pallas as RP
+from mjxrow.crops import prims as PL
+from mjxrow.render import geom as G
+from mjxrow.render import pallas as RP
 
 INF = jnp.inf
 

@@ -59,13 +59,13 @@ import numpy as np
 from flax import struct
 
 from mjxrow import field as F
-from mjxrow import render_geom as G
-from mjxrow import render_pallas as RP
-from mjxrow import render_shade as S
-from mjxrow import render_terrain as T
-from mjxrow import render_tiles as RT
-from mjxrow.render_geom import PlantTable, plant_table
-from mjxrow.render_shade import CONDITIONS, Conditions, condition_by_index, conditions
+from mjxrow.render import geom as G
+from mjxrow.render import pallas as RP
+from mjxrow.render import shade as S
+from mjxrow.render import terrain as T
+from mjxrow.render import tiles as RT
+from mjxrow.render.geom import PlantTable, plant_table
+from mjxrow.render.shade import CONDITIONS, Conditions, condition_by_index, conditions
 
 __all__ = ["CONDITIONS", "DEFAULT_CONFIG", "Conditions", "Frame", "Intrinsics", "PlantTable",
            "RenderConfig", "SKY_DEPTH", "geometry", "plant_table",

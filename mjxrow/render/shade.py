@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from mjxrow import plants as PL
+from mjxrow.crops import prims as PL
 
 CONDITIONS = ("sunny", "cloudy", "crepuscular", "long_shadows")
 

@@ -76,7 +76,7 @@ from flax import struct
 from mujoco import mjx
 
 from mjxrow import field as F
-from mjxrow import robot as R
+from mjxrow.physics import robot as R
 
 TERRAIN = "terrain"  # name of the heightfield geom
 _PARK_DEPTH = 100.0  # m below the patch where unused obstacle slots wait

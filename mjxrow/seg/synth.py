@@ -1,9 +1,9 @@
 """The synthetic segmentation dataset: RGB images and binary plant masks rendered by `render.py`.
 
 CLI:
-    python -m mjxrow.dataset --crop zucchini --n 19456 --out DIR [--seed S] [--size 224]
+    python -m mjxrow.seg.synth --crop zucchini --n 19456 --out DIR [--seed S] [--size 224]
         [--test-frac F] [--batch B] [--workers W]
-    python -m mjxrow.dataset --crop zucchini --contact-sheet docs/contact_zucchini.png
+    python -m mjxrow.seg.synth --crop zucchini --contact-sheet docs/contact_zucchini.png
 
 Layout of DIR: `index.csv` (columns rgb, mask, crop, condition, x, y, z, yaw, pitch, lateral,
 split; paths relative to DIR), images `<condition>/rgb/<crop>_<i:06d>.png` (RGB, 8-bit) and
@@ -43,6 +43,7 @@ from tqdm.auto import tqdm
 
 from mjxrow import field as F
 from mjxrow import render as RD
+from mjxrow.field import params as FP
 
 PAPER_N = {"zucchini": 19456, "lettuce": 4864, "chard": 4864, "pear": 4864, "vineyard": 4864}
 TEST_FRAC = {"zucchini": 0.30, "lettuce": 0.25, "chard": 0.25, "pear": 0.25, "vineyard": 0.25}
@@ -83,7 +84,7 @@ def sample_pose(field: F.Field, key: jax.Array) -> tuple[jax.Array, jax.Array, j
     """A camera pose in `field`: (cam_pos float32 [3], cam_rot float32 [3, 3],
     meta float32 [6] = x, y, z [m], yaw, pitch [rad], lateral offset from the lane centre [m])."""
     ks = jax.random.split(key, 10)
-    q = F._scaled(field.params)
+    q = FP._scaled(field.params)
     free = field.lane_width - q["plant_width"]
     fits = field.lane_active & (free >= F.ROBOT_WIDTH + F.LANE_CLEARANCE)
     robot_lanes = jnp.any(fits)
@@ -315,7 +316,7 @@ def _check_writable(out: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m mjxrow.dataset",
+    ap = argparse.ArgumentParser(prog="python -m mjxrow.seg.synth",
                                  description=__doc__.split("\n")[0])
     ap.add_argument("--crop", required=True, choices=F.CROPS)
     ap.add_argument("--n", type=int, help=f"number of samples (paper: {PAPER_N})")

@@ -18,8 +18,8 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 import yaml  # noqa: E402
 
-from mjxrow import config as C  # noqa: E402
-from mjxrow import metrics as M  # noqa: E402
+from mjxrow.rollout import metrics as M  # noqa: E402
+from mjxrow.sweep import config as C  # noqa: E402
 
 # metric → (title, unit, format, better: "high" | "low" | None)
 METRICS: dict[str, tuple[str, str, str, str | None]] = {

@@ -46,9 +46,9 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
-from mjxrow import config as C
 from mjxrow import field as F
-from mjxrow import plots
+from mjxrow.sweep import config as C
+from mjxrow.sweep import report as plots
 
 Evaluator = Callable[["Group", C.SweepConfig, Callable[[pd.DataFrame], None]], pd.DataFrame]
 
@@ -169,9 +169,10 @@ def _generate_fn():
 
 def static_configs(cfg: C.SweepConfig, shape: F.FieldShape):
     """(RobotConfig, EpisodeConfig, Intrinsics) of a group's static values."""
-    from mjxrow import episode as E
-    from mjxrow import render, sim
-    from mjxrow import robot as R
+    from mjxrow import render
+    from mjxrow.physics import robot as R
+    from mjxrow.physics import sim
+    from mjxrow.rollout import episode as E
 
     ep, cam = cfg.episode, cfg.camera
     robot_cfg = R.RobotConfig(v_max=ep.v_max, omega_max=ep.omega_max,
@@ -186,7 +187,7 @@ def static_configs(cfg: C.SweepConfig, shape: F.FieldShape):
 
 def start_noise(cfg: C.SweepConfig):
     """The start-pose noise of one cell (sim.PoseNoise of jax scalars: traced, per episode)."""
-    from mjxrow import sim
+    from mjxrow.physics import sim
 
     ep = cfg.episode
     return sim.pose_noise(ep.start_offset_std, math.radians(ep.start_yaw_std))
@@ -214,8 +215,8 @@ def make_policy(cfg: C.SweepConfig, shape: F.FieldShape, intr):
     `(PerceptionParams(condition, threshold, segmenter weights), controller gains)`: the
     weights are loaded once and the same object for every cell (shared by a batch, see
     `params_axes`), everything else per cell and traced."""
-    from mjxrow import closed_loop
     from mjxrow import control as K
+    from mjxrow.control import perception as closed_loop
 
     name = cfg.controller.name
     if name == "oracle":
@@ -233,7 +234,7 @@ def make_policy(cfg: C.SweepConfig, shape: F.FieldShape, intr):
 def params_axes(cfg: C.SweepConfig):
     """vmap axes of a group's policy params (episode.rollout's params_axes): the oracle's all
     per episode; a mask controller's segmenter weights shared, the rest per episode."""
-    from mjxrow import closed_loop
+    from mjxrow.control import perception as closed_loop
 
     return 0 if cfg.controller.name == "oracle" else closed_loop.PARAMS_AXES
 
@@ -245,7 +246,7 @@ def _stack(trees):
 def _put_params(params, axes, batched, replicated, placed: dict):
     """device_put of policy params: per-episode parts sharded on the batch, shared parts
     replicated, each shared object once (`placed`: id → its placed copy, kept by the caller)."""
-    from mjxrow import episode as E
+    from mjxrow.rollout import episode as E
 
     treedef, leaves = E.canonical_axes(axes)
     out = []
@@ -264,9 +265,9 @@ def evaluate_group(group: Group, cfg: C.SweepConfig,
     """Run `group.episodes` in batches of `cfg.batch_size` (the last one padded, so one compile
     per group), sharded over all local devices, calling `on_batch_done(rows)` after each batch.
     Rows: cell, episode, lane and every metric of `metrics.summarise` (reason as its name)."""
-    from mjxrow import episode as E
-    from mjxrow import metrics as M
-    from mjxrow import sim
+    from mjxrow.physics import sim
+    from mjxrow.rollout import episode as E
+    from mjxrow.rollout import metrics as M
 
     shape, gcfg = group.shape, group.cfg
     robot_cfg, ep_cfg, intr = static_configs(gcfg, shape)

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from mjxrow import plants
+from mjxrow.crops import prims as plants
 from mjxrow.field import Field
 
 # Termination reasons; code 0 marks a step at which the episode is still running. `off_patch`:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from mjxrow.render_geom import INF, slab, unroll
+from mjxrow.render.geom import INF, slab, unroll
 
 
 def _eval(heights, shape, size, x, y):

@@ -17,7 +17,8 @@ import numpy as np
 from flax import struct
 
 from mjxrow import field as F
-from mjxrow import plants as PL
+from mjxrow.crops import prims as PL
+from mjxrow.field import params as FP
 
 INF = jnp.inf
 BLOCK = 4  # plants per block of the first culling level
@@ -202,7 +203,7 @@ def plant_table(field: F.Field, shape: F.FieldShape) -> PlantTable:
         [0, 3, 1, 4, 2, 5])]
     lat = jnp.maximum(hi[..., 1] - field.row_y[:, None], field.row_y[:, None] - lo[..., 1])
     reach_y = jnp.max(jnp.where(act, lat, 0.0))
-    d_pp = F._scaled(field.params)["d_pp"]
+    d_pp = FP._scaled(field.params)["d_pp"]
     x0 = field.row_x[0]
     x_nom = x0 + jnp.arange(P, dtype=jnp.float32) * d_pp
     reach_x = jnp.max(jnp.where(act, jnp.maximum(hi[..., 0] - x_nom, x_nom - lo[..., 0]), 0.0))

@@ -1,0 +1,178 @@
+"""Field generation: the terrain (one triangulation, as MuJoCo's heightfield), plants, rows,
+lanes and obstacles of one field from its FieldParams, static FieldShape and a PRNG key."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from mjxrow.field.params import (
+    BRANCH,
+    LANE_CLEARANCE,
+    N_TERRAIN_MODES,
+    ROBOT_WIDTH,
+    STONE,
+    Field,
+    FieldParams,
+    FieldShape,
+    _layout,
+    _scaled,
+    checks,
+)
+
+# ---------------------------------------------------------------------------------------------
+# Terrain
+
+
+def terrain_axes(terrain_size: jax.Array, cells: tuple[int, int]) -> tuple[jax.Array, jax.Array]:
+    """Sample coordinates: x [NX] and y [NY] in metres (MuJoCo hfield layout: row j ↔ y)."""
+    ny, nx = cells
+    x = (jnp.linspace(0.0, 1.0, nx) - 0.5) * terrain_size[0]
+    y = (jnp.linspace(0.0, 1.0, ny) - 0.5) * terrain_size[1]
+    return x, y
+
+
+def terrain_height(terrain: jax.Array, terrain_size: jax.Array, x: jax.Array,
+                   y: jax.Array) -> jax.Array:
+    """Height [m] of the terrain surface at (x, y) (any matching shapes), matching MuJoCo's
+    heightfield triangulation: each cell is split along the diagonal from (i, j) to
+    (i + 1, j + 1). Points outside the grid take the nearest edge height."""
+    ny, nx = terrain.shape
+    u = jnp.clip((x / terrain_size[0] + 0.5) * (nx - 1), 0.0, nx - 1 - 1e-4)
+    v = jnp.clip((y / terrain_size[1] + 0.5) * (ny - 1), 0.0, ny - 1 - 1e-4)
+    i = jnp.floor(u).astype(jnp.int32)
+    j = jnp.floor(v).astype(jnp.int32)
+    fu, fv = u - i, v - j
+    h00 = terrain[j, i]
+    h10 = terrain[j, i + 1]
+    h01 = terrain[j + 1, i]
+    h11 = terrain[j + 1, i + 1]
+    lower = h00 + fu * (h10 - h00) + fv * (h11 - h10)  # triangle (00, 10, 11): fu >= fv
+    upper = h00 + fv * (h01 - h00) + fu * (h11 - h01)  # triangle (00, 01, 11): fv > fu
+    return jnp.where(fu >= fv, lower, upper)
+
+
+def _terrain(q, cells, key) -> tuple[jax.Array, jax.Array]:
+    size = jnp.stack([q["terrain_length"], q["terrain_width"]])
+    x, y = terrain_axes(size, cells)
+    kd, kp, ka = jax.random.split(key, 3)
+    # isotropic band-limited noise: wavelengths spread around terrain_scale
+    ang = jax.random.uniform(kd, (N_TERRAIN_MODES,), maxval=2 * jnp.pi)
+    lam = q["terrain_scale"] * jnp.exp(jax.random.uniform(ka, (N_TERRAIN_MODES,), minval=-0.7,
+                                                          maxval=0.7))
+    k = 2 * jnp.pi / lam
+    phase = jax.random.uniform(kp, (N_TERRAIN_MODES,), maxval=2 * jnp.pi)
+    amp = lam / q["terrain_scale"]  # longer waves a little stronger
+    # Σ_m amp·cos(kx·x + ky·y + φ), separated into two [NY, M] × [M, NX] products
+    ax = x[None, :] * (k * jnp.cos(ang))[:, None] + phase[:, None]  # [M, NX]
+    by = y[:, None] * (k * jnp.sin(ang))[None, :]  # [NY, M]
+    rough = (jnp.cos(by) * amp) @ jnp.cos(ax) - (jnp.sin(by) * amp) @ jnp.sin(ax)
+    rough = rough - 0.5 * (rough.max() + rough.min())
+    rough = rough / jnp.maximum(rough.max() - rough.min(), 1e-6) * q["terrain_dh"]
+    heights = rough + q["slope_x"] * x[None, :] + q["slope_y"] * y[:, None]
+    return heights.astype(jnp.float32), size
+
+
+# ---------------------------------------------------------------------------------------------
+# Generation
+
+
+def generate(params: FieldParams, shape: FieldShape, key: jax.Array) -> Field:
+    """One field from scalar `params` (pure, jittable; vmap over params and key for a batch)."""
+    R, P, S = shape.max_rows, shape.max_plants_per_row, shape.obstacle_slots
+    q = _scaled(params)
+    lay = _layout(q)
+    k_ter, k_pos, k_size, k_yaw, k_phase, k_miss, k_obs = jax.random.split(key, 7)
+
+    terrain, tsize = _terrain(q, shape.terrain_cells, k_ter)
+
+    # rows: groups of rows_per_group, centred on y = 0
+    r = jnp.arange(R, dtype=jnp.float32)
+    rpg = q["rows_per_group"]
+    g, jr = jnp.floor(r / rpg), jnp.mod(r, rpg)
+    span = (lay["n_groups"] - 1.0) * lay["pitch"] + lay["group_w"]
+    row_y = -0.5 * span + g * lay["pitch"] + jr * q["d_rr"]
+    row_active = r < lay["n_rows"]
+    row_y = jnp.where(row_active, row_y, 0.0)
+
+    # plants on each row
+    x0 = -0.5 * q["row_length"]
+    i = jnp.arange(P, dtype=jnp.float32)
+    jit_xy = jax.random.normal(k_pos, (R, P, 2)) * q["plant_jitter"]
+    px = x0 + i[None, :] * q["d_pp"] + jit_xy[..., 0]
+    py = row_y[:, None] + jit_xy[..., 1]
+    pz = terrain_height(terrain, tsize, px, py)
+    size_nom = jnp.stack([q["plant_length"], q["plant_width"], q["plant_height"]])
+    size_f = jnp.clip(1.0 + q["plant_size_var"] * jax.random.normal(k_size, (R, P, 1)), 0.5, 1.5)
+    plant_active = (
+        row_active[:, None]
+        & (i[None, :] < lay["n_plants"])
+        & (jax.random.uniform(k_miss, (R, P)) >= q["p_missing"])
+    )
+    plant_yaw = jax.random.uniform(k_yaw, (R, P), minval=-jnp.pi, maxval=jnp.pi)
+
+    # lanes between consecutive rows
+    lane_y = 0.5 * (row_y[1:] + row_y[:-1])
+    lane_width = row_y[1:] - row_y[:-1]
+    lane_active = row_active[1:] & row_active[:-1]
+
+    # obstacles in the lanes: first the stones, then the branches
+    ko = jax.random.split(k_obs, 6)
+    s = jnp.arange(S, dtype=jnp.float32)
+    is_stone = s < lay["n_stones"]
+    obst_active = s < lay["n_stones"] + lay["n_branches"]
+    n_lanes = jnp.maximum(lay["n_rows"] - 1.0, 1.0)
+    lane_idx = jnp.floor(jax.random.uniform(ko[0], (S,)) * n_lanes).astype(jnp.int32)
+    lane_idx = jnp.clip(lane_idx, 0, R - 2)
+    free = jnp.maximum(lane_width[lane_idx] - q["plant_width"], 0.2)
+    oy = lane_y[lane_idx] + (jax.random.uniform(ko[1], (S,)) - 0.5) * 0.8 * free
+    ox = (jax.random.uniform(ko[2], (S,)) - 0.5) * q["row_length"]
+    stone_r = q["scale"] * jax.random.uniform(ko[3], (S,), minval=0.03, maxval=0.08)
+    branch_r = q["scale"] * jax.random.uniform(ko[3], (S,), minval=0.015, maxval=0.035)
+    branch_half = q["scale"] * jax.random.uniform(ko[4], (S,), minval=0.25, maxval=0.7)
+    radius = jnp.where(is_stone, stone_r, branch_r)
+    obst_size = jnp.stack([radius, jnp.where(is_stone, 0.0, branch_half)], -1)
+    # stones sunk to half their radius; branches lie on the ground
+    oz = terrain_height(terrain, tsize, ox, oy) + jnp.where(is_stone, 0.5, 1.0) * radius
+    obst_pos = jnp.stack([ox, oy, oz], -1)
+    obst_yaw = jax.random.uniform(ko[5], (S,), minval=-jnp.pi, maxval=jnp.pi)
+
+    valid = jnp.all(jnp.stack([jnp.all(ok) for ok, _ in checks(params, shape).values()]))
+    return Field(
+        params=params,
+        plant_pos=jnp.stack([px, py, pz], -1).astype(jnp.float32),
+        plant_size=(size_nom * size_f).astype(jnp.float32),
+        plant_yaw=plant_yaw.astype(jnp.float32),
+        plant_phase=jax.random.uniform(k_phase, (R, P)),
+        plant_active=plant_active,
+        plant_row=jnp.broadcast_to(jnp.arange(R, dtype=jnp.int32)[:, None], (R, P)),
+        row_y=row_y.astype(jnp.float32),
+        row_active=row_active,
+        row_x=jnp.stack([x0, x0 + (lay["n_plants"] - 1.0) * q["d_pp"]]).astype(jnp.float32),
+        lane_y=lane_y.astype(jnp.float32),
+        lane_width=lane_width.astype(jnp.float32),
+        lane_active=lane_active,
+        terrain=terrain,
+        terrain_size=tsize.astype(jnp.float32),
+        obst_pos=obst_pos.astype(jnp.float32),
+        obst_size=obst_size.astype(jnp.float32),
+        obst_yaw=obst_yaw.astype(jnp.float32),
+        obst_kind=jnp.where(is_stone, STONE, BRANCH).astype(jnp.int32),
+        obst_active=obst_active,
+        n_rows=lay["n_rows"].astype(jnp.int32),
+        valid=valid,
+    )
+
+
+def robot_lane(field: Field, robot_width: float = ROBOT_WIDTH) -> jax.Array:
+    """Index of the lane the robot drives by default (traced int32 []): the lane nearest the
+    field centre whose free width (lane width − plant width) fits the robot; in-group lanes are
+    preferred, so lettuce and chard fall back to the wider lane between groups."""
+    q = _scaled(field.params)
+    free = field.lane_width - q["plant_width"]
+    fits = field.lane_active & (free >= robot_width + LANE_CLEARANCE)
+    lane = jnp.arange(field.lane_y.shape[-1], dtype=jnp.float32)
+    in_group = jnp.mod(lane + 1.0, q["rows_per_group"]) != 0
+    prefer_group = jnp.any(fits & in_group)
+    penalty = jnp.where(fits, 0.0, 1e6) + jnp.where(prefer_group & ~in_group, 1e3, 0.0)
+    return jnp.argmin(jnp.abs(field.lane_y) + penalty).astype(jnp.int32)

@@ -1,0 +1,7 @@
+"""`python -m mjxrow.sweep SWEEP.yaml [--out DIR] [--smoke] [--set KEY=VALUE ...]`."""
+
+import sys
+
+from mjxrow.sweep.run import main
+
+sys.exit(main())
