@@ -52,6 +52,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -85,16 +86,17 @@ KERNELS = ("scan", "fused", "pallas")
 class Intrinsics:
     """Pinhole camera (static). Defaults: the robot's camera (vertical fov 42°)."""
 
-    width: int = 128
-    height: int = 128
-    fovy: float = 42.0  # vertical field of view [deg]
+    width: int = 64  # px, image width
+    height: int = 64  # px, image height
+    fovy: float = 42.0  # deg, vertical field of view (the robot's camera; the horizontal one
+    # follows from width / height)
 
     def __post_init__(self):
         if int(self.width) < 1 or int(self.height) < 1:
-            raise ValueError(f"intrinsics: width and height must be positive, got "
+            raise ValueError(f"camera.width/height: must be positive, got "
                              f"{self.width}x{self.height}")
         if not 0.0 < float(self.fovy) < 180.0:
-            raise ValueError(f"intrinsics.fovy: must lie in (0, 180) degrees, got {self.fovy}")
+            raise ValueError(f"camera.fovy: must lie in (0, 180) degrees, got {self.fovy}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -121,6 +123,8 @@ class RenderConfig:
     kernel: str | None = None  # how the per-ray tests run (KERNELS; None: `default_kernel`)
     near: float = 0.01  # m, nothing nearer the camera is drawn
     far: float = 150.0  # m, nothing further is drawn
+
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"kernel": KERNELS}
 
     def __post_init__(self):
         for name in ("tile", "row_blocks", "block_keep", "keep", "deep_row_blocks",
