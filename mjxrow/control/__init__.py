@@ -6,6 +6,7 @@ A new controller is one module that builds a `Controller` and calls `register`, 
 line below."""
 
 from mjxrow.control import oracle, segzeros  # noqa: E402,I001  (registry lines)
+from mjxrow.control import policy  # noqa: E402,I001  (registry line: the learned policy)
 from mjxrow.control.base import (
     CONTROLLERS,
     Controller,

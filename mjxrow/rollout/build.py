@@ -191,6 +191,9 @@ def build(runs: RunConfig | Sequence[RunConfig], shape: F.FieldShape | None = No
         policy, base = perception.make(c.name, shape, first.camera, first.perception.source,
                                        first.checkpoint_path(), render_cfg=first.render)
         axes = perception.PARAMS_AXES
+    elif getattr(c, "make_policy", None) is not None:  # renders its own image (control.policy)
+        policy, base = c.make_policy(first, shape)
+        axes = perception.PARAMS_AXES
     else:
         policy, axes = control.as_policy(c), 0
     mesh = jax.sharding.Mesh(np.array(list(devices or jax.devices())), ("batch",))

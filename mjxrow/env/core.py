@@ -1,0 +1,266 @@
+"""A Brax / MuJoCo Playground-style environment for training navigation policies in row-crop
+fields: `reset(rng) -> State`, `step(state, action) -> State` on ONE world (pure; jit and vmap
+outside, batching in `env.wrappers`).
+
+The environment is a client of the run builder: `Env(run, cfg)` takes the static pieces (the
+MJX model, the episode settings, robot, camera intrinsics and render config) from
+`rollout.build.build(run, shape=...)`, with the field shape fitted to the corners of the
+randomisation ranges. Every reset draws a new world (`env.randomize`): FieldParams from the
+ranges, a field, its lane, its MJX model arrays (`sim.world_model`), a start pose, a sky /
+lighting condition, a camera-mount jitter; the renderer's plant table is computed once there
+and kept in the state. Each step: action → (v, ω) → one control period of MJX physics → the
+episode's end events (as `rollout.episode`) → reward terms → a new camera frame → observation.
+
+The run's controller (`controller.name`, default oracle) is the TEACHER: its command for the
+current observation, normalised to [-1, 1], is `state.info["teacher_action"]` (behaviour
+cloning and DAgger label with it; a mask controller sees the renderer's ground-truth mask).
+
+Navigation metrics: the state keeps the episode's `metrics.Log` ([T] per step, T the episode's
+control steps), and the step that ends an episode reports `metrics.summarise` of it (success,
+CHA, MAE, MSE, ω std, ...) in `state.metrics["nav/<name>"]`: the sweep's numbers, by the
+sweep's function. `state.metrics` also holds each reward term (`reward/<term>`) and the
+episode's return (`return`, valid where `done`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from mjxrow import control, render
+from mjxrow import field as F
+from mjxrow.env import observe as O
+from mjxrow.env import randomize as RZ
+from mjxrow.env import reward as RW
+from mjxrow.physics import sim
+from mjxrow.rollout import build as B
+from mjxrow.rollout import metrics as M
+from mjxrow.rollout.config import ControllerChoice, RunConfig
+
+NAV_METRICS = ("success", "collision", "reason", "cha", "mae", "mse", "omega_std", "v_mean",
+               "time", "path_ratio", "max_offset")
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvConfig:
+    """Environment settings beyond the run's (static, hashable)."""
+
+    observation: str = "rgb"  # what the policy sees: 'rgb', 'mask' or 'features' (env.observe)
+    proprio: bool = True  # odometry (v, ω) and the previous action in the observation
+    randomize: RZ.Randomize = RZ.Randomize()  # what every reset draws
+    reward: RW.RewardConfig = RW.RewardConfig()  # reward weights
+
+    def __post_init__(self):
+        O.ObsSpec(kind=self.observation)  # checks the kind
+
+
+@struct.dataclass
+class State:
+    """One world's environment state (Playground's `mjx_env.State`): `data` the simulation
+    and episode bookkeeping, `obs` the observation dict, `reward` float32 [], `done` float32 []
+    (1.0 at the step that ended the episode), `metrics` dict of float32 [], `info` dict
+    (teacher_action float32 [2], truncation float32 [], and what wrappers add)."""
+
+    data: Any
+    obs: dict
+    reward: jax.Array
+    done: jax.Array
+    metrics: dict
+    info: dict
+
+
+@struct.dataclass
+class EnvData:
+    """The world and its episode (one world)."""
+
+    sim: sim.SimState
+    world: dict  # the world's model arrays (sim.WORLD_FIELDS), written by sim.world_model
+    field: F.Field
+    table: tuple  # the arrays of the field's render.PlantTable (Env rebuilds the table)
+    lane: jax.Array  # int32 [], the driven lane
+    goal: jax.Array  # float32 [2], (x, y) [m]
+    cond: Any  # render.Conditions of the episode
+    jitter: jax.Array  # float32 [3], camera (height [m], pitch [rad], roll [rad]) offsets
+    key: jax.Array  # PRNG key of the episode's sensor noise
+    prev_action: jax.Array  # float32 [2], in [-1, 1]
+    anchor: jax.Array  # float32 [2], position at the last stuck check [m]
+    t: jax.Array  # int32 [], control steps since reset
+    ret: jax.Array  # float32 [], return so far
+    teacher: Any  # the teacher controller's state
+    log: M.Log  # the episode so far ([T] per step)
+
+
+def teacher_run(run: RunConfig) -> RunConfig:
+    """The run with its controller replaced by the oracle (for the builder: no segmenter or
+    policy checkpoint is loaded)."""
+    from mjxrow.control.oracle import OracleConfig
+
+    return dataclasses.replace(run, controller=ControllerChoice("oracle", OracleConfig()))
+
+
+class Env:
+    """The environment of one RunConfig (preset, sim, robot, camera, render, episode,
+    perception; the controller is the teacher) and an EnvConfig. Holds only static values
+    and the MJX model; `reset` and `step` are pure functions of their arguments."""
+
+    def __init__(self, run: RunConfig, cfg: EnvConfig = EnvConfig(), device=None):
+        self.run, self.cfg = run, cfg
+        rz = cfg.randomize
+        self.ranges = rz.resolved(run.preset)
+        self.base = run.field_params()
+        shape = F.fit_shape(RZ.corner_params(self.base, self.ranges), run.preset)
+        RZ.check_ranges(self.base, self.ranges, shape)
+        built = B.build(teacher_run(run), shape=shape,
+                        devices=[device or jax.devices()[0]])
+        self.shape, self.mx, self.episode = built.shape, built.mx, built.episode
+        self.intr, self.render_cfg = run.camera, run.render
+        robot = run.robot_config()
+        self.limits = jnp.asarray([robot.v_max, robot.omega_max], jnp.float32)
+        rn = sim.robot_numbers(self.mx)
+        self.half = (0.5 * rn["length"], 0.5 * rn["width"])
+        self.spec = O.ObsSpec(cfg.observation, run.camera.height, run.camera.width,
+                              cfg.proprio)
+        self.seg = O.segmenter_for(run, self.spec)
+        tc = control.get(run.controller.name)
+        if getattr(tc, "make_policy", None) is not None:
+            raise ValueError(f"controller.name: {tc.name!r} cannot be the teacher (it needs a "
+                             f"trained policy); use oracle or segzeros")
+        self.teacher = tc
+        self.teacher_params = run.controller_params()
+        # the plant table's static part (numpy primitive kinds) stays here; the state holds its
+        # arrays, so states of different resets share one tree structure
+        self._table_def = jax.tree.structure(jax.eval_shape(
+            lambda k: render.plant_table(F.generate(self.base, self.shape, k), self.shape),
+            jax.random.key(0)))
+
+    # -- static facts ---------------------------------------------------------------------
+
+    @property
+    def dt(self) -> float:
+        """s, one control period."""
+        return self.episode.control_dt
+
+    @property
+    def action_size(self) -> int:
+        return 2
+
+    @property
+    def n_steps(self) -> int:
+        """Control steps before the episode's timeout."""
+        return self.episode.n_steps
+
+    def observation_shapes(self) -> dict[str, tuple[int, ...]]:
+        obs = jax.eval_shape(self.reset, jax.random.key(0)).obs
+        return {k: tuple(v.shape) for k, v in obs.items()}
+
+    # -- pieces -----------------------------------------------------------------------------
+
+    def model(self, world: dict):
+        """The MJX model of one world from its arrays (EnvData.world)."""
+        return self.mx.tree_replace(world)
+
+    def frame(self, d: EnvData, s: sim.SimState, key: jax.Array | None):
+        cam_pos, cam_rot = O.camera_jitter(*sim.camera_pose(s), d.jitter)
+        table = jax.tree.unflatten(self._table_def, d.table)
+        return render.render(d.field, self.shape, cam_pos, cam_rot, self.intr, d.cond, key,
+                             self.render_cfg, table=table)
+
+    def _teach(self, d: EnvData, s: sim.SimState, frame, tstate):
+        cam_pos, cam_rot = sim.camera_pose(s)
+        obs = control.Obs(pose=sim.pose(s), lane_y=d.goal[1], lane_end_x=d.goal[0],
+                          goal=d.goal, cam_pos=cam_pos, cam_rot=cam_rot, field=d.field,
+                          mask=frame.mask, depth=frame.depth)
+        tstate, cmd = self.teacher.act(self.teacher_params, tstate, obs)
+        return tstate, O.normalise_command(jnp.asarray(cmd, jnp.float32), self.limits)
+
+    def _sensor_key(self, d: EnvData, t):
+        return jax.random.fold_in(d.key, t) if self.cfg.randomize.sensor_noise else None
+
+    def _empty_log(self, p0, goal, lane_y) -> M.Log:
+        T = self.n_steps
+        return M.Log(pose=jnp.full((T, 3), jnp.nan), cmd=jnp.zeros((T, 2)),
+                     alive=jnp.zeros(T, bool), event=jnp.zeros(T, jnp.int32), start=p0,
+                     goal=goal, lane_y=lane_y, reason=jnp.int32(M.RUNNING),
+                     steps=jnp.int32(0), vel=jnp.full((T, 2), jnp.nan))
+
+    def _metrics(self, parts, log, ret):
+        out = {f"reward/{k}": v.astype(jnp.float32) for k, v in parts.items()}
+        nav = M.summarise(log, self.dt)
+        out.update({f"nav/{k}": jnp.asarray(nav[k], jnp.float32) for k in NAV_METRICS})
+        out["return"] = ret
+        return out
+
+    # -- the environment --------------------------------------------------------------------
+
+    def reset(self, rng: jax.Array) -> State:
+        """A new world and episode from PRNG key `rng` (one world; pure)."""
+        rz, scfg = self.cfg.randomize, self.episode.sim
+        ks = jax.random.split(rng, 8)
+        params = RZ.sample_params(self.base, self.ranges, ks[0])
+        field = F.generate(params, self.shape, ks[1])
+        lane = F.robot_lane(field)
+        m = sim.world_model(self.mx, field, lane, scfg)
+        ahead = rz.start_progress * scfg.path_length * jax.random.uniform(ks[2])
+        start = field.replace(row_x=field.row_x.at[1].add(ahead))  # start `ahead` m closer
+        noise = sim.pose_noise(rz.start_offset_std, math.radians(rz.start_yaw_std_deg))
+        s0 = sim.reset(m, start, lane, ks[3], scfg, noise)
+        goal = jnp.stack([field.row_x[1], field.lane_y[lane]])
+        p0 = sim.pose(s0)
+        d = EnvData(sim=s0, world={k: getattr(m, k) for k in sim.WORLD_FIELDS}, field=field,
+                    table=tuple(jax.tree.leaves(render.plant_table(field, self.shape))),
+                    lane=lane, goal=goal,
+                    cond=RZ.sample_condition(rz, ks[4]), jitter=RZ.sample_jitter(rz, ks[5]),
+                    key=ks[6], prev_action=jnp.zeros(2), anchor=p0[:2], t=jnp.int32(0),
+                    ret=jnp.float32(0.0), teacher=None, log=self._empty_log(p0, goal, goal[1]))
+        frame = self.frame(d, s0, self._sensor_key(d, 0))
+        tstate, teacher = self._teach(d, s0, frame, self.teacher.init(self.teacher_params))
+        d = d.replace(teacher=tstate)
+        obs = O.observe(self.spec, frame, self.seg, jnp.zeros(2), d.prev_action, self.limits)
+        zero = jnp.float32(0.0)
+        parts = {k: zero for k in RW.TERMS}
+        return State(data=d, obs=obs, reward=zero, done=zero,
+                     metrics=self._metrics(parts, d.log, zero),
+                     info={"teacher_action": teacher, "truncation": zero})
+
+    def step(self, state: State, action: jax.Array) -> State:
+        """One control step under `action` float [2] in [-1, 1] (clipped). A state whose
+        episode is done stays as it is (auto-reset wrappers replace it)."""
+        d, scfg = state.data, self.episode.sim
+        a = jnp.clip(jnp.asarray(action, jnp.float32), -1.0, 1.0)
+        cmd = O.scale_action(a, self.limits)
+        m = self.model(d.world)
+        s_new = sim.step(m, d.sim, cmd, scfg)
+        bad = sim.is_bad(s_new, scfg) | ~jnp.all(jnp.isfinite(cmd))
+        p_old, p = sim.pose(d.sim), sim.pose(s_new)
+        reason = RW.end_reason(m, s_new, bad, d.t, d.anchor, d.goal, d.field, self.half,
+                               self.episode)
+        s_next = jax.tree.map(lambda x, y: jnp.where(bad, x, y), d.sim, s_new)
+        check = (d.t + 1) % self.episode.stuck_window == 0
+        log = d.log
+        t = jnp.minimum(d.t, self.n_steps - 1)
+        log = log.replace(pose=log.pose.at[t].set(p), cmd=log.cmd.at[t].set(cmd),
+                          alive=log.alive.at[t].set(True), event=log.event.at[t].set(reason),
+                          vel=log.vel.at[t].set(jnp.where(bad, jnp.nan, sim.velocity(s_new))),
+                          reason=reason, steps=d.t + 1)
+        parts = RW.terms(p_old, p, d.goal[1], reason, self.dt)
+        r = RW.total(self.cfg.reward, parts)
+        d_new = d.replace(sim=s_next, prev_action=a, t=d.t + 1, ret=d.ret + r, log=log,
+                          anchor=jnp.where(check, p[:2], d.anchor))
+        frame = self.frame(d_new, s_next, self._sensor_key(d_new, d_new.t))
+        tstate, teacher = self._teach(d_new, s_next, frame, d.teacher)
+        d_new = d_new.replace(teacher=tstate)
+        vel = O.odometry(p_old, sim.pose(s_next), self.dt)
+        obs = O.observe(self.spec, frame, self.seg, vel, a, self.limits)
+        done = (reason != M.RUNNING).astype(jnp.float32)
+        new = State(data=d_new, obs=obs, reward=r, done=done,
+                    metrics=self._metrics(parts, log, d_new.ret),
+                    info={**state.info, "teacher_action": teacher,
+                          "truncation": (reason == M.TIMEOUT).astype(jnp.float32)})
+        was_done = state.done > 0
+        return jax.tree.map(lambda x, y: jnp.where(was_done, x, y),
+                            state.replace(reward=jnp.zeros_like(state.reward)), new)

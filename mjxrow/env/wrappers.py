@@ -1,0 +1,162 @@
+"""Training wrappers, with Brax's conventions (`brax/envs/wrappers/training.py`):
+
+    env = AutoResetWrapper(VmapWrapper(EpisodeWrapper(Env(run, cfg), episode_length),
+                                       batch_size))
+
+- `EpisodeWrapper` (one world): counts steps in `info["steps"]`, ends an episode after
+  `episode_length` steps with `info["truncation"]` = 1 (also set at the environment's own
+  timeout), repeats each action `action_repeat` times summing the rewards.
+- `VmapWrapper`: the one place that vmaps `reset` and `step` over a batch of worlds.
+- `AutoResetWrapper` (batched): where a step ended an episode, `data`, `obs` and the new
+  episode's info (`RESET_INFO`) come from a fresh `reset` — a NEW world, unlike Brax's, which
+  returns to the first state — while `reward`, `done`, `metrics` and `truncation` stay those of
+  the ending step. Resetting costs a field, a plant table and a frame, so only the worlds that
+  ended are reset: up to `max_resets` of them gathered into one small vmapped reset per step,
+  or (when more ended at once) the whole batch. `info["rng"]` holds each world's next key.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from mjxrow.env.core import State
+
+RESET_INFO = ("teacher_action", "steps")  # info entries that belong to the new episode
+
+
+class Wrapper:
+    """Passes reset / step through; other attributes read through to the wrapped env."""
+
+    def __init__(self, env: Any):
+        self.env = env
+
+    def reset(self, rng: jax.Array) -> State:
+        return self.env.reset(rng)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        return self.env.step(state, action)
+
+    @property
+    def unwrapped(self) -> Any:
+        return getattr(self.env, "unwrapped", self.env)
+
+    def __getattr__(self, name: str) -> Any:
+        if name == "env":
+            raise AttributeError(name)
+        return getattr(self.env, name)
+
+
+class EpisodeWrapper(Wrapper):
+    """Episodes of at most `episode_length` control steps (None: the environment's own
+    timeout only), each action applied `action_repeat` times."""
+
+    def __init__(self, env: Any, episode_length: int | None = None, action_repeat: int = 1):
+        super().__init__(env)
+        if episode_length is not None and episode_length < 1:
+            raise ValueError(f"episode_length: must be at least 1, got {episode_length}")
+        if action_repeat < 1:
+            raise ValueError(f"action_repeat: must be at least 1, got {action_repeat}")
+        self.episode_length, self.action_repeat = episode_length, action_repeat
+
+    def reset(self, rng: jax.Array) -> State:
+        state = self.env.reset(rng)
+        return state.replace(info={**state.info, "steps": jnp.int32(0)})
+
+    def step(self, state: State, action: jax.Array) -> State:
+        def once(s, _):
+            s = self.env.step(s, action)
+            return s, s.reward
+
+        state, rewards = jax.lax.scan(once, state, None, length=self.action_repeat)
+        steps = state.info["steps"] + self.action_repeat
+        trunc = state.info["truncation"]
+        done = state.done
+        if self.episode_length is not None:
+            over = steps >= self.episode_length
+            trunc = jnp.where(over & (done == 0), 1.0, trunc)
+            done = jnp.where(over, 1.0, done)
+        info = {**state.info, "steps": steps, "truncation": trunc}
+        return state.replace(reward=jnp.sum(rewards, 0), done=done, info=info)
+
+
+class VmapWrapper(Wrapper):
+    """Batched reset / step. `reset` takes one key (split into `batch_size`) or a [B] array of
+    keys."""
+
+    def __init__(self, env: Any, batch_size: int | None = None):
+        super().__init__(env)
+        self.batch_size = batch_size
+
+    def reset(self, rng: jax.Array) -> State:
+        if rng.ndim == 0:
+            if self.batch_size is None:
+                raise ValueError("VmapWrapper.reset: one key needs a batch_size")
+            rng = jax.random.split(rng, self.batch_size)
+        return jax.vmap(self.env.reset)(rng)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        return jax.vmap(self.env.step)(state, action)
+
+
+def _where(done: jax.Array, x: jax.Array, y: jax.Array) -> jax.Array:
+    return jnp.where(done.reshape(done.shape + (1,) * (x.ndim - done.ndim)), x, y)
+
+
+def _take_reset(state: State, fresh: State) -> State:
+    """`state` with the parts of a new episode from `fresh` (same batch)."""
+    info = {**state.info, **{k: fresh.info[k] for k in RESET_INFO if k in fresh.info}}
+    return state.replace(data=fresh.data, obs=fresh.obs, info=info)
+
+
+class AutoResetWrapper(Wrapper):
+    """Resets the worlds whose episode ended, each to a new world (see the module doc). Wraps
+    a batched environment of `batch_size` worlds; `max_resets` (None: the batch) worlds at
+    most are reset by the cheap path in one step."""
+
+    def __init__(self, env: Any, batch_size: int, max_resets: int | None = None):
+        super().__init__(env)
+        self.batch_size = batch_size
+        self.max_resets = min(max_resets or batch_size, batch_size)
+
+    def reset(self, rng: jax.Array) -> State:
+        keys = jax.random.split(rng, self.batch_size)
+        state = self.env.reset(keys)
+        nxt = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
+        return state.replace(info={**state.info, "rng": nxt})
+
+    def step(self, state: State, action: jax.Array) -> State:
+        if "steps" in state.info:
+            steps = jnp.where(state.done > 0, 0, state.info["steps"])
+            state = state.replace(info={**state.info, "steps": steps})
+        state = state.replace(done=jnp.zeros_like(state.done))
+        state = self.env.step(state, action)
+        done = state.done > 0
+        split = jax.vmap(jax.random.split)(state.info["rng"])
+        nxt, reset_keys = split[:, 0], split[:, 1]
+        B, K = self.batch_size, self.max_resets
+
+        def everyone(state):
+            fresh = self.env.reset(reset_keys)
+            return jax.tree.map(lambda x, y: _where(done, x, y), _take_reset(state, fresh),
+                                state)
+
+        def some(state):
+            idx = jnp.nonzero(done, size=K, fill_value=B)[0]
+            fresh = self.env.reset(reset_keys[jnp.minimum(idx, B - 1)])
+            new = _take_reset(state, fresh)
+            part = lambda s: (s.data, s.obs, {k: s.info[k] for k in RESET_INFO  # noqa: E731
+                                              if k in s.info})
+            merged = jax.tree.map(lambda x, r: x.at[idx].set(r, mode="drop"), part(state),
+                                  part(new))
+            return state.replace(data=merged[0], obs=merged[1],
+                                 info={**state.info, **merged[2]})
+
+        if K >= B:
+            state = everyone(state)
+        else:
+            state = jax.lax.cond(jnp.sum(done) > K, everyone, some, state)
+        info = {**state.info, "rng": jnp.where(done, nxt, state.info["rng"])}
+        return state.replace(info=info)

@@ -1,0 +1,195 @@
+"""Policy checkpoints (what the `policy` controller loads) and training states (what a
+training run resumes from), both with orbax.
+
+A policy checkpoint folder holds
+
+    policy.json   {"observation": ObsSpec, "network": NetConfig, "action": {v_max, omega_max},
+                   "weights_dtype", "meta": {...}}
+    params/       orbax StandardCheckpointer tree: the network's variables
+
+and loads back only where it fits: `load(path, expect=...)` raises a one-line ValueError naming
+the config key (`controller.checkpoint` by default) and the mismatch when the folder holds no
+policy or one trained on another observation (kind, image size, proprioception).
+The shipped policy lives in `mjxrow/checkpoints/policy/` ('shipped').
+
+A training state folder (`OUT/state/`) is an orbax CheckpointManager of {params, opt_state,
+counters}, with `train.json` naming the observation and network it belongs to.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import orbax.checkpoint as ocp
+
+from mjxrow.env.observe import ObsSpec
+from mjxrow.train import networks as N
+
+SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints" / "policy"
+SPEC_FILE = "policy.json"
+WEIGHT_DTYPES = ("float32", "float16")
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PolicyCheckpoint:
+    """A loaded policy: network module and variables (float32), what it observes, its action
+    limits (v_max [m/s], ω_max [rad/s]) and the training facts."""
+
+    path: Path
+    net: N.PolicyNet
+    variables: Any
+    spec: ObsSpec
+    limits: tuple[float, float]
+    meta: dict
+
+
+def resolve(name: str | Path, base_dir: str | Path = ".", key: str = "controller.checkpoint"
+            ) -> Path:
+    """The folder of a policy checkpoint: 'shipped' (mjxrow/checkpoints/policy/), or a path
+    (absolute, relative to the working directory, else to `base_dir`). ValueError naming
+    `key` when it holds no policy."""
+    if str(name) == "shipped":
+        path = SHIPPED
+    else:
+        p = Path(name).expanduser()
+        path = p if p.is_absolute() or p.exists() else Path(base_dir) / p
+    path = path.resolve()
+    if not (path / SPEC_FILE).is_file() or not (path / "params").is_dir():
+        raise ValueError(f"{key}: no policy checkpoint in {path} (expected {SPEC_FILE} and "
+                         f"params/)")
+    return path
+
+
+def save(path: str | Path, variables: Any, spec: ObsSpec, net: N.NetConfig,
+         limits: tuple[float, float], meta: dict | None = None,
+         weights_dtype: str = "float32") -> Path:
+    """Write a policy checkpoint folder (replacing one there). weights_dtype "float16" halves
+    the size (values round to ~1e-3 relative)."""
+    if weights_dtype not in WEIGHT_DTYPES:
+        raise ValueError(f"weights_dtype: one of {WEIGHT_DTYPES}, got {weights_dtype!r}")
+    path = Path(path).resolve()
+    path.mkdir(parents=True, exist_ok=True)
+    tree = jax.tree.map(lambda x: np.asarray(x, weights_dtype), jax.device_get(variables))
+    if (path / "params").exists():
+        shutil.rmtree(path / "params")
+    with ocp.StandardCheckpointer() as ck:
+        ck.save(path / "params", tree)
+    doc = {"observation": spec.to_dict(), "network": net.to_dict(),
+           "action": {"v_max": float(limits[0]), "omega_max": float(limits[1])},
+           "weights_dtype": weights_dtype, "meta": meta or {}}
+    (path / SPEC_FILE).write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
+    return path
+
+
+def read_spec(path: Path, key: str = "controller.checkpoint") -> tuple[ObsSpec, N.NetConfig,
+                                                                       dict]:
+    """(observation, network, the whole policy.json) of a checkpoint folder."""
+    try:
+        doc = json.loads((path / SPEC_FILE).read_text())
+        return ObsSpec(**doc["observation"]), N.NetConfig.from_dict(doc["network"]), doc
+    except (KeyError, TypeError, ValueError, json.JSONDecodeError) as e:
+        raise ValueError(f"{key}: {path / SPEC_FILE} is not a policy spec ({e})") from None
+
+
+def check_spec(saved: ObsSpec, expect: dict[str, Any], where: str,
+               key: str = "controller.checkpoint") -> None:
+    """ValueError naming `key` and the first field of `expect` (ObsSpec field → value) that
+    differs from the saved observation."""
+    for name, want in expect.items():
+        have = getattr(saved, name)
+        if have != want:
+            what = {"kind": "observation", "height": "image height [px]",
+                    "width": "image width [px]", "proprio": "proprioception"}[name]
+            raise ValueError(f"{key}: {where} was trained on {saved.describe()}; this run "
+                             f"needs {what} {want!r}, the checkpoint has {have!r}")
+
+
+def load(name: str | Path, expect: dict[str, Any] | None = None, base_dir: str | Path = ".",
+         key: str = "controller.checkpoint") -> PolicyCheckpoint:
+    """Load a policy checkpoint ('shipped' or a folder), checking `expect` (ObsSpec field →
+    value, e.g. {"height": 64, "width": 64}) against what it was trained on. One-line
+    ValueErrors naming `key`."""
+    path = resolve(name, base_dir, key)
+    spec, net_cfg, doc = read_spec(path, key)
+    check_spec(spec, expect or {}, str(path), key)
+    net = N.PolicyNet(net_cfg)
+    obs = example_obs(spec, doc.get("meta", {}).get("image_shape"))
+    target = jax.eval_shape(lambda: N.init(net, obs, jax.random.key(0)))
+    stored = doc.get("weights_dtype", "float32")
+    target = jax.tree.map(lambda s: jax.ShapeDtypeStruct(s.shape, jnp.dtype(stored)), target)
+    try:
+        with ocp.StandardCheckpointer() as ck:
+            tree = ck.restore(path / "params", target)
+    except Exception as e:  # orbax raises several kinds on a structure mismatch
+        msg = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise ValueError(f"{key}: {path} params do not match its {SPEC_FILE} "
+                         f"({spec.describe()}, network {net_cfg}): {msg}") from None
+    variables = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), tree)
+    act = doc.get("action", {})
+    return PolicyCheckpoint(path, net, variables, spec,
+                            (float(act.get("v_max", 0.5)), float(act.get("omega_max", 1.0))),
+                            doc.get("meta", {}))
+
+
+def example_obs(spec: ObsSpec, image_shape=None) -> dict:
+    """A zero observation of `spec` (features: the saved image shape)."""
+    if spec.kind == "rgb":
+        img = jnp.zeros((spec.height, spec.width, 3), jnp.uint8)
+    elif spec.kind == "mask":
+        img = jnp.zeros((spec.height, spec.width, 1), jnp.uint8)
+    else:
+        if image_shape is None:
+            raise ValueError("features checkpoint: meta.image_shape missing")
+        img = jnp.zeros(tuple(image_shape), jnp.float32)
+    out = {"image": img}
+    if spec.proprio:
+        out["proprio"] = jnp.zeros(4, jnp.float32)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Training states
+
+
+def _manager(folder: Path) -> ocp.CheckpointManager:
+    return ocp.CheckpointManager(folder.resolve(), options=ocp.CheckpointManagerOptions(
+        max_to_keep=2, create=True))
+
+
+def save_state(folder: str | Path, step: int, tree: Any, about: dict) -> None:
+    """Save a training state `tree` (params, opt_state, counters) as step `step`; `about`
+    (JSON: observation, network, ...) is written beside it for `restore_state`'s check."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "train.json").write_text(json.dumps(about, indent=2, sort_keys=True) + "\n")
+    with _manager(folder) as mgr:
+        mgr.save(step, args=ocp.args.StandardSave(jax.device_get(tree)), force=True)
+        mgr.wait_until_finished()
+
+
+def restore_state(folder: str | Path, target: Any, about: dict,
+                  key: str = "--resume") -> tuple[int, Any] | None:
+    """(step, tree) of the latest training state in `folder`, restored like `target`; None
+    when there is none. ValueError naming `key` and the first entry of `about` that differs
+    from the saved run's."""
+    folder = Path(folder)
+    if not (folder / "train.json").is_file():
+        return None
+    saved = json.loads((folder / "train.json").read_text())
+    for k, v in about.items():
+        if saved.get(k) != json.loads(json.dumps(v)):
+            raise ValueError(f"{key}: {folder} holds a run with another {k} "
+                             f"({saved.get(k)!r}, this run: {v!r}); use another --out")
+    with _manager(folder) as mgr:
+        step = mgr.latest_step()
+        if step is None:
+            return None
+        tree = mgr.restore(step, args=ocp.args.StandardRestore(target))
+    return int(step), tree

@@ -1,0 +1,317 @@
+"""The training loop: behaviour cloning / DAgger from the teacher, then PPO, in batched
+auto-resetting environments (one per crop), within a wall-time budget, resumable.
+
+    result = train(TrainConfig(...), out="runs/policy")
+
+writes into `out`: `state/` (orbax training state, resumed by the next call with the same
+`out`), `train_log.jsonl` (one line per iteration: phase, env steps, losses, episode metrics,
+steps/s), `learning_curve.png` (return, success, steps/s over env steps) and `policy/` (the
+policy checkpoint the `policy` controller loads). The budget counts the iterations' wall time
+(compilation excluded) over every call with the same `out`; the first `bc_fraction` of it is
+BC / DAgger, the rest PPO. A progress bar shows the budget spent and its ETA.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import functools
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm.auto import tqdm
+
+from mjxrow import env as E
+from mjxrow.rollout.config import build_run
+from mjxrow.train import bc as BC
+from mjxrow.train import checkpoint as CK
+from mjxrow.train import networks as N
+from mjxrow.train import ppo as P
+from mjxrow.train import rollout as R
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """One training run (static)."""
+
+    presets: tuple[str, ...] = ("zucchini", "vineyard")  # crops trained together, one env each
+    num_envs: int = 2048  # worlds stepped together, split evenly over the presets
+    unroll: int = 32  # control steps per rollout (one iteration)
+    budget_minutes: float = 5.0  # training wall time over all resumed calls (compile excluded)
+    bc_fraction: float = 0.5  # share of the budget for BC / DAgger before PPO (1: no PPO)
+    max_resets: int | None = None  # worlds reset per step by the cheap path (None: B / 16)
+    episode_length: int | None = None  # training time limit [steps] (None: the episode's)
+    seed: int = 0  # PRNG seed of the network, the worlds and the rollouts
+    save_every: int = 25  # iterations between training-state checkpoints
+    run: tuple[tuple[str, Any], ...] = ()  # RunConfig keys of every preset's environment
+    env: E.EnvConfig = E.EnvConfig()
+    net: N.NetConfig = N.NetConfig()
+    ppo: P.PPOConfig = P.PPOConfig()
+    bc: BC.BCConfig = BC.BCConfig()
+
+    def __post_init__(self):
+        if not self.presets:
+            raise ValueError("train.presets: at least one preset")
+        if self.num_envs < len(self.presets) or self.num_envs % len(self.presets):
+            raise ValueError(f"train.num_envs: {self.num_envs} does not split evenly over "
+                             f"{len(self.presets)} presets")
+        if not 0.0 <= self.bc_fraction <= 1.0:
+            raise ValueError(f"train.bc_fraction: must lie in [0, 1], got {self.bc_fraction}")
+        if not self.budget_minutes > 0:
+            raise ValueError(f"train.budget_minutes: must be positive, got "
+                             f"{self.budget_minutes}")
+        if self.unroll < 1:
+            raise ValueError(f"train.unroll: must be at least 1, got {self.unroll}")
+
+    @property
+    def per_env(self) -> int:
+        return self.num_envs // len(self.presets)
+
+    def run_config(self, preset: str):
+        """The RunConfig of one preset's environment (the controller is the teacher)."""
+        return build_run({"preset": preset, **dict(self.run)}, seed=self.seed)
+
+
+def make_envs(cfg: TrainConfig) -> tuple[list[E.Env], tuple]:
+    """The raw environments and their training wrappers (episode, vmap, auto-reset)."""
+    raw = [E.Env(cfg.run_config(p), cfg.env) for p in cfg.presets]
+    specs = {e.spec for e in raw}
+    if len(specs) > 1:
+        raise ValueError(f"train.presets: the environments observe differently: {specs}")
+    B = cfg.per_env
+    k = cfg.max_resets or max(1, B // 16)
+    wrapped = tuple(E.AutoResetWrapper(E.VmapWrapper(E.EpisodeWrapper(e, cfg.episode_length)),
+                                       B, k) for e in raw)
+    return raw, wrapped
+
+
+class Trainer:
+    """The compiled pieces of one training run (see `train`)."""
+
+    def __init__(self, cfg: TrainConfig):
+        self.cfg = cfg
+        self.raw, self.envs = make_envs(cfg)
+        self.spec = self.raw[0].spec
+        self.net = N.PolicyNet(cfg.net)
+        self.obs_example = jax.eval_shape(self.raw[0].reset, jax.random.key(0)).obs
+        self.limits = tuple(float(x) for x in np.asarray(self.raw[0].limits))
+        self.unroll = jax.jit(functools.partial(R.unroll, self.net, self.envs,
+                                                length=cfg.unroll))
+        self.reset = jax.jit(lambda key: tuple(
+            e.reset(k) for e, k in zip(self.envs, jax.random.split(key, len(self.envs)),
+                                       strict=True)))
+        self.bc_tx = P.optimizer(cfg.bc.learning_rate, cfg.bc.max_grad_norm)
+        self.ppo_tx = P.optimizer(cfg.ppo.learning_rate, cfg.ppo.max_grad_norm)
+        self.bc_update = jax.jit(functools.partial(self._update, "bc"))
+        self.ppo_update = jax.jit(functools.partial(self._update, "ppo"))
+
+    def init_params(self, key: jax.Array) -> Any:
+        shapes = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), self.obs_example)
+        return N.init(self.net, shapes, key)
+
+    def _update(self, phase, params, opt_state, traj, boot, key):
+        c = self.cfg.ppo
+        adv, target = P.gae(traj, boot, c.discount, c.gae_lambda, c.reward_scale)
+        data = P.batch(traj, adv, target)
+        if phase == "bc":
+            b = self.cfg.bc
+            return P.sgd(params, opt_state, data, key, BC.loss(self.net, b.value_cost),
+                         self.bc_tx, b.epochs, b.minibatches)
+        return P.sgd(params, opt_state, data, key, P.loss(self.net, c), self.ppo_tx,
+                     c.epochs, c.minibatches)
+
+    def about(self) -> dict:
+        """What a saved training state must match to be resumed."""
+        return {"observation": self.spec.to_dict(), "network": self.cfg.net.to_dict(),
+                "presets": list(self.cfg.presets), "num_envs": self.cfg.num_envs}
+
+
+def _schedule(cfg: TrainConfig, elapsed: float) -> tuple[str, float, float, bool]:
+    """(phase, beta, noise_std, ppo) at `elapsed` seconds of the budget."""
+    budget = cfg.budget_minutes * 60.0
+    split = cfg.bc_fraction * budget
+    if elapsed < split:
+        return "bc", cfg.bc.beta(elapsed / split), cfg.bc.noise_std, False
+    return "ppo", 0.0, 0.0, True
+
+
+def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
+          deadline: float | None = None, log=print) -> dict[str, Any]:
+    """Train (or resume training) into `out`; stop when the budget is spent or at the
+    `deadline` (a `time.time()` value, e.g. to leave room for an evaluation). Returns the
+    summary: paths, iterations, env steps, elapsed, compile time, steps/s, last metrics."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    tr = Trainer(cfg)
+    key = jax.random.key(cfg.seed)
+    k_init, key = jax.random.split(key)
+    params = tr.init_params(k_init)
+    state = {"params": params, "bc_opt": tr.bc_tx.init(params), "ppo_opt": tr.ppo_tx.init(params),
+             "counters": {"iteration": np.int64(0), "env_steps": np.int64(0),
+                          "elapsed": np.float64(0.0)}, "key": jax.random.key_data(key)}
+    restored = CK.restore_state(out / "state", state, tr.about())
+    if restored is not None:
+        state = restored[1]
+        log(f"resumed from {out / 'state'}: iteration {int(state['counters']['iteration'])}, "
+            f"{float(state['counters']['elapsed']) / 60:.1f} of {cfg.budget_minutes:g} min")
+    params, bc_opt, ppo_opt = state["params"], state["bc_opt"], state["ppo_opt"]
+    it = int(state["counters"]["iteration"])
+    env_steps = int(state["counters"]["env_steps"])
+    elapsed = float(state["counters"]["elapsed"])
+    key = jax.random.wrap_key_data(jnp.asarray(state["key"]))
+
+    # compile everything once, before the clock of the budget runs
+    t0 = time.perf_counter()
+    k_reset, key = jax.random.split(key)
+    envs = tr.reset(k_reset)
+    args = (params, envs, key, jnp.float32(1.0), jnp.float32(0.1), jnp.bool_(False))
+    unroll = tr.unroll.lower(*args).compile()
+    _, traj_s, boot_s, _ = jax.eval_shape(tr.unroll, *args)
+    bc_update = tr.bc_update.lower(params, bc_opt, traj_s, boot_s, key).compile()
+    ppo_update = tr.ppo_update.lower(params, ppo_opt, traj_s, boot_s, key).compile()
+    jax.block_until_ready(envs)
+    compile_s = time.perf_counter() - t0
+    log(f"compiled the rollout and the updates in {compile_s:.1f} s ({cfg.num_envs} worlds, "
+        f"{cfg.unroll} steps per rollout, {tr.spec.describe()})")
+
+    budget = cfg.budget_minutes * 60.0
+    log_path = out / "train_log.jsonl"
+    bar = tqdm(total=round(budget), initial=min(round(elapsed), round(budget)), unit="s",
+               desc="training", disable=not progress, dynamic_ncols=True,
+               mininterval=1.0 if sys.stderr.isatty() else 30.0,
+               bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s "
+                          "[{elapsed}<{remaining}{postfix}]")
+    last: dict[str, Any] = {}
+    rates = []
+    window: collections.deque = collections.deque(maxlen=20)  # recent iterations' episodes
+    with bar, log_path.open("a") as logf:
+        while elapsed < budget and (deadline is None or time.time() < deadline):
+            phase, beta, noise, ppo = _schedule(cfg, elapsed)
+            key, k_roll, k_upd = jax.random.split(key, 3)
+            t0 = time.perf_counter()
+            envs, traj, boot, sums = unroll(params, envs, k_roll, jnp.float32(beta),
+                                            jnp.float32(noise), jnp.bool_(ppo))
+            jax.block_until_ready(traj.reward)
+            t1 = time.perf_counter()
+            if phase == "bc":
+                params, bc_opt, m = bc_update(params, bc_opt, traj, boot, k_upd)
+            else:
+                params, ppo_opt, m = ppo_update(params, ppo_opt, traj, boot, k_upd)
+            m = jax.device_get(m)
+            t2 = time.perf_counter()
+            it += 1
+            n = cfg.unroll * cfg.num_envs
+            env_steps += n
+            elapsed += t2 - t0
+            row = {"iteration": it, "phase": phase, "beta": beta, "env_steps": env_steps,
+                   "elapsed_s": elapsed, "rollout_s": t1 - t0, "update_s": t2 - t1,
+                   "rollout_steps_per_s": n / (t1 - t0), "steps_per_s": n / (t2 - t0),
+                   **{k: float(v) for k, v in m.items()},
+                   **R.summarise_stats(jax.device_get(sums))}
+            logf.write(json.dumps(row) + "\n")
+            logf.flush()
+            rates.append((row["rollout_steps_per_s"], row["steps_per_s"]))
+            last = row
+            window.append(jax.device_get(sums))
+            recent = R.summarise_stats(jax.tree.map(lambda *x: sum(x), *window))
+            bar.set_postfix_str(f"{phase} return {recent['return']:.2f} success "
+                                f"{recent['nav/success']:.2f} {row['steps_per_s']:,.0f} "
+                                f"env-steps/s", refresh=False)
+            bar.update(min(round(elapsed), round(budget)) - bar.n)
+            if it % cfg.save_every == 0:
+                _save(out, tr, params, bc_opt, ppo_opt, it, env_steps, elapsed, key)
+    _save(out, tr, params, bc_opt, ppo_opt, it, env_steps, elapsed, key)
+    policy_dir = CK.save(out / "policy", params, tr.spec, cfg.net, tr.limits,
+                         meta=_meta(cfg, tr, it, env_steps, elapsed))
+    curve = plot_curve(log_path, out / "learning_curve.png")
+    steady = rates[1:] or rates
+    return {"out": str(out), "policy": str(policy_dir), "curve": str(curve),
+            "iterations": it, "env_steps": env_steps, "elapsed_s": elapsed,
+            "compile_s": compile_s, "wall_s": time.perf_counter() - t_start,
+            "rollout_steps_per_s": float(np.median([r[0] for r in steady])) if steady
+            else math.nan,
+            "steps_per_s": float(np.median([r[1] for r in steady])) if steady else math.nan,
+            "last": last}
+
+
+def _save(out, tr, params, bc_opt, ppo_opt, it, env_steps, elapsed, key):
+    CK.save_state(out / "state", it, {
+        "params": params, "bc_opt": bc_opt, "ppo_opt": ppo_opt,
+        "counters": {"iteration": np.int64(it), "env_steps": np.int64(env_steps),
+                     "elapsed": np.float64(elapsed)},
+        "key": jax.random.key_data(key)}, tr.about())
+
+
+def _meta(cfg: TrainConfig, tr: Trainer, it: int, env_steps: int, elapsed: float) -> dict:
+    return {"presets": list(cfg.presets), "iterations": it, "env_steps": env_steps,
+            "train_minutes": elapsed / 60.0, "num_envs": cfg.num_envs,
+            "bc_fraction": cfg.bc_fraction, "teacher": tr.raw[0].run.controller.name,
+            "image_shape": list(tr.obs_example["image"].shape),
+            "device": jax.devices()[0].device_kind}
+
+
+def read_log(path: str | Path) -> list[dict]:
+    p = Path(path)
+    if not p.is_file():
+        return []
+    return [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
+
+
+def plot_curve(log_path: str | Path, png: str | Path) -> Path:
+    """Learning curve from a train_log.jsonl: episode return, success rate and env-steps/s
+    over env steps, the BC → PPO switch marked (matplotlib, Agg backend)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = read_log(log_path)
+    png = Path(png)
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+    x = np.array([r["env_steps"] for r in rows], float) / 1e6
+    series = (("return", "episode return"), ("nav/success", "success rate"))
+    for ax, (k, title) in zip(axes[:2], series, strict=True):
+        y = np.array([r.get(k, np.nan) for r in rows], float)
+        ax.plot(x, y, ".", ms=3, alpha=0.4)
+        ok = np.isfinite(y)
+        if ok.sum() > 4:
+            w = max(1, ok.sum() // 20)
+            ax.plot(x[ok], np.convolve(y[ok], np.ones(w) / w, mode="same"), "-", lw=1.5)
+        ax.set_title(title)
+    axes[2].plot(x, [r["rollout_steps_per_s"] for r in rows], label="rollout")
+    axes[2].plot(x, [r["steps_per_s"] for r in rows], label="with updates")
+    axes[2].set_title("env-steps/s")
+    axes[2].legend()
+    switch = next((r["env_steps"] / 1e6 for r in rows if r["phase"] == "ppo"), None)
+    for ax in axes:
+        ax.set_xlabel("env steps [M]")
+        if switch is not None:
+            ax.axvline(switch, color="grey", ls="--", lw=0.8)
+    fig.suptitle("policy training (dashed: BC/DAgger → PPO)")
+    fig.tight_layout()
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+    return png
+
+
+def initial_policy(cfg: TrainConfig, path: str | Path) -> Path | None:
+    """An untrained policy checkpoint of `cfg`'s architecture and observation at `path` (for
+    compiling the evaluation before the trained weights exist); None for "features" (its
+    shape needs the segmenter)."""
+    if cfg.env.observation == "features":
+        return None
+    run = cfg.run_config(cfg.presets[0])
+    spec = E.ObsSpec(cfg.env.observation, run.camera.height, run.camera.width, cfg.env.proprio)
+    obs = CK.example_obs(spec)
+    robot = run.robot_config()
+    params = N.init(N.PolicyNet(cfg.net), obs, jax.random.key(cfg.seed))
+    return CK.save(path, params, spec, cfg.net, (robot.v_max, robot.omega_max),
+                   meta={"untrained": True})

@@ -1,0 +1,109 @@
+"""Batched training rollouts shared by PPO, behaviour cloning and DAgger: `unroll` runs the
+policy network in one or more batched, auto-resetting environments (one per crop: each crop
+has its own static field shape, hence its own compiled step) for `length` control steps.
+
+Who acts: with probability `beta` per world and step the teacher's action
+(`state.info["teacher_action"]`, BC and DAgger), otherwise the network's mean; Gaussian noise is
+added to either, with std exp(log_std) (PPO's sampling) where `ppo` is true and `noise_std`
+otherwise. Both are traced, so BC, DAgger and PPO share one compiled rollout.
+
+Every step records a `Transition`; every episode that ends adds its navigation metrics and
+return to `EpisodeStats` (sums and counts; the host divides).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from mjxrow.train import networks as N
+
+EPISODE_KEYS = ("return", "nav/success", "nav/collision", "nav/cha", "nav/mae", "nav/mse",
+                "nav/omega_std", "nav/time", "nav/max_offset")
+
+
+@struct.dataclass
+class Transition:
+    """One step of B worlds ([T, B, ...] after `unroll`)."""
+
+    obs: dict  # the observation the action was taken on
+    action: jax.Array  # float32 [2], as taken (before the environment's clip)
+    log_prob: jax.Array  # float32 [], of the action under the network's Gaussian
+    value: jax.Array  # float32 [], the network's value of obs
+    reward: jax.Array  # float32 []
+    done: jax.Array  # float32 [], the step ended the episode
+    truncation: jax.Array  # float32 [], ... by a time limit (bootstrap through it)
+    teacher: jax.Array  # float32 [2], the teacher's action on obs (labels of BC / DAgger)
+
+
+def _stats(state, sums: dict) -> dict:
+    done = state.done > 0
+    out = dict(sums)
+    for k in EPISODE_KEYS:
+        if k not in state.metrics:
+            continue
+        x = state.metrics[k]
+        ok = done & jnp.isfinite(x)
+        s, n = out[k]
+        out[k] = (s + jnp.sum(jnp.where(ok, x, 0.0)), n + jnp.sum(ok))
+    for k, x in state.metrics.items():
+        if k.startswith("reward/"):
+            s, n = out[k]
+            out[k] = (s + jnp.sum(x), n + x.size)
+    s, n = out["episodes"]
+    out["episodes"] = (s + jnp.sum(done), n + done.size)
+    return out
+
+
+def unroll(net: N.PolicyNet, envs: tuple, params: Any, states: tuple, key: jax.Array,
+           beta: jax.Array, noise_std: jax.Array, ppo: jax.Array, length: int):
+    """Run `length` steps in every env of `envs` (batched, auto-resetting; `states` their
+    states). Returns (new states, Transition [length, ΣB, ...] with the envs' worlds
+    concatenated, bootstrap values [ΣB] of the final observations, episode stats {name: (sum,
+    count)}). Pure: jit it with `envs`, `net` and `length` static (closure)."""
+
+    def act(st, k):
+        mean, log_std, value = net.apply(params, st.obs)
+        k_noise, k_mix = jax.random.split(k)
+        teacher = st.info["teacher_action"]
+        use_teacher = jax.random.uniform(k_mix, value.shape) < beta
+        base = jnp.where(use_teacher[:, None], teacher, mean)
+        scale = jnp.where(ppo, jnp.exp(log_std), noise_std)
+        a = base + scale * jax.random.normal(k_noise, mean.shape)
+        return a, N.log_prob(mean, log_std, a), value, teacher
+
+    def body(carry, k):
+        states, sums = carry
+        out_states, trs = [], []
+        for i, (env, st) in enumerate(zip(envs, states, strict=True)):
+            a, logp, value, teacher = act(st, jax.random.fold_in(k, i))
+            nxt = env.step(st, a)
+            trs.append(Transition(obs=st.obs, action=a, log_prob=logp, value=value,
+                                  reward=nxt.reward, done=nxt.done,
+                                  truncation=nxt.info["truncation"], teacher=teacher))
+            sums = _stats(nxt, sums)
+            out_states.append(nxt)
+        tr = jax.tree.map(lambda *xs: jnp.concatenate(xs, 0), *trs) if len(trs) > 1 else trs[0]
+        return (tuple(out_states), sums), tr
+
+    m = states[0].metrics
+    names = [k for k in EPISODE_KEYS if k in m] + [k for k in m if k.startswith("reward/")]
+    zero = jnp.zeros((), jnp.float32)
+    sums0 = {k: (zero, zero) for k in (*names, "episodes")}
+    (states, sums), traj = jax.lax.scan(body, (tuple(states), sums0),
+                                        jax.random.split(key, length))
+    boot = jnp.concatenate([net.apply(params, st.obs)[2] for st in states], 0)
+    return states, traj, boot, sums
+
+
+def summarise_stats(sums: dict) -> dict[str, float]:
+    """Host means of `unroll`'s stats: episode metrics over the episodes that ended, reward
+    terms over all steps, and `episodes` (how many ended)."""
+    out = {}
+    for k, (s, n) in sums.items():
+        s, n = float(s), float(n)
+        out[k] = s if k == "episodes" else (s / n if n > 0 else float("nan"))
+    return out
