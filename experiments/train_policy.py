@@ -43,7 +43,6 @@ import argparse
 import dataclasses
 import datetime
 import json
-import os
 import shutil
 import sys
 import threading
@@ -148,9 +147,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.smoke:
         args.episodes = min(args.episodes, 2)
         args.presets = ["vineyard"]
-        args.controllers = ["policy", "segzeros_gt" if "segzeros" in args.controllers
-                            else c for c in args.controllers]
-        args.controllers = list(dict.fromkeys(args.controllers))
+        args.controllers = list(dict.fromkeys(
+            "segzeros_gt" if c == "segzeros" else c for c in args.controllers))
     try:
         cfg, values = configure(args)
         evaluation = None

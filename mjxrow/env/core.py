@@ -56,7 +56,9 @@ class EnvConfig:
     reward: RW.RewardConfig = RW.RewardConfig()  # reward weights
 
     def __post_init__(self):
-        O.ObsSpec(kind=self.observation)  # checks the kind
+        if self.observation not in O.KINDS:
+            raise ValueError(f"env.observation: {self.observation!r} is not one of "
+                             f"{', '.join(O.KINDS)}")
 
 
 @struct.dataclass
@@ -88,6 +90,7 @@ class EnvData:
     jitter: jax.Array  # float32 [3], camera (height [m], pitch [rad], roll [rad]) offsets
     key: jax.Array  # PRNG key of the episode's sensor noise
     prev_action: jax.Array  # float32 [2], in [-1, 1]
+    vel: jax.Array  # float32 [2], odometry (v [m/s], ω [rad/s]) over the last control period
     anchor: jax.Array  # float32 [2], position at the last stuck check [m]
     t: jax.Array  # int32 [], control steps since reset
     ret: jax.Array  # float32 [], return so far
@@ -137,6 +140,11 @@ class Env:
         self._table_def = jax.tree.structure(jax.eval_shape(
             lambda k: render.plant_table(F.generate(self.base, self.shape, k), self.shape),
             jax.random.key(0)))
+        h, w = run.camera.height, run.camera.width
+        frame = render.Frame(rgb=jnp.zeros((h, w, 3), jnp.uint8), depth=jnp.zeros((h, w)),
+                             mask=jnp.zeros((h, w), bool), classes=jnp.zeros((h, w), jnp.uint8))
+        self._obs_shapes = jax.eval_shape(lambda f: O.observe(
+            self.spec, f, self.seg, jnp.zeros(2), jnp.zeros(2), self.limits), frame)
 
     # -- static facts ---------------------------------------------------------------------
 
@@ -155,8 +163,7 @@ class Env:
         return self.episode.n_steps
 
     def observation_shapes(self) -> dict[str, tuple[int, ...]]:
-        obs = jax.eval_shape(self.reset, jax.random.key(0)).obs
-        return {k: tuple(v.shape) for k, v in obs.items()}
+        return {k: tuple(v.shape) for k, v in self._obs_shapes.items()}
 
     # -- pieces -----------------------------------------------------------------------------
 
@@ -196,9 +203,25 @@ class Env:
         return out
 
     # -- the environment --------------------------------------------------------------------
+    #
+    # reset = observe ∘ reset_world and step = observe ∘ advance: the auto-reset wrapper calls
+    # the parts, so that a batch renders its frames once per step, after the worlds that
+    # ended were replaced (a reset then costs no frame of its own).
 
     def reset(self, rng: jax.Array) -> State:
-        """A new world and episode from PRNG key `rng` (one world; pure)."""
+        """A new world and episode from PRNG key `rng`, observed (one world; pure)."""
+        return self.observe(self.reset_world(rng))
+
+    def step(self, state: State, action: jax.Array) -> State:
+        """One control step under `action` float [2] in [-1, 1] (clipped), observed. A state
+        whose episode is done stays as it is (auto-reset wrappers replace it)."""
+        new = self.observe(self.advance(state, action))
+        return jax.tree.map(lambda x, y: jnp.where(state.done > 0, x, y),
+                            state.replace(reward=jnp.zeros_like(state.reward)), new)
+
+    def reset_world(self, rng: jax.Array) -> State:
+        """A new world and episode, not yet observed (`obs` and the teacher's action are
+        zeros until `observe`)."""
         rz, scfg = self.cfg.randomize, self.episode.sim
         ks = jax.random.split(rng, 8)
         params = RZ.sample_params(self.base, self.ranges, ks[0])
@@ -213,23 +236,30 @@ class Env:
         p0 = sim.pose(s0)
         d = EnvData(sim=s0, world={k: getattr(m, k) for k in sim.WORLD_FIELDS}, field=field,
                     table=tuple(jax.tree.leaves(render.plant_table(field, self.shape))),
-                    lane=lane, goal=goal,
-                    cond=RZ.sample_condition(rz, ks[4]), jitter=RZ.sample_jitter(rz, ks[5]),
-                    key=ks[6], prev_action=jnp.zeros(2), anchor=p0[:2], t=jnp.int32(0),
-                    ret=jnp.float32(0.0), teacher=None, log=self._empty_log(p0, goal, goal[1]))
-        frame = self.frame(d, s0, self._sensor_key(d, 0))
-        tstate, teacher = self._teach(d, s0, frame, self.teacher.init(self.teacher_params))
-        d = d.replace(teacher=tstate)
-        obs = O.observe(self.spec, frame, self.seg, jnp.zeros(2), d.prev_action, self.limits)
+                    lane=lane, goal=goal, cond=RZ.sample_condition(rz, ks[4]),
+                    jitter=RZ.sample_jitter(rz, ks[5]), key=ks[6], prev_action=jnp.zeros(2),
+                    vel=jnp.zeros(2), anchor=p0[:2], t=jnp.int32(0), ret=jnp.float32(0.0),
+                    teacher=self.teacher.init(self.teacher_params),
+                    log=self._empty_log(p0, goal, goal[1]))
         zero = jnp.float32(0.0)
         parts = {k: zero for k in RW.TERMS}
+        obs = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), self._obs_shapes)
         return State(data=d, obs=obs, reward=zero, done=zero,
                      metrics=self._metrics(parts, d.log, zero),
-                     info={"teacher_action": teacher, "truncation": zero})
+                     info={"teacher_action": jnp.zeros(2), "truncation": zero})
 
-    def step(self, state: State, action: jax.Array) -> State:
-        """One control step under `action` float [2] in [-1, 1] (clipped). A state whose
-        episode is done stays as it is (auto-reset wrappers replace it)."""
+    def observe(self, state: State) -> State:
+        """The camera frame of the state's world → `obs`, and the teacher's action on it."""
+        d = state.data
+        frame = self.frame(d, d.sim, self._sensor_key(d, d.t))
+        tstate, teacher = self._teach(d, d.sim, frame, d.teacher)
+        obs = O.observe(self.spec, frame, self.seg, d.vel, d.prev_action, self.limits)
+        return state.replace(data=d.replace(teacher=tstate), obs=obs,
+                             info={**state.info, "teacher_action": teacher})
+
+    def advance(self, state: State, action: jax.Array) -> State:
+        """The physics, events and reward of one control step (obs left as it was: call
+        `observe`). A done state stays as it is."""
         d, scfg = state.data, self.episode.sim
         a = jnp.clip(jnp.asarray(action, jnp.float32), -1.0, 1.0)
         cmd = O.scale_action(a, self.limits)
@@ -250,16 +280,12 @@ class Env:
         parts = RW.terms(p_old, p, d.goal[1], reason, self.dt)
         r = RW.total(self.cfg.reward, parts)
         d_new = d.replace(sim=s_next, prev_action=a, t=d.t + 1, ret=d.ret + r, log=log,
+                          vel=O.odometry(p_old, sim.pose(s_next), self.dt),
                           anchor=jnp.where(check, p[:2], d.anchor))
-        frame = self.frame(d_new, s_next, self._sensor_key(d_new, d_new.t))
-        tstate, teacher = self._teach(d_new, s_next, frame, d.teacher)
-        d_new = d_new.replace(teacher=tstate)
-        vel = O.odometry(p_old, sim.pose(s_next), self.dt)
-        obs = O.observe(self.spec, frame, self.seg, vel, a, self.limits)
-        done = (reason != M.RUNNING).astype(jnp.float32)
-        new = State(data=d_new, obs=obs, reward=r, done=done,
+        new = State(data=d_new, obs=state.obs, reward=r,
+                    done=(reason != M.RUNNING).astype(jnp.float32),
                     metrics=self._metrics(parts, log, d_new.ret),
-                    info={**state.info, "teacher_action": teacher,
+                    info={**state.info,
                           "truncation": (reason == M.TIMEOUT).astype(jnp.float32)})
         was_done = state.done > 0
         return jax.tree.map(lambda x, y: jnp.where(was_done, x, y),

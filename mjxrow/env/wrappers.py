@@ -7,12 +7,17 @@
   `episode_length` steps with `info["truncation"]` = 1 (also set at the environment's own
   timeout), repeats each action `action_repeat` times summing the rewards.
 - `VmapWrapper`: the one place that vmaps `reset` and `step` over a batch of worlds.
-- `AutoResetWrapper` (batched): where a step ended an episode, `data`, `obs` and the new
-  episode's info (`RESET_INFO`) come from a fresh `reset` — a NEW world, unlike Brax's, which
+- `AutoResetWrapper` (batched): where a step ended an episode, `data` and the new episode's
+  info (`RESET_INFO`) come from a fresh `reset_world` — a NEW world, unlike Brax's, which
   returns to the first state — while `reward`, `done`, `metrics` and `truncation` stay those of
-  the ending step. Resetting costs a field, a plant table and a frame, so only the worlds that
-  ended are reset: up to `max_resets` of them gathered into one small vmapped reset per step,
-  or (when more ended at once) the whole batch. `info["rng"]` holds each world's next key.
+  the ending step; then every world is observed (`obs`: the new worlds' first frames). A
+  reset costs a field and a plant table, so only the worlds that ended are reset: up to
+  `max_resets` of them gathered into one small vmapped reset per step, or (when more ended at
+  once) the whole batch. The frames are rendered once per step, after the resets, so the
+  compiled step holds one renderer. `info["rng"]` holds each world's next key.
+
+The environment provides `reset = observe ∘ reset_world` and `step = observe ∘ advance`; the
+wrappers pass the parts through.
 """
 
 from __future__ import annotations
@@ -24,7 +29,8 @@ import jax.numpy as jnp
 
 from mjxrow.env.core import State
 
-RESET_INFO = ("teacher_action", "steps")  # info entries that belong to the new episode
+RESET_INFO = ("steps",)  # info entries that belong to the new episode (observe sets the
+# teacher's action)
 
 
 class Wrapper:
@@ -62,12 +68,21 @@ class EpisodeWrapper(Wrapper):
         self.episode_length, self.action_repeat = episode_length, action_repeat
 
     def reset(self, rng: jax.Array) -> State:
-        state = self.env.reset(rng)
+        return self.observe(self.reset_world(rng))
+
+    def reset_world(self, rng: jax.Array) -> State:
+        state = self.env.reset_world(rng)
         return state.replace(info={**state.info, "steps": jnp.int32(0)})
 
+    def observe(self, state: State) -> State:
+        return self.env.observe(state)
+
     def step(self, state: State, action: jax.Array) -> State:
+        return self.observe(self.advance(state, action))
+
+    def advance(self, state: State, action: jax.Array) -> State:
         def once(s, _):
-            s = self.env.step(s, action)
+            s = self.env.advance(s, action)
             return s, s.reward
 
         state, rewards = jax.lax.scan(once, state, None, length=self.action_repeat)
@@ -83,22 +98,34 @@ class EpisodeWrapper(Wrapper):
 
 
 class VmapWrapper(Wrapper):
-    """Batched reset / step. `reset` takes one key (split into `batch_size`) or a [B] array of
-    keys."""
+    """Batched reset / step (and their parts). `reset` takes one key (split into
+    `batch_size`) or a [B] array of keys."""
 
     def __init__(self, env: Any, batch_size: int | None = None):
         super().__init__(env)
         self.batch_size = batch_size
 
-    def reset(self, rng: jax.Array) -> State:
+    def _keys(self, rng: jax.Array) -> jax.Array:
         if rng.ndim == 0:
             if self.batch_size is None:
                 raise ValueError("VmapWrapper.reset: one key needs a batch_size")
             rng = jax.random.split(rng, self.batch_size)
-        return jax.vmap(self.env.reset)(rng)
+        return rng
+
+    def reset(self, rng: jax.Array) -> State:
+        return jax.vmap(self.env.reset)(self._keys(rng))
+
+    def reset_world(self, rng: jax.Array) -> State:
+        return jax.vmap(self.env.reset_world)(self._keys(rng))
 
     def step(self, state: State, action: jax.Array) -> State:
         return jax.vmap(self.env.step)(state, action)
+
+    def advance(self, state: State, action: jax.Array) -> State:
+        return jax.vmap(self.env.advance)(state, action)
+
+    def observe(self, state: State) -> State:
+        return jax.vmap(self.env.observe)(state)
 
 
 def _where(done: jax.Array, x: jax.Array, y: jax.Array) -> jax.Array:
@@ -106,15 +133,16 @@ def _where(done: jax.Array, x: jax.Array, y: jax.Array) -> jax.Array:
 
 
 def _take_reset(state: State, fresh: State) -> State:
-    """`state` with the parts of a new episode from `fresh` (same batch)."""
+    """`state` with the world and the episode bookkeeping of `fresh` (same batch)."""
     info = {**state.info, **{k: fresh.info[k] for k in RESET_INFO if k in fresh.info}}
-    return state.replace(data=fresh.data, obs=fresh.obs, info=info)
+    return state.replace(data=fresh.data, info=info)
 
 
 class AutoResetWrapper(Wrapper):
     """Resets the worlds whose episode ended, each to a new world (see the module doc). Wraps
-    a batched environment of `batch_size` worlds; `max_resets` (None: the batch) worlds at
-    most are reset by the cheap path in one step."""
+    a batched environment of `batch_size` worlds with `reset_world`, `advance` and `observe`
+    (the parts of reset and step); `max_resets` (None: the batch) worlds at most are reset by
+    the cheap path in one step."""
 
     def __init__(self, env: Any, batch_size: int, max_resets: int | None = None):
         super().__init__(env)
@@ -132,31 +160,30 @@ class AutoResetWrapper(Wrapper):
             steps = jnp.where(state.done > 0, 0, state.info["steps"])
             state = state.replace(info={**state.info, "steps": steps})
         state = state.replace(done=jnp.zeros_like(state.done))
-        state = self.env.step(state, action)
+        state = self.env.advance(state, action)
         done = state.done > 0
         split = jax.vmap(jax.random.split)(state.info["rng"])
         nxt, reset_keys = split[:, 0], split[:, 1]
         B, K = self.batch_size, self.max_resets
 
         def everyone(state):
-            fresh = self.env.reset(reset_keys)
+            fresh = self.env.reset_world(reset_keys)
             return jax.tree.map(lambda x, y: _where(done, x, y), _take_reset(state, fresh),
                                 state)
 
         def some(state):
             idx = jnp.nonzero(done, size=K, fill_value=B)[0]
-            fresh = self.env.reset(reset_keys[jnp.minimum(idx, B - 1)])
-            new = _take_reset(state, fresh)
-            part = lambda s: (s.data, s.obs, {k: s.info[k] for k in RESET_INFO  # noqa: E731
-                                              if k in s.info})
+            fresh = self.env.reset_world(reset_keys[jnp.minimum(idx, B - 1)])
+            part = lambda s: (s.data, {k: s.info[k] for k in RESET_INFO  # noqa: E731
+                                       if k in s.info})
             merged = jax.tree.map(lambda x, r: x.at[idx].set(r, mode="drop"), part(state),
-                                  part(new))
-            return state.replace(data=merged[0], obs=merged[1],
-                                 info={**state.info, **merged[2]})
+                                  part(_take_reset(state, fresh)))
+            return state.replace(data=merged[0], info={**state.info, **merged[1]})
 
         if K >= B:
             state = everyone(state)
         else:
             state = jax.lax.cond(jnp.sum(done) > K, everyone, some, state)
+        state = self.env.observe(state)  # every world's frame, the new worlds' included
         info = {**state.info, "rng": jnp.where(done, nxt, state.info["rng"])}
         return state.replace(info=info)

@@ -1,0 +1,203 @@
+"""The training environment: reset / step under jit and vmap on a tiny field, a new world per
+reset, an oracle episode of the environment ending where `rollout.episode` ends it with the
+same metrics, reward signs on hand-made states, the randomisation ranges' checks, and the
+wrappers on a toy environment (Brax conventions: truncation, steps, auto-reset to a new world).
+
+One tiny configuration (vineyard, 2 rows of 11 plants, 16 × 16 images, no shadows) and one
+compiled reset and step serve the module."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjxrow import control
+from mjxrow import env as E
+from mjxrow import field as F
+from mjxrow.env import randomize as RZ
+from mjxrow.env import reward as RW
+from mjxrow.rollout import episode as EP
+from mjxrow.rollout import metrics as M
+from mjxrow.rollout.config import build_run
+
+TINY = {"preset": "vineyard", "controller.name": "oracle", "field.terrain_length": 14.0,
+        "field.row_length": 10.0, "field.terrain_width": 5.0, "field.stone_density": 0.0,
+        "field.branch_density": 0.0, "field.terrain_dh": 0.05, "camera.width": 16,
+        "camera.height": 16, "sim.path_length": 3.0, "episode.max_time": 10.0,
+        "render.shadows": False}
+RANGES = (("d_RR", 2.5, 2.9), ("terrain_dh", 0.0, 0.1))
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    run = build_run(TINY)
+    env = E.Env(run, E.EnvConfig(randomize=E.Randomize(ranges=RANGES, start_progress=0.0,
+                                                      start_offset_std=0.0,
+                                                      start_yaw_std_deg=0.0)))
+    return env, jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
+
+
+def test_reset_step_jit_vmap(tiny):
+    env, reset, step = tiny
+    assert env.shape.max_rows >= 2 and env.n_steps == 150
+    s = reset(jax.random.split(jax.random.key(0), 2))
+    assert s.obs["image"].shape == (2, 16, 16, 3) and s.obs["image"].dtype == jnp.uint8
+    assert s.obs["proprio"].shape == (2, 4)
+    np.testing.assert_array_equal(s.obs["proprio"], 0.0)  # at rest, no previous action
+    # every reset draws its own world: the sampled row spacing differs and lies in its range
+    d = np.asarray(s.data.field.params.d_RR)
+    assert d[0] != d[1] and np.all((d >= 2.5) & (d <= 2.9))
+    np.testing.assert_allclose(s.data.field.lane_width[np.arange(2), s.data.lane], d,
+                               rtol=1e-5)
+    t = np.asarray(s.info["teacher_action"])
+    np.testing.assert_allclose(t[:, 0], 1.0)  # the oracle drives at v_max
+    assert np.all(np.abs(t) <= 1.0)
+    s2 = step(s, jnp.tile(jnp.array([1.0, 0.0]), (2, 1)))
+    assert s2.obs["image"].shape == (2, 16, 16, 3)
+    np.testing.assert_array_equal(s2.done, 0.0)
+    np.testing.assert_array_equal(s2.data.t, 1)
+    assert np.all(np.asarray(s2.data.sim.data.qpos[:, 0]) > np.asarray(s.data.sim.data.qpos[:, 0]))
+    np.testing.assert_allclose(s2.obs["proprio"][:, 2:], [[1.0, 0.0]] * 2)  # previous action
+    assert np.all(np.isfinite(np.asarray(s2.reward)))
+    for k in RW.TERMS:
+        assert f"reward/{k}" in s2.metrics
+
+
+def test_episode_matches_rollout_episode(tiny):
+    """The oracle driving the environment ends its episode at the step and with the reason
+    and metrics that rollout.episode gives for the same field and start."""
+    env, reset, step = tiny
+    s = reset(jax.random.split(jax.random.key(1), 2))
+    for _ in range(env.n_steps):
+        s = step(s, s.info["teacher_action"])
+        if np.all(np.asarray(s.done) > 0):
+            break
+    assert np.all(np.asarray(s.done) > 0)
+    fields = s.data.field
+    policy = control.as_policy("oracle")
+    run = env.run
+    ref = EP.compiled(policy, env.episode, 0)(
+        env.mx, fields, s.data.lane, jax.random.split(jax.random.key(2), 2),
+        EP.batch_noise(None, 2), EP.stack_params([run.controller_params()] * 2))
+    assert list(np.asarray(ref.reason)) == [M.GOAL, M.GOAL]
+    np.testing.assert_array_equal(s.data.log.reason, ref.reason)
+    assert np.all(np.abs(np.asarray(s.data.t) - np.asarray(ref.steps)) <= 1)
+    ours = M.summarise(s.data.log, env.dt)
+    theirs = M.summarise(ref, env.dt)
+    for k in ("success", "mae", "cha", "omega_std"):
+        np.testing.assert_allclose(ours[k], theirs[k], atol=2e-3, err_msg=k)
+    np.testing.assert_array_equal(s.metrics["nav/success"], 1.0)
+    np.testing.assert_allclose(s.metrics["nav/mae"], ours["mae"])
+    # a done world stays as it is when stepped again (until a wrapper resets it)
+    again = step(s, jnp.zeros((2, 2)))
+    np.testing.assert_array_equal(again.data.t, s.data.t)
+    np.testing.assert_array_equal(again.reward, 0.0)
+
+
+def test_reward_toward_goal_beats_away(tiny):
+    env, reset, step = tiny
+    s = reset(jax.random.split(jax.random.key(3), 2))
+    fwd = step(s, jnp.tile(jnp.array([1.0, 0.0]), (2, 1)))
+    back = step(s, jnp.tile(jnp.array([-1.0, 0.0]), (2, 1)))
+    assert np.all(np.asarray(fwd.reward) > np.asarray(back.reward))
+    assert np.all(np.asarray(fwd.metrics["reward/progress"]) > 0)
+    assert np.all(np.asarray(back.metrics["reward/progress"]) < 0)
+
+
+def test_reward_terms_on_hand_made_states():
+    cfg = RW.RewardConfig()
+    lane_y, dt = jnp.float32(1.0), 1.0 / 15
+    p0 = jnp.array([0.0, 1.0, 0.0])
+    toward = RW.terms(p0, jnp.array([0.03, 1.0, 0.0]), lane_y, jnp.int32(M.RUNNING), dt)
+    away = RW.terms(p0, jnp.array([-0.03, 1.0, 0.0]), lane_y, jnp.int32(M.RUNNING), dt)
+    assert RW.total(cfg, toward) > RW.total(cfg, away)
+    np.testing.assert_allclose(toward["progress"], 0.03, rtol=1e-5)
+    p = jnp.array([0.03, 1.0, 0.0])
+    none = RW.total(cfg, RW.terms(p0, p, lane_y, jnp.int32(M.RUNNING), dt))
+    hit = RW.total(cfg, RW.terms(p0, p, lane_y, jnp.int32(M.COLLISION), dt))
+    goal = RW.total(cfg, RW.terms(p0, p, lane_y, jnp.int32(M.GOAL), dt))
+    fail = RW.total(cfg, RW.terms(p0, p, lane_y, jnp.int32(M.MISSED_GOAL), dt))
+    np.testing.assert_allclose(none - hit, cfg.w_collision, rtol=1e-5)
+    assert hit < none < goal and fail < none
+    off = RW.terms(p0, jnp.array([0.03, 1.2, 0.0]), lane_y, jnp.int32(M.RUNNING), dt)
+    np.testing.assert_allclose(off["lateral"], -0.2 * dt, rtol=1e-5)  # 0.2 m off for dt
+    turned = RW.terms(p0, jnp.array([0.03, 1.0, -0.3]), lane_y, jnp.int32(M.RUNNING), dt)
+    np.testing.assert_allclose(turned["heading"], -0.3 * dt, rtol=1e-5)
+    nan = RW.terms(p0, jnp.full(3, jnp.nan), lane_y, jnp.int32(M.SIM_ERROR), dt)
+    assert all(np.isfinite(float(v)) for v in nan.values()) and float(nan["failure"]) == -1
+
+
+def test_randomize_ranges_checked_and_sampled():
+    base = F.make_params("vineyard", terrain_width=5.0, terrain_length=14.0, row_length=10.0)
+    shape = F.fit_shape(RZ.corner_params(base, RANGES), "vineyard")
+    RZ.check_ranges(base, RANGES, shape)
+    with pytest.raises(ValueError, match=r"env.randomize.ranges: terrain_width: .* d_RR=3.5"):
+        RZ.check_ranges(base, (("d_RR", 2.5, 3.5),), shape)
+    with pytest.raises(ValueError, match="env.randomize.ranges: 'd_xx'"):
+        E.Randomize(ranges=(("d_xx", 0.0, 1.0),))
+    with pytest.raises(ValueError, match="env.randomize.ranges.d_RR: need lo <= hi"):
+        E.Randomize(ranges=(("d_RR", 3.0, 2.0),))
+    ps = jax.vmap(lambda k: RZ.sample_params(base, RANGES, k))(
+        jax.random.split(jax.random.key(0), 256))
+    d = np.asarray(ps.d_RR)
+    assert d.min() >= 2.5 and d.max() <= 2.9 and d.max() - d.min() > 0.3
+    np.testing.assert_array_equal(ps.d_pp, base.d_pp)  # not ranged: the run's value
+    # every preset's default ranges are valid fields in the preset's own shape fitting
+    for preset in RZ.RANGES:
+        b = F.make_params(preset)
+        r = RZ.default_ranges(preset)
+        RZ.check_ranges(b, r, F.fit_shape(RZ.corner_params(b, r), preset))
+
+
+# ---------------------------------------------------------------------------------------------
+# Wrappers on a toy environment: x grows by the action each step; the episode ends at x ≥ 3.
+
+
+class _Toy:
+    def reset(self, rng):
+        x0 = jax.random.uniform(rng)
+        z = jnp.float32(0.0)
+        return E.State(data={"x": x0, "x0": x0}, obs={"x": x0}, reward=z, done=z,
+                       metrics={"x": x0}, info={"teacher_action": jnp.zeros(2),
+                                                "truncation": z})
+
+    def reset_world(self, rng):
+        return self.reset(rng)
+
+    def observe(self, state):
+        return state.replace(obs={"x": state.data["x"]})
+
+    def advance(self, state, action):
+        x = state.data["x"] + action[0]
+        done = (x >= 3.0).astype(jnp.float32)
+        return state.replace(data={**state.data, "x": x}, reward=action[0], done=done,
+                             metrics={"x": x})
+
+    def step(self, state, action):
+        return self.observe(self.advance(state, action))
+
+
+@pytest.mark.parametrize("max_resets", [None, 1, 2])  # all, overflow, the gathered few
+def test_wrappers_truncate_and_reset_to_new_worlds(max_resets):
+    B = 4
+    env = E.AutoResetWrapper(E.VmapWrapper(E.EpisodeWrapper(_Toy(), episode_length=5)), B,
+                             max_resets)
+    s = jax.jit(env.reset)(jax.random.key(0))
+    x0 = np.asarray(s.data["x0"])
+    step = jax.jit(env.step)
+    # worlds 0, 1 step by 1 (done at the 3rd step), worlds 2, 3 by 0 (truncated at the 5th)
+    a = jnp.array([[1.0, 0], [1.0, 0], [0.0, 0], [0.0, 0]])
+    seen = []
+    for _ in range(5):
+        s = step(s, a)
+        seen.append((np.asarray(s.done).copy(), np.asarray(s.info["truncation"]).copy(),
+                     np.asarray(s.info["steps"]).copy(), np.asarray(s.data["x0"]).copy()))
+    done3, trunc3, steps3, x03 = seen[2]
+    np.testing.assert_array_equal(done3, [1, 1, 0, 0])
+    np.testing.assert_array_equal(trunc3, 0)
+    np.testing.assert_array_equal(steps3, [0, 0, 3, 3])  # the new episodes start at 0
+    assert np.all(x03[:2] != x0[:2]) and np.all(x03[2:] == x0[2:])  # new worlds
+    np.testing.assert_array_equal(s.obs["x"], s.data["x"])  # observed after the resets
+    done5, trunc5, _, _ = seen[4]
+    np.testing.assert_array_equal(done5, [0, 0, 1, 1])
+    np.testing.assert_array_equal(trunc5, [0, 0, 1, 1])  # time limit: truncation

@@ -1,0 +1,167 @@
+"""Training: GAE on a hand-computed rollout; a few BC / DAgger and PPO iterations in the tiny
+environment give finite losses and resume from their orbax state; the saved policy loads, is
+checked against the camera, and drives a 2-episode sweep as `controller: {name: policy}`;
+missing or mismatched checkpoints are one-line errors naming the key (exit 2).
+
+One tiny configuration (vineyard, 2 rows of 11 plants, 16 × 16 images, a tiny network, 4
+worlds) trains once for the module (its compiled programs cached on disk for the resume)."""
+
+import dataclasses
+import json
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import yaml
+
+from mjxrow import env as E
+from mjxrow.train import TINY, BCConfig, PPOConfig, TrainConfig, train
+from mjxrow.train import checkpoint as CK
+from mjxrow.train import config as TC
+from mjxrow.train import networks as N
+from mjxrow.train import ppo as P
+from mjxrow.train.rollout import Transition
+
+RUN = (("field.terrain_length", 14.0), ("field.row_length", 10.0),
+       ("field.terrain_width", 5.0), ("field.stone_density", 0.0),
+       ("field.branch_density", 0.0), ("camera.width", 16), ("camera.height", 16),
+       ("sim.path_length", 3.0), ("episode.max_time", 10.0), ("render.shadows", False))
+CFG = TrainConfig(presets=("vineyard",), num_envs=4, unroll=4, budget_minutes=0.05,
+                  bc_fraction=0.5, run=RUN, net=TINY, save_every=5,
+                  env=E.EnvConfig(randomize=E.Randomize(
+                      ranges=(("d_RR", 2.5, 2.9), ("terrain_dh", 0.0, 0.1)),
+                      start_progress=0.3)),
+                  bc=BCConfig(minibatches=2), ppo=PPOConfig(minibatches=2, epochs=2))
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    out = tmp_path_factory.mktemp("train")
+    jax.config.update("jax_compilation_cache_dir", str(out / "jax_cache"))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    res = train(CFG, out, progress=False, log=lambda m: None)
+    return out, res
+
+
+def test_gae_hand_computed():
+    # one world, 3 steps, γ = 0.5, λ = 1: rewards 1, 1, 1; values 0; the episode terminates
+    # at step 2 (no bootstrap past it): advantages 1 + 0.5 + 0.25, 1 + 0.5, 1
+    z = jnp.zeros((3, 1))
+    tr = Transition(obs={}, action=jnp.zeros((3, 1, 2)), log_prob=z, value=z,
+                    reward=jnp.ones((3, 1)), done=jnp.array([[0.0], [0.0], [1.0]]),
+                    truncation=z, teacher=jnp.zeros((3, 1, 2)))
+    adv, ret = P.gae(tr, jnp.full((1,), 100.0), 0.5, 1.0)
+    np.testing.assert_allclose(adv[:, 0], [1.75, 1.5, 1.0])
+    np.testing.assert_allclose(ret, adv)
+    # not done: the last step bootstraps from the final value 2 → 1 + 0.5·2 = 2
+    adv, _ = P.gae(tr.replace(done=z), jnp.full((1,), 2.0), 0.5, 1.0)
+    np.testing.assert_allclose(adv[2, 0], 2.0)
+    # truncated at step 1 (a time limit): its TD error is dropped and nothing flows through it
+    adv, _ = P.gae(tr.replace(done=jnp.array([[0.0], [1.0], [0.0]]),
+                              truncation=jnp.array([[0.0], [1.0], [0.0]])),
+                   jnp.zeros((1,)), 0.5, 1.0)
+    np.testing.assert_allclose(adv[:, 0], [1.0, 0.0, 1.0])
+
+
+def test_bc_and_ppo_iterations_finite_and_resume(trained):
+    out, res = trained
+    rows = [json.loads(x) for x in (out / "train_log.jsonl").read_text().splitlines()]
+    phases = {r["phase"] for r in rows}
+    assert phases == {"bc", "ppo"}, phases
+    for r in rows:
+        keys = ("bc_loss", "value_loss") if r["phase"] == "bc" else (
+            "policy_loss", "value_loss", "entropy")
+        assert all(np.isfinite(r[k]) for k in keys), r
+        assert r["rollout_steps_per_s"] > 0
+    assert res["env_steps"] == len(rows) * 16 and (out / "learning_curve.png").stat().st_size
+    assert (out / "policy" / "policy.json").is_file()
+    # a second call with a larger budget resumes where the first stopped
+    more = train(dataclasses.replace(CFG, budget_minutes=0.07), out, progress=False,
+                 log=lambda m: None)
+    assert more["iterations"] > res["iterations"]
+    assert more["elapsed_s"] >= res["elapsed_s"]
+    # another network in the same folder is refused, naming what differs
+    with pytest.raises(ValueError, match="--resume: .* another network"):
+        train(dataclasses.replace(CFG, net=N.NetConfig(hidden=8, channels=(4,), kernels=(3,),
+                                                       strides=(2,))),
+              out, progress=False, log=lambda m: None)
+
+
+def test_checkpoint_roundtrip_and_mismatch(tmp_path):
+    spec = E.ObsSpec("rgb", 16, 16, True)
+    net = N.PolicyNet(TINY)
+    params = N.init(net, CK.example_obs(spec), jax.random.key(0))
+    CK.save(tmp_path / "p", params, spec, TINY, (0.5, 1.0))
+    ck = CK.load(tmp_path / "p", {"height": 16, "width": 16})
+    for a, b in zip(jax.tree.leaves(ck.variables), jax.tree.leaves(params), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert ck.spec == spec and ck.limits == (0.5, 1.0)
+    with pytest.raises(ValueError, match=r"^controller.checkpoint: .* needs image width \[px\] "
+                                         r"64, the checkpoint has 16$"):
+        CK.load(tmp_path / "p", {"height": 16, "width": 64})
+    with pytest.raises(ValueError, match=r"^controller.checkpoint: .* needs observation 'mask'"):
+        CK.load(tmp_path / "p", {"kind": "mask"})
+    with pytest.raises(ValueError, match=r"^controller.checkpoint: no policy checkpoint in"):
+        CK.load(tmp_path / "missing")
+    # a spec that does not describe the stored weights
+    doc = json.loads((tmp_path / "p" / CK.SPEC_FILE).read_text())
+    doc["network"]["hidden"] = 32
+    (tmp_path / "p" / CK.SPEC_FILE).write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=r"^controller.checkpoint: .* params do not match"):
+        CK.load(tmp_path / "p")
+
+
+def test_policy_checkpoint_runs_in_a_sweep(trained, tmp_path):
+    from mjxrow.sweep import config as SC
+    from mjxrow.sweep import run as SR
+
+    out, _ = trained
+    raw = {"name": "policy check", "preset": "vineyard", "seeds": 2, "seed": 0,
+           "batch_size": 2, "out": str(tmp_path / "sweep"),
+           "field": {k.split(".")[1]: v for k, v in RUN if k.startswith("field.")},
+           "sim": {"path_length": 3.0}, "episode": {"max_time": 10.0},
+           "camera": {"width": 16, "height": 16}, "render": {"shadows": False},
+           "controller": {"name": "policy", "checkpoint": str(out / "policy")}}
+    (tmp_path / "sweep.yaml").write_text(yaml.safe_dump(raw))
+    cfg = SC.load(tmp_path / "sweep.yaml")
+    res = SR.run(cfg, tmp_path / "sweep", progress=False, figures=False)
+    assert res["ran"] == 2
+    import pandas as pd
+
+    df = pd.read_csv(res["files"]["results"])
+    assert len(df) == 2 and np.all(np.isfinite(df["mae"])) and np.all(np.isfinite(df["cha"]))
+
+
+def test_bad_checkpoint_is_a_one_line_error_exit_2(trained, tmp_path, capsys):
+    from mjxrow import episode
+
+    out, _ = trained
+    base = ["--preset", "vineyard", "--controller", "policy", "--n", "1", "--no-progress",
+            "--out", str(tmp_path / "ep")]
+    assert episode.main(base + ["--set", f"controller.checkpoint={tmp_path / 'none'}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: controller.checkpoint: no policy checkpoint") and \
+        "\n" not in err
+    assert episode.main(base + ["--set", f"controller.checkpoint={out / 'policy'}",
+                                "--set", "camera.width=32", "--set", "camera.height=16"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: controller.checkpoint:") and "width" in err and "32" in err
+    assert "\n" not in err
+
+
+def test_training_sets_route_to_their_configs():
+    cfg, run = TC.apply_sets(CFG, ["train.unroll=8", "env.observation=mask",
+                                   "env.randomize.start_progress=0.5", "net.hidden=8",
+                                   "ppo.learning_rate=1e-4", "bc.dagger=false",
+                                   "camera.width=32", "field.d_rr=[1.5, 2.5]"])
+    assert cfg.unroll == 8 and cfg.env.observation == "mask" and cfg.net.hidden == 8
+    assert cfg.env.randomize.start_progress == 0.5 and cfg.ppo.learning_rate == 1e-4
+    assert cfg.bc.dagger is False and cfg.bc.beta(0.9) == 1.0
+    assert run == {"camera.width": 32, "field.d_rr": [1.5, 2.5]}
+    with pytest.raises(ValueError, match="^ppo.learning_rat: unknown key"):
+        TC.apply_sets(CFG, ["ppo.learning_rat=1"])
+    with pytest.raises(ValueError, match="^env.observation: 'depth' is not one of"):
+        TC.apply_sets(CFG, ["env.observation=depth"])
+    assert Path(CK.SHIPPED).name == "policy"
