@@ -260,8 +260,8 @@ class RunConfig:
         return out
 
     def flat(self) -> dict[str, Any]:
-        """Every key → value (field keys resolved from the preset); `preset` first."""
-        out: dict[str, Any] = {"preset": self.preset}
+        """Every key → value (field keys resolved from the preset); `preset` and `seed` first."""
+        out: dict[str, Any] = {"preset": self.preset, "seed": self.seed}
         fv = self.field_values()
         for k in self.keys():
             out[k] = float(fv[k[6:]]) if k.startswith("field.") else self.get(k)
