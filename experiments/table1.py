@@ -23,16 +23,10 @@ import numpy as np
 from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
+from mjxrow import crops  # noqa: E402
 from mjxrow import field as F  # noqa: E402
 from mjxrow.crops import prims as PL  # noqa: E402
 
-# Martini et al., Table 1: terrain L×W [m], |ΔH| [m]; plant L×W×H [m]; d_rr, d_RR, d_pp [m]; rows
-PAPER: dict[str, tuple] = {
-    "zucchini": ((60, 38), 0.2, (0.82, 0.9, 0.6), 1.8, 3.6, 0.7, 7),
-    "lettuce": ((60, 25), 0.25, (0.38, 0.34, 0.22), 0.7, 1.4, 0.4, 3),
-    "chard": ((60, 12), 0.25, (0.25, 0.4, 0.25), 0.7, 1.4, 0.3, 3),
-    "pear": ((80, 45), 0.3, (1.4, 2.2, 3.2), 5.0, 5.0, 2.2, 1),
-}
 SAME_GAP = 0.05  # m: gaps closer than this form one cluster (a uniform row spacing)
 
 
@@ -124,16 +118,13 @@ def table(seeds: int, tol: float = 0.05) -> tuple[str, list[str]]:
     head = ("| crop | source | terrain L×W [m] | max \\|ΔH\\| [m] | plant L×W×H [m] | d_rr [m] | "
             "d_RR [m] | d_pp [m] | rows per group | rows (groups) |")
     lines, off = [head, "|" + "---|" * 10], []
-    for preset in tqdm(F.PRESETS, desc="presets", file=sys.stderr):
-        q = F.PRESETS[preset]
-        if preset in PAPER:
-            (tl, tw), dh, plant, d_rr, d_RR, d_pp, rpg = PAPER[preset]
-            src = "paper"
-        else:
-            tl, tw, dh = q["terrain_length"], q["terrain_width"], q["terrain_dh"]
-            plant = (q["plant_length"], q["plant_width"], q["plant_height"])
-            d_rr, d_RR, d_pp, rpg = q["d_rr"], q["d_RR"], q["d_pp"], int(q["rows_per_group"])
-            src = "typical (not in the paper)"
+    for preset in tqdm(crops.names(), desc="presets", file=sys.stderr):
+        crop = crops.get(preset)  # Martini et al., Table 1 where the paper has the crop
+        q = crop.paper.get("table1", crop.preset)
+        src = "paper" if "table1" in crop.paper else "typical (not in the paper)"
+        tl, tw, dh = q["terrain_length"], q["terrain_width"], q["terrain_dh"]
+        plant = (q["plant_length"], q["plant_width"], q["plant_height"])
+        d_rr, d_RR, d_pp, rpg = q["d_rr"], q["d_RR"], q["d_pp"], int(q["rows_per_group"])
         lines.append(f"| {preset} | {src} | {_x((tl, tw))} | {dh:g} | {_x(plant)} | {d_rr:g} | "
                      f"{d_RR:g} | {d_pp:g} | {rpg} | |")
         m = measure(preset, seeds)

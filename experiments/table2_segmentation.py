@@ -9,10 +9,9 @@ the dataset folder `DIR/<crop>/` (or of `DIR` itself when it holds every crop); 
 renders per crop made on the fly with a fixed seed (20,000 + `--seed`), the same for every model.
 Pixel accuracy and IoU (plant class, sigmoid > 0.7) are pooled over each test set.
 
-IoU is reported in [0, 1]. The paper's Table 2 prints IoU figures such as 197.8 and 93.0, which
-cannot be IoUs in [0, 1] or in percent, and its accuracies lie between 0.63 and 0.80; its per-crop
-values could not be retrieved for this script, so its columns read "n/a" rather than guessed
-numbers. Fill `PAPER` from the publication to show them.
+IoU is reported in [0, 1]. The paper's Table 2 (its values as printed, from `mjxrow.crops`;
+none for the vineyard) prints IoU figures such as 197.8 and 93.0, which cannot be IoUs in [0, 1]
+or in percent; its accuracies lie between 0.63 and 0.80.
 """
 
 from __future__ import annotations
@@ -24,12 +23,9 @@ from pathlib import Path
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
-from mjxrow.field import CROPS  # noqa: E402
+from mjxrow import crops  # noqa: E402
 from mjxrow.seg import checkpoint as C  # noqa: E402
 from mjxrow.seg import eval as E  # noqa: E402
-
-# Martini et al., Table 2: crop → (accuracy, IoU) as printed; None where not available here.
-PAPER: dict[str, tuple[float | None, float | None]] = {c: (None, None) for c in CROPS}
 
 
 def _fmt(x) -> str:
@@ -48,7 +44,7 @@ def markdown(df: pd.DataFrame, index: str | None = None) -> str:
 
 def models(root: Path) -> dict[str, Path]:
     """Trained-on name → checkpoint folder, for every crop (and 'all') found under `root`."""
-    return {name: root / name for name in (*CROPS, "all")
+    return {name: root / name for name in (*crops.names(), "all")
             if (root / name / "config.json").is_file()}
 
 
@@ -69,7 +65,7 @@ def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     p.add_argument("--n", type=int, default=512, help="renders per crop without --data-root")
     p.add_argument("--batch", type=int, default=32)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--crops", nargs="+", default=list(CROPS), choices=CROPS)
+    p.add_argument("--crops", nargs="+", default=list(crops.names()), choices=crops.names())
     p.add_argument("--also-sizes", type=int, nargs="*", default=[],
                    help="input sizes [px] at which each crop's model is also evaluated, beside "
                         "its own (e.g. 64: the closed loop's camera)")
@@ -99,8 +95,9 @@ def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
         own = crop if crop in found else "all"
         hit = cross[(cross["trained_on"] == own) & (cross["tested_on"] == crop)]
         acc, iou = (hit["accuracy"].iloc[0], hit["iou"].iloc[0]) if len(hit) else (None, None)
-        table.append({"crop": crop, "paper accuracy": _fmt(PAPER[crop][0]),
-                      "paper IoU": _fmt(PAPER[crop][1]), "our accuracy": _fmt(acc),
+        paper = crops.get(crop).paper.get("table2", {})  # Martini et al., Table 2, as printed
+        table.append({"crop": crop, "paper accuracy": _fmt(paper.get("accuracy")),
+                      "paper IoU": _fmt(paper.get("iou")), "our accuracy": _fmt(acc),
                       "our IoU [0, 1]": _fmt(iou), "model": own if len(hit) else "none",
                       "test images": int(hit["images"].iloc[0]) if len(hit) else 0})
     for row in table:  # the crop's own model at other input sizes
@@ -121,8 +118,8 @@ def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     source = (f"test split of {args.data_root}" if args.data_root else
               f"{args.n} renders per crop, seed {20_000 + args.seed}")
     text = ("## Table 2: segmentation per crop\n\n" + markdown(table) +
-            f"\n\nTest sets: {source}. IoU in [0, 1]; the paper's columns read n/a where its "
-            "values are not available (see the script's docstring).\n\n"
+            f"\n\nTest sets: {source}. IoU in [0, 1]; the paper's columns read n/a for a "
+            "crop its Table 2 lacks (see the script's docstring).\n\n"
             "## Cross-crop IoU (rows: trained on, columns: tested on)\n\n" +
             markdown(matrix, "trained on \\ tested on") + "\n")
     print(text)

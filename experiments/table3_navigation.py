@@ -18,7 +18,7 @@ file per finished cell, so an interrupted run resumes where it stopped and a fin
 only re-assembled. The markdown table goes to `OUT/table3.md` and, except with `--smoke`, to
 `docs/table3.md` (`--doc`), and is printed.
 
-Metrics (mjxrow.rollout.metrics, as the authors' public code computes them): CHA [rad], the mean over
+Metrics (rollout.metrics, as the authors' public code computes them): CHA [rad], the mean over
 steps of the goal's signed bearing atan2(y_g, x_g) in the robot frame; MAE [m] and MSE [m²],
 mean |dev| and mean dev² of the lateral offset from the lane centre line; ω std [rad/s], the
 population std of the ω commands; success, the episode ended within 0.40 m of the goal. Each is
@@ -45,7 +45,7 @@ from tqdm.auto import tqdm
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from a checkout, uninstalled
-from mjxrow.field import CROPS  # noqa: E402
+from mjxrow import crops  # noqa: E402
 from mjxrow.rollout import metrics as M  # noqa: E402
 from mjxrow.sweep import config as C  # noqa: E402
 
@@ -72,15 +72,9 @@ COLUMNS: tuple[tuple[str, str, str, str], ...] = (
     ("time", "time to goal", "s", "{:.1f}"),
 )
 PAPER_METRICS = ("cha", "mae", "mse", "omega_std")
-PAPER_CONTROLLERS = ("SegZeros", "SegMin")
-# Martini et al., Table 3: crop → controller → metric → value as printed there. None: not
-# available to this script (the values could not be retrieved); fill from the publication.
-# The paper has no vineyard field.
-PAPER: dict[str, dict[str, dict[str, float | None]]] = {
-    crop: {c: {m: None for m in PAPER_METRICS} for c in PAPER_CONTROLLERS}
-    for crop in CROPS if crop != "vineyard"}
-# DESIGN.md records this pair of the paper's pear values (controller not recorded there).
-PEAR_MSE, PEAR_MAE = 3.83, 0.0058
+PAPER_CONTROLLERS = ("SegZeros",)  # the paper's Table 3 has one controller's row per crop
+# the paper's pear values, which cannot go together (NOTES)
+PEAR_MSE, PEAR_MAE = (crops.get("pear").paper["table3"][m] for m in ("mse", "mae"))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -178,19 +172,19 @@ def _paper_value(v: float | None) -> str:
 
 def table_markdown(stats: dict[tuple[str, str], dict], presets: list[str],
                    controllers: list[str]) -> str:
-    """One pipe table: per preset the paper's rows (SegZeros, SegMin) then ours (one per
-    controller with results); cells `mean [lo, hi]`. `stats`: (controller, preset) →
-    block_stats."""
+    """One pipe table: per preset the paper's row (SegZeros) then ours (one per controller
+    with results); cells `mean [lo, hi]`. `stats`: (controller, preset) → block_stats."""
     head = ["crop", "controller", "episodes"] + [
         f"{t} [{u}]" if u else t for _, t, u, _ in COLUMNS] + ["how episodes ended"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for preset in presets:
         for pc in PAPER_CONTROLLERS:
-            vals = PAPER.get(preset, {}).get(pc)
+            # Martini et al., Table 3 as printed (mjxrow.crops): one SegZeros row per crop
+            vals = crops.get(preset).paper.get("table3") if pc == "SegZeros" else None
             if vals is None:
                 cells = ["not in the paper"] + ["–"] * (len(COLUMNS) - 1)
             else:
-                cells = [_paper_value(vals[m]) if m in PAPER_METRICS else "n/a"
+                cells = [_paper_value(vals.get(m)) if m in PAPER_METRICS else "n/a"
                          for m, *_ in COLUMNS]
             lines.append(f"| {preset} | paper: {pc} | – | " + " | ".join(cells) + " | – |")
         for c in controllers:
@@ -222,17 +216,15 @@ the squared lateral offset from the lane centre line), ω std in rad/s (populati
 ω commands), time to goal in seconds (successful episodes only). Every value is the mean over
 episodes with its 95 % interval: Student t for the metrics, Wilson score for the success rate.
 
-The paper's values read "n/a": the numbers of Martini et al.'s Table 3 could not be retrieved
-for this script (neither the paper's text nor its public code repositories were available to
-it), so they are not printed rather than guessed, and the unit in which the paper prints CHA
-(degrees or radians) is unconfirmed here; the authors' metric code computes the bearing with
-atan2, in radians. Fill `PAPER` in `experiments/table3_navigation.py` from the publication to
-show them. The paper has no vineyard field.
+The paper's rows are Martini et al.'s Table 3 as printed (`mjxrow.crops`): one row per crop,
+the vineyard's included, for SegZeros on their learned segmenter in Gazebo; CHA in rad as its
+header says (the authors' metric code computes the bearing with atan2). It gives no success
+rate or time to goal ("n/a").
 
-The paper's pear row, as recorded in DESIGN.md (MSE {PEAR_MSE} with MAE {PEAR_MAE}), cannot be
-one set of lateral errors in metres: for any offsets, mean dev² ≤ max|dev| · mean|dev|, so an
-MSE of {PEAR_MSE} m² with an MAE of {PEAR_MAE} m would need an offset of at least
-{PEAR_MSE / PEAR_MAE:.0f} m inside a 5 m wide lane. One of the two is in other units (an MSE
+The paper's pear row (MSE {PEAR_MSE} with MAE {PEAR_MAE}) cannot be one set of lateral
+errors in metres: for any offsets, mean dev² ≤ max|dev| · mean|dev|, so an MSE of {PEAR_MSE} m²
+with an MAE of {PEAR_MAE} m would need an offset of at least {PEAR_MSE / PEAR_MAE:.0f} m inside
+a 5 m wide lane. One of the two is in other units (an MSE
 in cm² would be {PEAR_MSE * 1e-4:.2e} m², consistent with the MAE since MSE ≥ MAE² =
 {PEAR_MAE ** 2:.2e} m²) or misprinted. Ours is MSE = mean dev² in m².
 """
@@ -350,7 +342,7 @@ def main(argv: list[str] | None = None) -> int:
                                 formatter_class=argparse.RawDescriptionHelpFormatter,
                                 epilog=__doc__.split("\n\n", 1)[1])
     p.add_argument("--episodes", type=int, default=100, help="episodes per block (default 100)")
-    p.add_argument("--presets", nargs="+", default=list(CROPS), choices=CROPS)
+    p.add_argument("--presets", nargs="+", default=list(crops.names()), choices=crops.names())
     p.add_argument("--controllers", nargs="+", default=list(CONTROLLERS), choices=CONTROLLERS)
     p.add_argument("--out", default="runs/table3", help="run folder (with --smoke: OUT_smoke)")
     p.add_argument("--image", type=int, default=None,

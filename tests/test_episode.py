@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from mjxrow import control as C
+from mjxrow import crops
 from mjxrow import field as F
 from mjxrow.physics import sim
 from mjxrow.rollout import episode as E
@@ -255,7 +256,7 @@ def test_cli_rejects_bad_input(tmp_path, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("preset", F.CROPS)
+@pytest.mark.parametrize("preset", crops.names())
 def test_oracle_every_preset(preset):
     """The oracle drives a 20 m lane of each preset's default geometry on flat terrain."""
     n = 2

@@ -41,7 +41,7 @@ pixels are drawn lit (3–6 % of the non-sky pixels differ in colour from a one-
 reference, `render_accuracy.py --shading`). Against an all-plants reference, on the
 dataset's camera poses (`dataset.sample_pose`, 16 per preset at 64×64, 8 at 128×128) the
 plant masks agree with IoU ≥ 0.996 for every preset (the deep-tile knobs are
-set per crop: `DEEP`), and the terrain depths with a 128-sample march exactly
+set per crop: `Crop.deep`), and the terrain depths with a 128-sample march exactly
 (`experiments/render_accuracy.py`). Shadows are cast by plants and obstacles, not by the
 terrain (which is only shaded by its slope). Sky pixels have `depth = SKY_DEPTH`,
 `mask = False`, `classes = SKY`.
@@ -59,6 +59,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from mjxrow import crops
 from mjxrow import field as F
 from mjxrow.render import geom as G
 from mjxrow.render import pallas as RP
@@ -146,10 +147,9 @@ class RenderConfig:
 
 DEFAULT_CONFIG = RenderConfig()
 
-# deep tiles (share, row_blocks, block_keep, keep) per crop: small plants in many rows put more
-# plants in front of a far ray's hit than large ones
-DEEP = {"lettuce": (0.25, 24, 64, 192), "chard": (0.25, 24, 64, 192)}
-DEEP_OTHERS = (0.25, 12, 16, 48)
+# deep tiles (share, row_blocks, block_keep, keep) of the crops without their own `Crop.deep`
+# (small plants in many rows put more plants in front of a far ray's hit than large ones)
+DEEP_DEFAULT = (0.25, 12, 16, 48)
 
 
 def default_tile(intr: Intrinsics) -> int:
@@ -176,10 +176,11 @@ def default_kernel(tile: int) -> str:
 
 
 def resolve(cfg: RenderConfig, crop: str, intr: Intrinsics | None = None) -> RenderConfig:
-    """`cfg` with the knobs left at None set: the deep-tile ones for `crop` (DEEP), the tile
-    side for `intr` (`default_tile`; 4 without intr) and the kernels (`default_kernel`)."""
+    """`cfg` with the knobs left at None set: the deep-tile ones of `crop` (its `Crop.deep`,
+    else DEEP_DEFAULT), the tile side for `intr` (`default_tile`; 4 without intr) and the
+    kernels (`default_kernel`)."""
     names = ("deep_share", "deep_row_blocks", "deep_block_keep", "deep_keep")
-    by_crop = dict(zip(names, DEEP.get(crop, DEEP_OTHERS), strict=True))
+    by_crop = dict(zip(names, crops.get(crop).deep or DEEP_DEFAULT, strict=True))
     cfg = dataclasses.replace(cfg, **{k: v for k, v in by_crop.items()
                                       if getattr(cfg, k) is None})
     if cfg.tile is None:

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from mjxrow import control
+from mjxrow import control, crops
 from mjxrow import field as F
 from mjxrow.rollout import config as schema
 from mjxrow.rollout.config import (
@@ -200,7 +200,7 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
                 values[path] = _value(path, v2, parse, True)
         elif key == "preset":
             values["preset"] = _value(key, v, lambda p, x: _scalar(p, x, "str",
-                                                                  choices=F.CROPS), True)
+                                                                  choices=crops.names()), True)
         elif key in TOP_KEYS:
             m = meta[key]
             kind = "str" if m["kind"] is str else "int"
@@ -453,7 +453,7 @@ def reference_markdown() -> str:
     meta = {f.name: f.metadata for f in dataclasses.fields(SweepConfig) if f.metadata}
     for k in TOP_KEYS:
         if k == "preset":
-            kinds = " \\| ".join(f"`{c}`" for c in F.CROPS)
+            kinds = " \\| ".join(f"`{c}`" for c in crops.names())
             lines.append(f"| `preset` | {kinds} | `zucchini` | yes | {PRESET_DOC} |")
             continue
         m = meta[k]
