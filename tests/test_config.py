@@ -52,8 +52,13 @@ def test_wrong_types():
     assert error_of({"render": {"shadows": 1}}).startswith("render.shadows: expected true")
     assert error_of({"robot": {"cam_fovy": 40}}) == (
         "robot.cam_fovy: cannot be set here: the camera's vertical field of view is camera.fovy")
-    assert error_of({"controller": {"name": "oracle", "omega_gain": 2}}) == (
-        "controller.omega_gain: not a setting of controller oracle")
+    # a key of another controller is that controller's only (one YAML can switch controllers)
+    oracle = C.expand(C.from_dict({"controller": {"name": "oracle", "omega_gain": 2}}))[0].cfg
+    assert not hasattr(oracle.controller_params(), "omega_gain")
+    assert error_of({"controller": {"omega_gian": 2}}).startswith(
+        "controller.omega_gian: unknown key; did you mean omega_gain?")
+    assert error_of({"episode": {"path_length": 20}}) == (
+        "episode.path_length: unknown key; did you mean sim.path_length?")
     assert error_of({"controller": {"name": "pid"}}).startswith(
         "controller.name: 'pid' is not one of oracle, segzeros, segmin")
     assert error_of({"seeds": [1, 2]}) == "seeds: cannot be a grid axis; give one value"

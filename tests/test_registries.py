@@ -81,7 +81,7 @@ def test_toy_crop_and_controller_run_a_sweep(registered, tmp_path):
 
 
 def test_unknown_names_are_config_errors(registered):
-    with pytest.raises(C.ConfigError, match="controller.speed: not a setting of controller"):
-        C.from_dict({"controller": {"name": "oracle", "speed": 1.0}})
+    with pytest.raises(C.ConfigError, match="controller.sped: unknown key; did you mean speed"):
+        C.from_dict({"controller": {"name": "creep", "sped": 1.0}})
     with pytest.raises(C.ConfigError, match="preset: 'peas' is not one of"):
         C.from_dict({"preset": "peas"})

@@ -97,6 +97,18 @@ def _unknown(path: str, key: str, known) -> ConfigError:
     return ConfigError(f"{path}: unknown key{hint}")
 
 
+def _unknown_key(path: str, key: str, known) -> ConfigError:
+    """Unknown key in a section: the nearest key of the section, else the nearest key of
+    another section (a key that moved: `episode.path_length` → `sim.path_length`)."""
+    if difflib.get_close_matches(str(key), list(known), n=1):
+        return _unknown(path, key, known)
+    others = {k.split(".", 1)[1]: k for k in schema.all_keys()}
+    near = difflib.get_close_matches(str(key), list(others), n=1, cutoff=0.8)
+    if near:
+        return ConfigError(f"{path}: unknown key; did you mean {others[near[0]]}?")
+    return _unknown(path, key, known)
+
+
 _NEED = {"positive": "> 0", "nonneg": ">= 0"}
 
 
@@ -187,12 +199,9 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
                 path = f"{key}.{k2}"
                 if path in schema.REJECTED:
                     raise ConfigError(f"{path}: cannot be set here: {schema.REJECTED[path]}")
-                if path not in known:
-                    if path in everything:
-                        raise ConfigError(f"{path}: not a setting of controller "
-                                          f"{'/'.join(_controllers_named(raw))}")
-                    raise _unknown(path, k2, [k.split(".", 1)[1] for k in known])
-                spec = known[path]
+                if path not in everything:
+                    raise _unknown_key(path, k2, [k.split(".", 1)[1] for k in known])
+                spec = everything[path]  # another controller's key: that controller's only
 
                 def parse(p, x, spec=spec):
                     return _scalar(p, x, spec.kind, spec.optional, spec.choices)
