@@ -13,6 +13,7 @@ from mjxrow import field as F
 from mjxrow import render
 from mjxrow.control import perception as CL
 from mjxrow.physics import sim
+from mjxrow.rollout import build as B
 from mjxrow.rollout import episode as E
 
 N = 2
@@ -50,7 +51,7 @@ LEFT, RIGHT = weights(1.0, 23.5), weights(-1.0, 15.5)
 def world():
     params = jax.tree.map(lambda x: jnp.broadcast_to(x, (N,)), F.make_params("vineyard", **FLAT))
     shape = F.fit_shape(params, "vineyard")
-    gen = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)
+    gen = B.generate_fn()
     fields = gen(params, shape, jax.random.split(jax.random.key(0), N))
     return shape, fields
 

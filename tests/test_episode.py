@@ -14,6 +14,7 @@ from mjxrow import control as C
 from mjxrow import crops
 from mjxrow import field as F
 from mjxrow.physics import sim
+from mjxrow.rollout import build as RB
 from mjxrow.rollout import episode as E
 from mjxrow.rollout import metrics as M
 
@@ -46,7 +47,7 @@ def policy_params(mode, v=0.0, yaw=0.0, oracle=ORACLE):
     return oracle, {"mode": arr(mode), "v": arr(v), "yaw": arr(yaw)}
 
 
-generate = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)
+generate = RB.generate_fn()
 
 
 def make_fields(seed, **varied):
@@ -263,7 +264,7 @@ def test_oracle_every_preset(preset):
     params = F.make_params(preset, terrain_dh=0.0, stone_density=0.0, branch_density=0.0)
     params = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,)), params)
     shape = F.fit_shape(params, preset)
-    gen = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)
+    gen = RB.generate_fn()
     fields = gen(params, shape, jax.random.split(jax.random.key(0), n))
     cfg = E.EpisodeConfig(crop=preset)
     _, mx = sim.make_model(shape, cfg.sim)
@@ -301,7 +302,7 @@ def test_segzeros_on_rendered_masks_steers_back():
     n = 2
     params = F.make_params("vineyard", **FLAT)
     params = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,)), params)
-    fields = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)(
+    fields = RB.generate_fn()(
         params, SHAPE, jax.random.split(jax.random.key(0), n))
     cfg = E.EpisodeConfig(crop="vineyard", max_time=200 / 15, sim=sim.SimConfig(path_length=6.0))
     _, mx = sim.make_model(SHAPE, cfg.sim)

@@ -85,7 +85,7 @@ def spacings(field: F.Field) -> dict[str, float]:
 def measure(preset: str, seeds: int) -> dict[str, float | tuple]:
     """Means over `seeds` generated fields of `preset` (seed 0..seeds-1)."""
     shape = F.preset_shape(preset)
-    gen = jax.jit(jax.vmap(F.generate, in_axes=(None, None, 0)), static_argnums=1)
+    gen = jax.jit(jax.vmap(F.generate, in_axes=(None, None, 0)), static_argnums=1)  # one preset
     prims_fn = jax.jit(jax.vmap(PL.plant_prims, in_axes=(0, None)), static_argnums=1)
     keys = jax.vmap(jax.random.key)(np.arange(seeds))
     fields = gen(F.make_params(preset), shape, keys)
