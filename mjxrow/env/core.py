@@ -42,6 +42,10 @@ from mjxrow.rollout import build as B
 from mjxrow.rollout import metrics as M
 from mjxrow.rollout.config import ControllerChoice, RunConfig
 
+# the plant table's array fields, in the order of its leaves (EnvData.table)
+TABLE_FIELDS = tuple(f.name for f in dataclasses.fields(render.PlantTable)
+                     if f.metadata.get("pytree_node", True))
+
 NAV_METRICS = ("success", "collision", "reason", "cha", "mae", "mse", "omega_std", "v_mean",
                "time", "path_ratio", "max_offset")
 
@@ -137,9 +141,15 @@ class Env:
         self.teacher_params = run.controller_params()
         # the plant table's static part (numpy primitive kinds) stays here; the state holds its
         # arrays, so states of different resets share one tree structure
-        self._table_def = jax.tree.structure(jax.eval_shape(
-            lambda k: render.plant_table(F.generate(self.base, self.shape, k), self.shape),
-            jax.random.key(0)))
+        static = {}
+
+        def table(k):
+            t = render.plant_table(F.generate(self.base, self.shape, k), self.shape)
+            static.update(kind=t.kind, material=t.material)
+            return ()
+
+        jax.eval_shape(table, jax.random.key(0))
+        self._table_static = static
         h, w = run.camera.height, run.camera.width
         frame = render.Frame(rgb=jnp.zeros((h, w, 3), jnp.uint8), depth=jnp.zeros((h, w)),
                              mask=jnp.zeros((h, w), bool), classes=jnp.zeros((h, w), jnp.uint8))
@@ -173,7 +183,8 @@ class Env:
 
     def frame(self, d: EnvData, s: sim.SimState, key: jax.Array | None):
         cam_pos, cam_rot = O.camera_jitter(*sim.camera_pose(s), d.jitter)
-        table = jax.tree.unflatten(self._table_def, d.table)
+        table = render.PlantTable(**dict(zip(TABLE_FIELDS, d.table, strict=True)),
+                                  **self._table_static)
         return render.render(d.field, self.shape, cam_pos, cam_rot, self.intr, d.cond, key,
                              self.render_cfg, table=table)
 

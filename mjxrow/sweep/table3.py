@@ -1,9 +1,10 @@
 """The paper's Table 3 (row navigation in each crop at its default geometry) beside ours, for
 three controllers: oracle pure pursuit on the true lane centre line, SegZeros on the renderer's
-ground-truth plant mask, and SegZeros on the learned segmenter's mask (shipped checkpoint).
+ground-truth plant mask, and SegZeros on the learned segmenter's mask (shipped checkpoint);
+`--controllers ... policy` adds the shipped learned policy (experiments/train_policy.py).
 
     python experiments/table3_navigation.py [--episodes 100] [--presets zucchini ...]
-        [--controllers oracle segzeros_gt segzeros_learned] [--out runs/table3]
+        [--controllers oracle segzeros_gt segzeros_learned policy] [--out runs/table3]
         [--image 64] [--batch-size 256] [--smoke]
 
 Scenario (the paper's Table 3): every preset at its default geometry (Table 1 values; typical
@@ -60,6 +61,8 @@ CONTROLLERS: dict[str, tuple[str, dict[str, Any]]] = {
     "segzeros_learned": ("SegZeros, learned segmenter", {
         "controller": {"name": "segzeros", "variant": "paper"},
         "perception": {"source": "learned", "checkpoint": "shipped"}}),
+    "policy": ("learned policy (images → v, ω)", {
+        "controller": {"name": "policy", "checkpoint": "shipped"}}),
 }
 
 # (column, title, unit, format); every cell shows mean [95 % CI].
@@ -71,6 +74,7 @@ COLUMNS: tuple[tuple[str, str, str, str], ...] = (
     ("omega_std", "ω std", "rad/s", "{:.3f}"),
     ("time", "time to goal", "s", "{:.1f}"),
 )
+DEFAULT_CONTROLLERS = ("oracle", "segzeros_gt", "segzeros_learned")  # `policy` on request
 PAPER_METRICS = ("cha", "mae", "mse", "omega_std")
 PAPER_CONTROLLERS = ("SegZeros",)  # the paper's Table 3 has one controller's row per crop
 # the paper's pear values, which cannot go together (NOTES)
@@ -314,6 +318,7 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
                 else ""))
     ref = cfg or build_config(controllers[0], presets[0], episodes, image, base, batch_size,
                               seed, smoke)
+    sz = build_config("segzeros_gt", presets[0], episodes, image, base, batch_size, seed, smoke)
     info = {"date": datetime.datetime.now().isoformat(timespec="seconds"),
             "command": f"`{command}`" if command else "(API call)",
             "device": device,
@@ -324,9 +329,9 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
             "camera": f"{ref.camera.width} × {ref.camera.height} px, fovy "
                       f"{ref.camera.fovy:g}°, pitch {ref.robot.cam_pitch_deg:g}°, height "
                       f"{ref.robot.cam_height:g} m",
-            "SegZeros": f"{ref.controller.variant} law, ω gain {ref.controller.omega_gain:g}, "
-                        f"v max {ref.controller.v_max:g}; sky/lighting "
-                        f"{ref.perception.condition}",
+            "SegZeros": f"{sz.controller.variant} law, ω gain {sz.controller.omega_gain:g}, "
+                        f"v max {sz.controller.v_max:g}; sky/lighting "
+                        f"{sz.perception.condition}",
             "results": f"`{out}/<controller>/<preset>/results.csv`"}
     if smoke:
         info["smoke"] = "tiny check run (--smoke): not the paper's scenario"
@@ -343,7 +348,8 @@ def main(argv: list[str] | None = None) -> int:
                                 epilog=__doc__.split("\n\n", 1)[1])
     p.add_argument("--episodes", type=int, default=100, help="episodes per block (default 100)")
     p.add_argument("--presets", nargs="+", default=list(crops.names()), choices=crops.names())
-    p.add_argument("--controllers", nargs="+", default=list(CONTROLLERS), choices=CONTROLLERS)
+    p.add_argument("--controllers", nargs="+", default=list(DEFAULT_CONTROLLERS),
+                   choices=CONTROLLERS)
     p.add_argument("--out", default="runs/table3", help="run folder (with --smoke: OUT_smoke)")
     p.add_argument("--image", type=int, default=None,
                    help="camera side in pixels (default: the base YAML's, 64)")

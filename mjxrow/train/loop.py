@@ -155,8 +155,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     k_init, key = jax.random.split(key)
     params = tr.init_params(k_init)
     state = {"params": params, "bc_opt": tr.bc_tx.init(params), "ppo_opt": tr.ppo_tx.init(params),
-             "counters": {"iteration": np.int64(0), "env_steps": np.int64(0),
-                          "elapsed": np.float64(0.0)}, "key": jax.random.key_data(key)}
+             "counters": _counters(0, 0, 0.0), "key": jax.random.key_data(key)}
     restored = CK.restore_state(out / "state", state, tr.about())
     if restored is not None:
         state = restored[1]
@@ -242,11 +241,16 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             "last": last}
 
 
+def _counters(it: int, env_steps: int, elapsed: float) -> dict:
+    # 0-d arrays: orbax's standard handler takes arrays, not numpy scalars
+    return {"iteration": np.asarray(it, np.int64), "env_steps": np.asarray(env_steps, np.int64),
+            "elapsed": np.asarray(elapsed, np.float64)}
+
+
 def _save(out, tr, params, bc_opt, ppo_opt, it, env_steps, elapsed, key):
     CK.save_state(out / "state", it, {
         "params": params, "bc_opt": bc_opt, "ppo_opt": ppo_opt,
-        "counters": {"iteration": np.int64(it), "env_steps": np.int64(env_steps),
-                     "elapsed": np.float64(elapsed)},
+        "counters": _counters(it, env_steps, elapsed),
         "key": jax.random.key_data(key)}, tr.about())
 
 

@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# The shipped policy in one GPU command: train (BC / DAgger from the oracle, randomised fields),
+# evaluate it beside SegZeros (learned segmenter) and the oracle at zucchini and vineyard default
+# geometry (100 episodes each), ship the checkpoint (float16) into mjxrow/checkpoints/policy/
+# and copy the artefacts into OUT.
+#
+#   bash experiments/train_policy_gpu.sh OUT [train_policy.py arguments ...]
+#   bash experiments/train_policy_gpu.sh OUT --smoke     # the same path on a CPU, tiny
+#   bash experiments/train_policy_gpu.sh --surfaces OUT  # the policy's sweep surfaces
+#
+# OUT receives: train.log, policy/ (the checkpoint), shipped_policy/ (its float16 copy),
+# train_log.jsonl, learning_curve.png, eval.md, eval.json, summary.json, benchmarks.jsonl.
+# The training state and the compilation cache stay in a scratch folder (WORK, default
+# /tmp/policy_run; a second command with the same WORK resumes).
+set -euo pipefail
+if [[ "${1:-}" == "--surfaces" ]]; then
+  OUT=${2:?usage: $0 --surfaces OUT [sweep arguments ...]}
+  shift 2
+  mkdir -p "$OUT"
+  for y in sweeps/policy.yaml sweeps/policy_slope_roughness.yaml; do
+    name=$(basename "$y" .yaml)
+    python -m mjxrow.sweep "$y" --out "$OUT/$name" --no-progress "$@" 2>&1 | tee "$OUT/$name.log"
+  done
+  exit 0
+fi
+OUT=${1:?usage: $0 OUT [train_policy.py arguments ...]}
+shift
+WORK=${WORK:-/tmp/policy_run}
+mkdir -p "$OUT"
+(nvidia-smi --query-gpu=name,driver_version --format=csv,noheader || true) > "$OUT/device.txt"
+python experiments/train_policy.py --out "$WORK" --budget-minutes 5 --deadline-minutes 9 \
+  --eval-reserve-minutes 1.5 --bc-fraction 1 --ship "$@" 2>&1 | tee "$OUT/train.log"
+for f in policy train_log.jsonl learning_curve.png eval.md eval.json summary.json \
+         benchmarks.jsonl; do
+  if [[ -e "$WORK/$f" ]]; then cp -r "$WORK/$f" "$OUT/"; fi
+done
+if [[ -d mjxrow/checkpoints/policy ]]; then cp -r mjxrow/checkpoints/policy "$OUT/shipped_policy"; fi
