@@ -10,7 +10,8 @@
 #
 # OUT receives: train.log, policy/ (the checkpoint), shipped_policy/ (its float16 copy),
 # train_log.jsonl, learning_curve.png, eval.md, eval.json, summary.json, benchmarks.jsonl.
-# The training state and the compilation cache stay in a scratch folder (WORK, default
+# The artefacts are copied whatever the exit status (which is the script's). The training
+# state and the compilation cache stay in a scratch folder (WORK, default
 # /tmp/policy_run; a second command with the same WORK resumes).
 set -euo pipefail
 if [[ "${1:-}" == "--surfaces" ]]; then
@@ -28,10 +29,14 @@ shift
 WORK=${WORK:-/tmp/policy_run}
 mkdir -p "$OUT"
 (nvidia-smi --query-gpu=name,driver_version --format=csv,noheader || true) > "$OUT/device.txt"
+set +e
 python experiments/train_policy.py --out "$WORK" --budget-minutes 5 --deadline-minutes 9 \
   --eval-reserve-minutes 1.5 --bc-fraction 1 --ship "$@" 2>&1 | tee "$OUT/train.log"
+status=${PIPESTATUS[0]}
+set -e
 for f in policy train_log.jsonl learning_curve.png eval.md eval.json summary.json \
          benchmarks.jsonl; do
   if [[ -e "$WORK/$f" ]]; then cp -r "$WORK/$f" "$OUT/"; fi
 done
 if [[ -d mjxrow/checkpoints/policy ]]; then cp -r mjxrow/checkpoints/policy "$OUT/shipped_policy"; fi
+exit "$status"

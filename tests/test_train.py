@@ -29,7 +29,7 @@ RUN = (("field.terrain_length", 14.0), ("field.row_length", 10.0),
        ("field.branch_density", 0.0), ("camera.width", 16), ("camera.height", 16),
        ("sim.path_length", 3.0), ("episode.max_time", 10.0), ("render.shadows", False))
 CFG = TrainConfig(presets=("vineyard",), num_envs=4, unroll=4, budget_minutes=0.05,
-                  bc_fraction=0.5, run=RUN, net=TINY, save_every=5,
+                  bc_fraction=0.5, run=RUN, net=TINY, save_every=5, max_resets=4,
                   env=E.EnvConfig(randomize=E.Randomize(
                       ranges=(("d_RR", 2.5, 2.9), ("terrain_dh", 0.0, 0.1)),
                       start_progress=0.3)),
