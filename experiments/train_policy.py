@@ -145,6 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     from mjxrow.train import loop as L
 
     if args.smoke:
+        args.ship = False  # a tiny smoke policy never replaces the shipped one
         args.episodes = min(args.episodes, 2)
         args.presets = ["vineyard"]
         args.controllers = list(dict.fromkeys(

@@ -45,6 +45,6 @@ from mjxrow.control.segzeros import (
 __all__ = ["CONTROLLERS", "ON_END", "Controller", "Obs", "OracleConfig", "OracleParams", "Policy",
            "oracle_act",
            "SegConfig", "SegParams", "SegState", "as_policy", "free_runs", "get", "lane_command",
-           "names", "oracle", "oracle_params", "pursuit_command", "register", "seg_act",
+           "names", "oracle", "oracle_params", "policy", "pursuit_command", "register", "seg_act",
            "seg_command", "seg_init", "seg_params", "segmin_target", "segzeros", "segzeros_target",
            "steering_law", "with_perception", "wrap_angle"]
