@@ -1,7 +1,7 @@
 """Training: GAE on a hand-computed rollout; a few BC / DAgger and PPO iterations in the tiny
-environment give finite losses and resume from their orbax state; the saved policy loads, is
-checked against the camera, and drives a 2-episode sweep as `controller: {name: policy}`;
-missing or mismatched checkpoints are one-line errors naming the key (exit 2).
+environment give finite losses, write a policy that loads and resume from their orbax state; a
+saved policy is checked against the camera and drives a 2-episode sweep as `controller: {name:
+policy}`; missing or mismatched checkpoints are one-line errors naming the key (exit 2).
 
 One tiny configuration (vineyard, 2 rows of 11 plants, 16 × 16 images, a tiny network, 4
 worlds) trains once for the module (its compiled programs cached on disk for the resume)."""
@@ -45,6 +45,14 @@ def trained(tmp_path_factory):
     return out, res
 
 
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory):
+    """An untrained policy checkpoint of the tiny configuration (16 × 16 RGB + proprio)."""
+    spec = E.ObsSpec("rgb", 16, 16, True)
+    params = N.init(N.PolicyNet(TINY), CK.example_obs(spec), jax.random.key(1))
+    return CK.save(tmp_path_factory.mktemp("saved") / "policy", params, spec, TINY, (0.5, 1.0))
+
+
 def test_gae_hand_computed():
     # one world, 3 steps, γ = 0.5, λ = 1: rewards 1, 1, 1; values 0; the episode terminates
     # at step 2 (no bootstrap past it): advantages 1 + 0.5 + 0.25, 1 + 0.5, 1
@@ -76,7 +84,8 @@ def test_bc_and_ppo_iterations_finite_and_resume(trained):
         assert all(np.isfinite(r[k]) for k in keys), r
         assert r["rollout_steps_per_s"] > 0
     assert res["env_steps"] == len(rows) * 16 and (out / "learning_curve.png").stat().st_size
-    assert (out / "policy" / "policy.json").is_file()
+    ck = CK.load(out / "policy", {"kind": "rgb", "height": 16, "width": 16})
+    assert ck.meta["iterations"] == res["iterations"] and ck.limits == (0.5, 1.0)
     # a second call with a larger budget resumes where the first stopped
     more = train(dataclasses.replace(CFG, budget_minutes=0.07), out, progress=False,
                  log=lambda m: None)
@@ -113,17 +122,16 @@ def test_checkpoint_roundtrip_and_mismatch(tmp_path):
         CK.load(tmp_path / "p")
 
 
-def test_policy_checkpoint_runs_in_a_sweep(trained, tmp_path):
+def test_policy_checkpoint_runs_in_a_sweep(saved, tmp_path):
     from mjxrow.sweep import config as SC
     from mjxrow.sweep import run as SR
 
-    out, _ = trained
     raw = {"name": "policy check", "preset": "vineyard", "seeds": 2, "seed": 0,
            "batch_size": 2, "out": str(tmp_path / "sweep"),
            "field": {k.split(".")[1]: v for k, v in RUN if k.startswith("field.")},
            "sim": {"path_length": 3.0}, "episode": {"max_time": 10.0},
            "camera": {"width": 16, "height": 16}, "render": {"shadows": False},
-           "controller": {"name": "policy", "checkpoint": str(out / "policy")}}
+           "controller": {"name": "policy", "checkpoint": str(saved)}}
     (tmp_path / "sweep.yaml").write_text(yaml.safe_dump(raw))
     cfg = SC.load(tmp_path / "sweep.yaml")
     res = SR.run(cfg, tmp_path / "sweep", progress=False, figures=False)
@@ -134,17 +142,16 @@ def test_policy_checkpoint_runs_in_a_sweep(trained, tmp_path):
     assert len(df) == 2 and np.all(np.isfinite(df["mae"])) and np.all(np.isfinite(df["cha"]))
 
 
-def test_bad_checkpoint_is_a_one_line_error_exit_2(trained, tmp_path, capsys):
+def test_bad_checkpoint_is_a_one_line_error_exit_2(saved, tmp_path, capsys):
     from mjxrow import episode
 
-    out, _ = trained
     base = ["--preset", "vineyard", "--controller", "policy", "--n", "1", "--no-progress",
             "--out", str(tmp_path / "ep")]
     assert episode.main(base + ["--set", f"controller.checkpoint={tmp_path / 'none'}"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: controller.checkpoint: no policy checkpoint") and \
         "\n" not in err
-    assert episode.main(base + ["--set", f"controller.checkpoint={out / 'policy'}",
+    assert episode.main(base + ["--set", f"controller.checkpoint={saved}",
                                 "--set", "camera.width=32", "--set", "camera.height=16"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: controller.checkpoint:") and "width" in err and "32" in err
