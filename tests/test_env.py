@@ -63,6 +63,7 @@ def test_reset_step_jit_vmap(tiny):
         assert f"reward/{k}" in s2.metrics
 
 
+@pytest.mark.slow  # minutes of CPU compilation (trainer / episode programs)
 def test_episode_matches_rollout_episode(tiny):
     """The oracle driving the environment ends its episode at the step and with the reason
     and metrics that rollout.episode gives for the same field and start."""

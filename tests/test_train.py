@@ -73,6 +73,7 @@ def test_gae_hand_computed():
     np.testing.assert_allclose(adv[:, 0], [1.0, 0.0, 1.0])
 
 
+@pytest.mark.slow  # minutes of CPU compilation (trainer / episode programs)
 def test_bc_and_ppo_iterations_finite_and_resume(trained):
     out, res = trained
     rows = [json.loads(x) for x in (out / "train_log.jsonl").read_text().splitlines()]
@@ -122,6 +123,7 @@ def test_checkpoint_roundtrip_and_mismatch(tmp_path):
         CK.load(tmp_path / "p")
 
 
+@pytest.mark.slow  # minutes of CPU compilation (trainer / episode programs)
 def test_policy_checkpoint_runs_in_a_sweep(saved, tmp_path):
     from mjxrow.sweep import config as SC
     from mjxrow.sweep import run as SR

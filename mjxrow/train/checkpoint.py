@@ -131,6 +131,15 @@ def load(name: str | Path, expect: dict[str, Any] | None = None, base_dir: str |
         msg = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise ValueError(f"{key}: {path} params do not match its {SPEC_FILE} "
                          f"({spec.describe()}, network {net_cfg}): {msg}") from None
+    have = [tuple(x.shape) for x in jax.tree.leaves(tree)]
+    want = [tuple(x.shape) for x in jax.tree.leaves(target)]
+    if have != want:
+        bad = next((i for i, (a, b) in enumerate(zip(have, want, strict=False)) if a != b),
+                   min(len(have), len(want)))
+        raise ValueError(f"{key}: {path} params do not match its {SPEC_FILE} ({spec.describe()}, "
+                         f"network {net_cfg}): array {bad} is stored as "
+                         f"{have[bad] if bad < len(have) else 'missing'}, the network needs "
+                         f"{want[bad] if bad < len(want) else 'none'}")
     variables = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), tree)
     act = doc.get("action", {})
     return PolicyCheckpoint(path, net, variables, spec,

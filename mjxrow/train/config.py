@@ -18,10 +18,16 @@ SECTIONS = ("train", "env", "net", "ppo", "bc")
 
 def _value(text: str, key: str) -> Any:
     try:
-        return yaml.safe_load(text)
+        value = yaml.safe_load(text)
     except yaml.YAMLError as e:
         raise ValueError(f"--set {key}: value {text!r} is not valid YAML ({e.problem})") \
             from None
+    if isinstance(value, str):  # YAML 1.1 reads 1e-4 (no dot) as a string
+        try:
+            return float(value)
+        except ValueError:
+            pass
+    return value
 
 
 def _replace(obj: Any, path: list[str], value: Any, dotted: str) -> Any:
