@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxrow import control
+from mjxrow import control, runtime
 from mjxrow import field as F
 from mjxrow.control import perception
 from mjxrow.physics import sim
@@ -48,6 +48,18 @@ def split_keys(keys: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Episode keys [N] → (field keys [N], rollout keys [N])."""
     k = jax.vmap(jax.random.split)(keys)
     return k[:, 0], k[:, 1]
+
+
+@functools.lru_cache(maxsize=1)
+def lanes_fn():
+    """jit(vmap(field.robot_lane)): fields [B] → int32 [B] lanes."""
+    return jax.jit(jax.vmap(F.robot_lane))
+
+
+@functools.lru_cache(maxsize=1)
+def summarise_fn():
+    """jit(episode.summarise) (config static): Log [B] → per-episode metrics."""
+    return jax.jit(E.summarise, static_argnums=1)
 
 
 @functools.lru_cache(maxsize=1)
@@ -126,10 +138,10 @@ class Built:
         out = []
         for a, x in zip(leaves, treedef.flatten_up_to(params), strict=True):
             if a is not None:
-                out.append(jax.device_put(x, self.sharding(True)))
+                out.append(runtime.put(x, self.sharding(True)))
                 continue
             if id(x) not in self.placed:
-                self.placed[id(x)] = (x, jax.device_put(x, self.sharding(False)))
+                self.placed[id(x)] = (x, runtime.put(x, self.sharding(False)))
             out.append(self.placed[id(x)][1])
         return treedef.unflatten(out)
 
@@ -141,7 +153,7 @@ class Built:
             raise ValueError("batch: no episodes")
         B = self.padded(max(size or len(items), len(items)))
         full = items + [items[-1]] * (B - len(items))
-        put = functools.partial(jax.device_put, device=self.sharding(True))
+        put = functools.partial(runtime.put, sharding=self.sharding(True))
         by_run: dict[RunConfig, list[int]] = {}
         for i, (run, _) in enumerate(full):
             by_run.setdefault(run, []).append(i)
@@ -152,8 +164,8 @@ class Built:
         fkeys, rkeys = split_keys(keys)
         fparams = put(stack([cache[r][0] for r, _ in full]))
         fields = generate_fn()(fparams, self.shape, put(fkeys))
-        E.check_fields(fields)
-        lanes = jax.vmap(F.robot_lane)(fields)
+        E.check_fields(fields.replace(valid=runtime.to_host(fields.valid)))
+        lanes = lanes_fn()(fields)
         pol = self._put_params(E.stack_params([cache[r][1] for r, _ in full], self.axes))
         noise = put(E.batch_noise(stack([cache[r][2] for r, _ in full]), B))
         return Batch(fields, lanes, put(rkeys), noise, pol, len(items))
@@ -167,7 +179,7 @@ class Built:
 
     def summarise(self, log: Log, n: int | None = None) -> dict[str, np.ndarray]:
         """Per-episode metrics on the host (the first `n` episodes)."""
-        out = jax.tree.map(np.asarray, E.summarise(log, self.episode))
+        out = runtime.to_host(summarise_fn()(log, self.episode))
         return {k: v[:n] if np.ndim(v) else v for k, v in out.items()}
 
 
@@ -194,5 +206,5 @@ def build(runs: RunConfig | Sequence[RunConfig], shape: F.FieldShape | None = No
     else:
         policy, axes = control.as_policy(c), 0
     mesh = jax.sharding.Mesh(np.array(list(devices or jax.devices())), ("batch",))
-    mx = jax.device_put(mx, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))
+    mx = runtime.put(mx, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))
     return Built(first, shape, ep, mj, mx, policy, axes, base, mesh)

@@ -15,6 +15,7 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 from mjxrow import field as F
+from mjxrow import runtime
 from mjxrow.rollout import build as B
 from mjxrow.rollout import metrics as M
 from mjxrow.rollout.config import RunConfig
@@ -83,7 +84,9 @@ def run_episodes(run: RunConfig, n: int, out: str | Path, progress: bool = True
         log = exe(*batch.args(built.mx))
         summary = built.summarise(log, n)
     t2 = time.perf_counter()
-    table = results_table(run, np.arange(n), np.asarray(batch.lanes)[:n], summary)
+    table = results_table(run, np.arange(n), runtime.to_host(batch.lanes)[:n], summary)
+    if not runtime.writer():  # several processes: process 0 reports and writes
+        return table
     out.mkdir(parents=True, exist_ok=True)
     table.to_csv(out / "episodes.csv", index=False)
     print(f"{run.controller.name} on {run.preset}: {n} episodes, compile {t1 - t0:.1f} s, "
