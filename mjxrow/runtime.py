@@ -58,20 +58,24 @@ def add_args(p: argparse.ArgumentParser) -> None:
 
 
 def setup(args: argparse.Namespace, cpu_split: bool = False) -> Path | None:
-    """Everything `add_args` asked for, before any computation: the multi-process runtime
-    (when a cluster is given), then the compilation cache. With `cpu_split`, a CPU-only
-    process gets one XLA device per core (`cpu_devices`; not when several processes run).
-    Returns the cache directory in use (None: off). ValueError naming the flag for bad
-    values."""
+    """Everything `add_args` asked for, before any computation: the compilation cache, then
+    the multi-process runtime (when a cluster is given). With `cpu_split` and no cache, a
+    CPU-only process gets one XLA device per core (`cpu_devices`; not when several processes
+    run): with jax 0.10 the closed-loop program loaded from the cache deadlocks on the CPU
+    backend with two local devices (a rendezvous timeout of an all-gather against an
+    all-reduce), so with the cache a CPU process keeps one device. Returns the cache
+    directory in use (None: off). ValueError naming the flag for bad values."""
     cluster = cluster_from(args)
-    if cpu_split and cluster is None:
+    cache = None
+    if getattr(args, "no_cache", False):
+        disable_cache()
+    else:
+        cache = enable_cache(getattr(args, "cache_dir", None))
+    if cpu_split and cluster is None and cache is None:
         cpu_devices()
     if cluster is not None:
         init_cluster(*cluster)
-    if getattr(args, "no_cache", False):
-        disable_cache()
-        return None
-    return enable_cache(getattr(args, "cache_dir", None))
+    return cache
 
 
 # ---------------------------------------------------------------------------------------------
@@ -194,9 +198,8 @@ def put(tree: Any, sharding: jax.sharding.Sharding) -> Any:
         if isinstance(x, jax.Array) and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
             impl = jax.random.key_impl(x)
             return jax.random.wrap_key_data(one(jax.random.key_data(x)), impl=impl)
-        if isinstance(x, jax.Array) and not x.is_fully_addressable:
-            return x if x.sharding == sharding else jax.jit(
-                lambda y: y, out_shardings=sharding)(x)
+        if isinstance(x, jax.Array) and not x.is_fully_addressable:  # global already
+            return x if x.sharding == sharding else jax.device_put(x, sharding)
         host = np.asarray(x)
         return jax.make_array_from_callback(host.shape, sharding, lambda idx: host[idx])
 
