@@ -11,6 +11,7 @@ without `--data`. IoU is pooled over the images: Σ|M ∩ Y| / Σ|M ∪ Y|, thre
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 from pathlib import Path
 
@@ -21,7 +22,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a check
 from mjxrow.field import CROPS  # noqa: E402
 from mjxrow.seg import checkpoint as ckpt  # noqa: E402
 from mjxrow.seg import data as D  # noqa: E402
-from mjxrow.seg import eval as EV  # noqa: E402
 from mjxrow.seg.model import predict_mask  # noqa: E402
 
 
@@ -29,7 +29,7 @@ def compare(crop: str, n: int, size: int, batch: int = 32) -> dict[str, float]:
     """Pooled IoU vs the true mask in float32 and bfloat16, and between the two predictions."""
     module, variables = ckpt.load(crop)
     batches = D.fixed_set(D.onthefly(crop, size, batch), max(1, -(-n // batch)), 20_000)
-    fns = {dt: jax.jit(lambda v, x, m=module.clone(dtype=dt): predict_mask(m, v, x))
+    fns = {dt: jax.jit(functools.partial(predict_mask, module.clone(dtype=dt)))
            for dt in ("float32", "bfloat16")}
     tot = {k: 0.0 for k in ("i32", "u32", "i16", "u16", "iab", "uab")}
     for rgb, mask, weight in batches:

@@ -13,8 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from mjxrow import control, runtime
-from mjxrow import field as F
+from mjxrow import control, crops, runtime
 from mjxrow.rollout import cli
 from mjxrow.sweep import config as C
 
@@ -23,7 +22,7 @@ def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m mjxrow.episode", description=__doc__.split(
         "\n")[0].split(": ", 1)[1], formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="Exit codes: 0 done, 2 invalid configuration (the key is named).")
-    p.add_argument("--preset", choices=F.CROPS, help="crop preset (default: vineyard, or the "
+    p.add_argument("--preset", choices=crops.names(), help="crop preset (default: vineyard, or the "
                    "config's)")
     p.add_argument("--controller", choices=control.names(),
                    help="controller.name (default: oracle, or the config's)")

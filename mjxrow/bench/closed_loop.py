@@ -26,8 +26,7 @@ import time
 import jax
 import numpy as np
 
-from mjxrow import control, runtime
-from mjxrow import field as F
+from mjxrow import control, crops, runtime
 from mjxrow.control import perception
 from mjxrow.rollout import build as B
 from mjxrow.rollout.config import RunConfig
@@ -35,7 +34,7 @@ from mjxrow.sweep import config as C
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--preset", default="zucchini", choices=F.CROPS)
+    p.add_argument("--preset", default="zucchini", choices=crops.names())
     p.add_argument("--batch", type=int, nargs="+", default=[256, 1024])
     p.add_argument("--image", type=int, default=64, help="camera image side [px]")
     p.add_argument("--steps", type=int, default=150, help="control steps per timed call")

@@ -41,7 +41,8 @@ from mjxrow.control.segzeros import (
     steering_law,
 )
 
-__all__ = ["CONTROLLERS", "ON_END", "oracle_act", "Controller", "Obs", "OracleConfig", "OracleParams", "Policy",
+__all__ = ["CONTROLLERS", "ON_END", "Controller", "Obs", "OracleConfig", "OracleParams", "Policy",
+           "oracle_act",
            "SegConfig", "SegParams", "SegState", "as_policy", "free_runs", "get", "lane_command",
            "names", "oracle", "oracle_params", "pursuit_command", "register", "seg_act",
            "seg_command", "seg_init", "seg_params", "segmin_target", "segzeros", "segzeros_target",

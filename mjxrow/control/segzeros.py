@@ -73,34 +73,8 @@ def seg_params(method: str = "zeros", variant: str = "paper", *, v_max: float = 
     line the robot drove inside the row (heading and lateral position), "stop" commands (0, 0)
     as the public code does, "hold" keeps the last command.
 
-    The paper leaves the end of the row open. "Straight" is a heading hold on the robot's yaw
-    (`obs.pose`, what its odometry / IMU give): ω = −omega_gain·wrap(yaw − yaw_ref), clipped,
-    where yaw_ref is an EMA of the yaw over the steps that saw the row, frozen while the row
-    end is seen (factor `heading_alpha` per step: 0.005 at 15 Hz ≈ 13 s ≈ 6.7 m at 0.5 m/s,
-    long enough to average SegZeros' in-row weaving; with 0.1 ≈ 0.7 s, 8 of 100 pear episodes
-    with ground-truth masks passed the goal more than 0.40 m beside it, 1 with 0.005). ω = 0
-    instead would leave the robot's heading to terrain bumps and stones for the metres it
-    drives without seeing a plant (pear: 7-9 m with a 42° wide image). `seg_command` alone
-    (no memory) commands ω = 0 there; `seg_act` adds the hold.
-
-    "Lane" follows a line estimated from the same odometry pose over the steps that saw the
-    row, frozen while the row end is seen: its direction yaw_l is an EMA of the yaw with factor
-    `lane_alpha` per step (0.005, as heading_alpha), and a point (x_l, y_l) on it an EMA of the
-    position with factor `lane_xy_alpha` (0.02 ≈ 3.3 s ≈ 1.7 m at 0.5 m/s: the robot's recent
-    mean lateral position, SegZeros' weaving averaged out). The point lags that far behind the
-    robot along its path, and a direction error δ shifts the line by δ·lag at the robot, so
-    the point's window is the shorter one (pear, seed 1, 100 episodes: lane_xy_alpha 0.005
-    reached the goal in 97 and 94 with ground-truth and learned masks, 0.02 in 100 and 99).
-    ω = −lane_k_yaw·wrap(yaw − yaw_l) − lane_k_lat·e_lat, clipped to ±omega_limit, with
-    e_lat = −sin(yaw_l)·(x − x_l) + cos(yaw_l)·(y − y_l) the signed offset from the line [m],
-    positive to the LEFT of the direction of travel (so ω < 0 turns back right). Linearised on
-    a unicycle at speed v (e' = v·θ, θ' = ω) the loop is s² + k_yaw·s + k_lat·v: the defaults
-    k_yaw = 1.5 rad/s, k_lat = 1.0 rad/(s·m) give at v = 0.5 m/s a natural frequency of
-    0.71 rad/s with damping 1.06 (no overshoot; an offset shrinks to ~2 % in 8 s, 4 m); the
-    approach angle to the line settles at k_lat·e_lat/k_yaw (0.2 rad for 0.3 m). On pear
-    (Table 3 scenario, seeds 0 and 1, 100 episodes each) it reached the goal as often as
-    "straight" with heading_alpha 0.005 (ground-truth / learned masks: 100/99 and 100/99
-    against 100/99 and 99/99), not more; its remaining failures are inside the row."""
+    Why the end-of-row behaviours are as they are, and what they measured on pear:
+    docs/controller.md."""
     if method not in METHODS:
         raise ValueError(f"method: unknown {method!r}; expected one of {METHODS}")
     presets = {"paper": dict(law="linear", ema_alpha=1.0, n_frames=1, depth_max=float("inf")),

@@ -34,7 +34,7 @@ from typing import Any
 
 import yaml
 
-from mjxrow import control
+from mjxrow import control, crops
 from mjxrow import field as F
 from mjxrow.control.perception import PerceptionConfig
 from mjxrow.field import params as FP
@@ -238,7 +238,7 @@ class RunConfig:
     def field_values(self) -> dict[str, float]:
         """Resolved FieldParams values: the preset's with the overrides."""
         over = {k: v for k, v in self.field.items() if v is not None}
-        return {**F.PRESETS[self.preset], **over}
+        return {**crops.get(self.preset).preset, **over}
 
     def field_params(self) -> F.FieldParams:
         return F.make_params(self.preset, **self.field_values())
@@ -260,8 +260,8 @@ class RunConfig:
         return out
 
     def flat(self) -> dict[str, Any]:
-        """Every key → value (field keys resolved from the preset); `preset` first."""
-        out: dict[str, Any] = {"preset": self.preset}
+        """Every key → value (field keys resolved from the preset); `preset` and `seed` first."""
+        out: dict[str, Any] = {"preset": self.preset, "seed": self.seed}
         fv = self.field_values()
         for k in self.keys():
             out[k] = float(fv[k[6:]]) if k.startswith("field.") else self.get(k)
@@ -315,8 +315,8 @@ def build_run(values: dict[str, Any], seed: int = 0, base_dir: str | Path = ".")
     keys take their defaults). Every section is built by its domain class, whose checks raise
     ConfigError naming the dotted key."""
     preset = values.get("preset", "zucchini")
-    if preset not in F.CROPS:
-        raise ConfigError(f"preset: {preset!r} is not one of {', '.join(F.CROPS)}")
+    if preset not in crops.CROPS:
+        raise ConfigError(f"preset: {preset!r} is not one of {', '.join(crops.names())}")
     by: dict[str, dict[str, Any]] = {s: {} for s in ORDER}
     for k, v in values.items():
         if k == "preset":

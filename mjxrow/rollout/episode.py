@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxrow import control
+from mjxrow import control, crops
 from mjxrow import field as F
 from mjxrow.physics import sim
 from mjxrow.rollout import metrics as M
@@ -67,9 +67,9 @@ class EpisodeConfig:
     TRACED: ClassVar[tuple[str, ...]] = ("start_offset_std", "start_yaw_std")
 
     def __post_init__(self):
-        if self.crop not in F.CROPS:
+        if self.crop not in crops.CROPS:
             raise ValueError(f"episode.crop: unknown crop {self.crop!r}; expected one of "
-                             f"{F.CROPS}")
+                             f"{crops.names()}")
         for name in ("stuck_window", "collision_window"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"episode.{name}: must be at least 1, got {getattr(self, name)}")

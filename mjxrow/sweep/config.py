@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from mjxrow import control
+from mjxrow import control, crops
 from mjxrow import field as F
 from mjxrow.rollout import config as schema
 from mjxrow.rollout.config import (
@@ -95,6 +95,18 @@ def _unknown(path: str, key: str, known) -> ConfigError:
     near = difflib.get_close_matches(str(key), list(known), n=1)
     hint = f"; did you mean {near[0]}?" if near else f"; known: {', '.join(known)}"
     return ConfigError(f"{path}: unknown key{hint}")
+
+
+def _unknown_key(path: str, key: str, known) -> ConfigError:
+    """Unknown key in a section: the nearest key of the section, else the nearest key of
+    another section (a key that moved: `episode.path_length` → `sim.path_length`)."""
+    if difflib.get_close_matches(str(key), list(known), n=1):
+        return _unknown(path, key, known)
+    others = {k.split(".", 1)[1]: k for k in schema.all_keys()}
+    near = difflib.get_close_matches(str(key), list(others), n=1, cutoff=0.8)
+    if near:
+        return ConfigError(f"{path}: unknown key; did you mean {others[near[0]]}?")
+    return _unknown(path, key, known)
 
 
 _NEED = {"positive": "> 0", "nonneg": ">= 0"}
@@ -187,12 +199,9 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
                 path = f"{key}.{k2}"
                 if path in schema.REJECTED:
                     raise ConfigError(f"{path}: cannot be set here: {schema.REJECTED[path]}")
-                if path not in known:
-                    if path in everything:
-                        raise ConfigError(f"{path}: not a setting of controller "
-                                          f"{'/'.join(_controllers_named(raw))}")
-                    raise _unknown(path, k2, [k.split(".", 1)[1] for k in known])
-                spec = known[path]
+                if path not in everything:
+                    raise _unknown_key(path, k2, [k.split(".", 1)[1] for k in known])
+                spec = everything[path]  # another controller's key: that controller's only
 
                 def parse(p, x, spec=spec):
                     return _scalar(p, x, spec.kind, spec.optional, spec.choices)
@@ -200,7 +209,7 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
                 values[path] = _value(path, v2, parse, True)
         elif key == "preset":
             values["preset"] = _value(key, v, lambda p, x: _scalar(p, x, "str",
-                                                                  choices=F.CROPS), True)
+                                                                  choices=crops.names()), True)
         elif key in TOP_KEYS:
             m = meta[key]
             kind = "str" if m["kind"] is str else "int"
@@ -453,7 +462,7 @@ def reference_markdown() -> str:
     meta = {f.name: f.metadata for f in dataclasses.fields(SweepConfig) if f.metadata}
     for k in TOP_KEYS:
         if k == "preset":
-            kinds = " \\| ".join(f"`{c}`" for c in F.CROPS)
+            kinds = " \\| ".join(f"`{c}`" for c in crops.names())
             lines.append(f"| `preset` | {kinds} | `zucchini` | yes | {PRESET_DOC} |")
             continue
         m = meta[k]
