@@ -3,6 +3,7 @@ shipped checkpoint computing in float32 and in bfloat16 (weights stay float32), 
 the two predictions with each other, on the same renders.
 
     python experiments/seg_bf16_iou.py [--crops zucchini pear ...] [--n 256] [--size 64]
+                                       [--out FILE.jsonl]
 
 Renders: `seg.eval.evaluate_renders`'s fixed set (seed 20,000), as `python -m mjxrow.seg.eval`
 without `--data`. IoU is pooled over the images: Σ|M ∩ Y| / Σ|M ∪ Y|, threshold 0.7.
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import json
 import sys
 from pathlib import Path
 
@@ -50,6 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--crops", nargs="+", default=["zucchini"], choices=CROPS)
     p.add_argument("--n", type=int, default=256, help="rendered images per crop")
     p.add_argument("--size", type=int, default=64, help="image side [px]")
+    p.add_argument("--out", help="also append one JSON line per crop to this file")
     args = p.parse_args(argv)
     print(f"| crop | images ({args.size} x {args.size}) | IoU float32 | IoU bfloat16 | "
           "IoU float32 vs bfloat16 |\n|---|---|---|---|---|")
@@ -57,6 +60,10 @@ def main(argv: list[str] | None = None) -> int:
         r = compare(crop, args.n, args.size)
         print(f"| {crop} | {r['images']} | {r['iou_float32']:.4f} | {r['iou_bfloat16']:.4f} | "
               f"{r['iou_between']:.4f} |", flush=True)
+        if args.out:
+            with open(args.out, "a") as f:
+                f.write(json.dumps({"stage": "seg_bf16_iou", "crop": crop, "size": args.size,
+                                    "device": jax.devices()[0].device_kind, **r}) + "\n")
     return 0
 
 

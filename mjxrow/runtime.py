@@ -289,8 +289,8 @@ class Stopwatch:
             self.write_s += time.perf_counter() - t
 
     def split(self) -> dict[str, float]:
-        """{'total', 'compile', 'trace', 'lower', 'xla', 'run', 'write'} seconds and the cache
-        hits / misses since creation."""
+        """{'total', 'compile', 'trace', 'lower', 'xla', 'run', 'write'} seconds, the XLA
+        programs compiled or loaded ('programs') and the cache hits / misses since creation."""
         total = time.time() - self.t0
         every = [s for v in _SPANS.values() for s in v]
         out = {"total": total, "compile": union_seconds(every, self.t0),
@@ -298,15 +298,16 @@ class Stopwatch:
                   for k in ("trace", "lower", "compile")},
                "write": self.write_s}
         out["run"] = max(total - out["compile"] - out["write"], 0.0)
+        out["programs"] = sum(1 for a, _ in _SPANS.get("compile", []) if a >= self.t0)
         for k in ("cache_hits", "cache_misses"):
             out[k] = _COUNTS.get(k, 0) - self.counts0.get(k, 0)
         return out
 
     def line(self) -> str:
         s = self.split()
-        cache = ""
+        cache = f"; {s['programs']} XLA programs"
         if s["cache_hits"] or s["cache_misses"]:
-            cache = f"; cache {s['cache_hits']} hits, {s['cache_misses']} misses"
+            cache += f", cache {s['cache_hits']} hits, {s['cache_misses']} misses"
         return (f"time: {s['total']:.1f} s = compile {s['compile']:.1f} s (trace "
                 f"{s['trace']:.1f}, lower {s['lower']:.1f}, XLA or cache load {s['xla']:.1f}"
                 f"{cache}) + run {s['run']:.1f} s + write {s['write']:.1f} s")

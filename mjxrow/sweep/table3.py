@@ -279,8 +279,10 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
     inject a fake). Returns (markdown, stats by (controller, preset))."""
     import jax
 
+    from mjxrow.rollout import episode as E
     from mjxrow.sweep import run as S
 
+    watch, programs0 = runtime.Stopwatch(), E.program_count()
     out = Path(out)
     base = base if base is not None else load_base()
     devs = jax.devices()
@@ -308,6 +310,9 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
         timings.append(f"{p}, {CONTROLLERS[c][0]}: " + block_timing(
             out / c / p, res["groups"][0].hashes[0], res["ran"], wall, device))
     bar.close()
+    if runtime.writer():
+        print(f"{len(blocks)} blocks, {E.program_count() - programs0} closed-loop programs; "
+              f"{watch.line()}", file=sys.stderr)
     for c in CONTROLLERS:
         if c not in controllers:
             missing = [p for p in presets if c == "segzeros_learned" and checkpoint_missing(p)]
