@@ -23,10 +23,14 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import functools
+import hashlib
 import json
 import os
+import pickle
 import sys
 import time
+import types
 from pathlib import Path
 from typing import Any
 
@@ -120,6 +124,144 @@ def cpu_devices() -> None:
     if "xla_force_host_platform_device_count" not in flags:
         os.environ["XLA_FLAGS"] = (flags + " --xla_force_host_platform_device_count="
                                    f"{os.cpu_count() or 1}").strip()
+
+
+def cache_dir() -> Path | None:
+    """The persistent compilation cache's directory while it is on, else None."""
+    if not jax.config.jax_enable_compilation_cache:
+        return None
+    path = jax.config.jax_compilation_cache_dir
+    return Path(path) if path else None
+
+
+# ---------------------------------------------------------------------------------------------
+# Traced programs kept beside the compilation cache
+#
+# The compilation cache keys a program by its lowered module, so even a warm run traces and
+# lowers every program (for the closed loop: MJX physics, the renderer and the segmenter, tens
+# of seconds on a CPU host). `exported` keeps the traced and lowered program itself
+# (`jax.export`, serialized) under a key of everything that fixes it: the caller's description
+# of its static values, the argument shapes, dtypes and shardings, and the source of the mjxrow
+# package with the versions of JAX and its companions. A later process with the same key
+# deserializes it instead of tracing, and XLA's compilation loads from the cache as before.
+
+# Custom calls inside our programs that jax.export would refuse to serialize: the Pallas kernels
+# (Triton, Mosaic GPU). They are kept as compiled for this JAX version, which the key holds.
+_KERNEL_CALLS = ("triton_kernel_call", "mosaic_gpu", "mosaic_gpu_v2")
+_EXPORTED: dict[str, Any] = {}
+_EXPORT_WARNED = False
+
+
+@functools.lru_cache(maxsize=1)
+def code_version() -> str:
+    """sha256 of every .py file of the mjxrow package and of the versions of JAX, jaxlib,
+    MuJoCo and Flax."""
+    import importlib.metadata as md
+
+    h = hashlib.sha256()
+    root = Path(__file__).resolve().parent
+    for f in sorted(root.rglob("*.py")):
+        h.update(str(f.relative_to(root)).encode())
+        h.update(f.read_bytes())
+    for pkg in ("jax", "jaxlib", "mujoco", "mujoco-mjx", "flax"):
+        try:
+            h.update(f"{pkg}={md.version(pkg)}".encode())
+        except md.PackageNotFoundError:
+            h.update(f"{pkg}=none".encode())
+    return h.hexdigest()
+
+
+def _is_key(x) -> bool:
+    return isinstance(x, jax.Array) and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
+
+
+class _Program:
+    """A deserialized program called like the jitted function it was exported from: pytree
+    arguments in (PRNG keys as their key data), the pytree result out; `lower(*args)
+    .compile()` gives the executable likewise."""
+
+    def __init__(self, call, keys: tuple[bool, ...], out_tree, exe=None):
+        self.call, self.keys, self.out_tree, self.exe = call, keys, out_tree, exe
+
+    def _flat(self, args):
+        return [jax.random.key_data(x) if k else x
+                for x, k in zip(jax.tree.leaves(args), self.keys, strict=True)]
+
+    def __call__(self, *args):
+        return jax.tree.unflatten(self.out_tree, (self.exe or self.call)(*self._flat(args)))
+
+    def lower(self, *args):
+        lowered = self.call.lower(*self._flat(args))
+        return types.SimpleNamespace(compile=lambda: _Program(
+            self.call, self.keys, self.out_tree, lowered.compile()))
+
+
+def exported(fn: Any, args: tuple, key: str) -> Any | None:
+    """A function equal to `fn(*args)` (fn: a jitted function) for arguments of `args`'
+    shapes, dtypes and shardings, traced once and kept in the compilation cache's directory
+    (`exported/`); `key`: a description of everything static that `fn` closes over. None
+    (use `fn`) when the cache is off, several processes run, or the program cannot be
+    exported; a one-line warning says why, once."""
+    global _EXPORT_WARNED
+    root = cache_dir()
+    if root is None or jax.process_count() > 1:
+        return None
+    leaves, treedef = jax.tree.flatten(args)
+    keys = tuple(_is_key(x) for x in leaves)
+    impls = tuple(jax.random.key_impl(x) if k else None for x, k in zip(leaves, keys,
+                                                                        strict=True))
+    flat = [jax.random.key_data(x) if k else x for x, k in zip(leaves, keys, strict=True)]
+    h = hashlib.sha256()
+    for part in (code_version(), key, str(treedef), str(impls),
+                 str(jax.config.jax_enable_x64), str(jax.config.jax_default_matmul_precision),
+                 os.environ.get("MJXROW_RENDER_KERNEL", ""), jax.default_backend()):
+        h.update(part.encode() + b"\0")
+    for x in flat:
+        sh = getattr(x, "sharding", None)
+        h.update(f"{np.shape(x)}{np.result_type(x)}{sh}".encode())
+    digest = h.hexdigest()
+    if digest in _EXPORTED:
+        return _EXPORTED[digest]
+    path = root / "exported" / f"{digest}.bin"
+
+    def wrap(exp, out_tree):
+        return _Program(jax.jit(exp.call), keys, out_tree)
+
+    try:
+        if path.is_file():
+            blob = path.read_bytes()
+            n = int.from_bytes(blob[:8], "little")
+            out_tree = pickle.loads(blob[8:8 + n])
+            fun = wrap(jax.export.deserialize(bytearray(blob[8 + n:])), out_tree)
+        else:
+            out_tree_box = []
+
+            def flat_fn(*xs):
+                a = [jax.random.wrap_key_data(x, impl=i) if k else x
+                     for x, k, i in zip(xs, keys, impls, strict=True)]
+                out = fn(*jax.tree.unflatten(treedef, a))
+                ls, t = jax.tree.flatten(out)
+                out_tree_box.append(t)
+                return ls
+
+            checks = [jax.export.DisabledSafetyCheck.custom_call(c) for c in _KERNEL_CALLS]
+            exp = jax.export.export(jax.jit(flat_fn), disabled_checks=checks)(*flat)
+            tree_blob = pickle.dumps(out_tree_box[-1])
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_suffix(f".tmp{os.getpid()}")
+            tmp.write_bytes(len(tree_blob).to_bytes(8, "little") + tree_blob +
+                            bytes(exp.serialize()))
+            tmp.replace(path)
+            fun = wrap(exp, out_tree_box[-1])
+    except Exception as e:  # noqa: BLE001  (any failure: trace as usual)
+        if not _EXPORT_WARNED:
+            print(f"note: traced programs are not kept ({type(e).__name__}: "
+                  f"{str(e).splitlines()[0][:160] if str(e) else ''}); tracing every run",
+                  file=sys.stderr)
+            _EXPORT_WARNED = True
+        fun = None
+    _EXPORTED[digest] = fun
+    return fun
 
 
 # ---------------------------------------------------------------------------------------------

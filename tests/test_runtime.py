@@ -12,6 +12,7 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+from flax import struct
 
 from mjxrow import runtime as R
 
@@ -134,3 +135,40 @@ def test_persistent_cache_serves_a_second_process(tmp_path):
     off = _cached_run("--no-cache", "--cache-dir", str(tmp_path / "unused"))
     assert off["cache_hits"] == off["cache_misses"] == 0
     assert not (tmp_path / "unused").exists()
+
+
+@struct.dataclass
+class State:  # at module level: the result's tree is kept by pickle
+    a: jax.Array
+    n: int = struct.field(pytree_node=False, default=3)
+
+
+def test_exported_program_is_reused_without_tracing(tmp_path):
+    traces = []
+
+    def step(s, k):
+        traces.append(1)
+        return State(a=s.a * s.n + jax.random.uniform(k), n=s.n)
+
+    fn = jax.jit(jax.vmap(step))
+    args = (State(a=jax.numpy.arange(4.0)), jax.random.split(jax.random.key(0), 4))
+    expect = fn(*args).a
+    R.disable_cache()
+    assert R.exported(fn, args, "toy") is None  # cache off: nothing kept
+    try:
+        R.enable_cache(tmp_path / "cache")
+        first = R.exported(fn, args, "toy")
+        assert first is not None and len(list((tmp_path / "cache" / "exported").iterdir())) == 1
+        np.testing.assert_array_equal(first(*args).a, expect)
+        n = len(traces)
+        R._EXPORTED.clear()  # as a new process: read back from the file
+        again = R.exported(jax.jit(jax.vmap(step)), args, "toy")  # a new jit would trace
+        out = again(*args)
+        assert isinstance(out, State) and out.n == 3 and len(traces) == n  # not traced again
+        np.testing.assert_array_equal(out.a, expect)
+        np.testing.assert_array_equal(again.lower(*args).compile()(*args).a, expect)
+        other = R.exported(jax.jit(jax.vmap(step)), args, "another key")  # traced afresh
+        assert other is not None and len(traces) == n + 1
+    finally:
+        R.disable_cache()
+        R._EXPORTED.clear()

@@ -67,7 +67,8 @@ def with_seg_dtype(built: B.Built, run: RunConfig, dtype: str) -> B.Built:
     module, _ = perception.load_segmenter(run.checkpoint_path(), run.preset)
     policy = perception.perception_policy(run.controller.name, built.shape, run.camera,
                                           "learned", module.clone(dtype=dtype), run.render)
-    return dataclasses.replace(built, policy=policy, placed={})
+    return dataclasses.replace(built, policy=policy, placed={},
+                               key=built.key and f"{built.key}\nsegmenter dtype {dtype}")
 
 
 def measure(built: B.Built, run: RunConfig, b: int, repeats: int) -> dict:
@@ -77,7 +78,7 @@ def measure(built: B.Built, run: RunConfig, b: int, repeats: int) -> dict:
     args = batch.args(built.mx)
     watch = runtime.Stopwatch()
     t0 = time.perf_counter()
-    exe = built.compiled().lower(*args).compile()
+    exe = built.executable(args)
     compile_s = time.perf_counter() - t0
     split = watch.split()
     runs = []

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 from collections.abc import Sequence
 from typing import Any
 
@@ -109,6 +110,10 @@ class Built:
     base: Any  # what the policy params of every run share (perception params with weights)
     mesh: jax.sharding.Mesh
     placed: dict = dataclasses.field(default_factory=dict)
+    # everything static the closed-loop program closes over, as text (`program_key`; '' when
+    # some of it is code outside the mjxrow package): names the traced program kept by
+    # `runtime.exported`
+    key: str = ""
 
     @property
     def devices(self) -> int:
@@ -174,8 +179,23 @@ class Built:
         """The jitted rollout of this group: `(mx, fields, lanes, keys, noise, params) -> Log`."""
         return E.compiled(self.policy, self.episode, self.axes)
 
+    def program(self, args: tuple):
+        """`compiled()` for `args` (a Batch's `args(mx)`), or the same program traced by an
+        earlier process and kept beside the compilation cache (`runtime.exported`): equal
+        results, no tracing."""
+        fn = self.compiled()
+        if not self.key:
+            return fn
+        return runtime.exported(fn, args, self.key) or fn
+
+    def executable(self, args: tuple):
+        """`program(args)` lowered and compiled (or loaded from the cache) for `args`."""
+        prog = self.program(args)
+        return prog.lower(*args).compile()
+
     def rollout(self, batch: Batch) -> Log:
-        return self.compiled()(*batch.args(self.mx))
+        args = batch.args(self.mx)
+        return self.program(args)(*args)
 
     def summarise(self, log: Log, n: int | None = None) -> dict[str, np.ndarray]:
         """Per-episode metrics on the host (the first `n` episodes)."""
@@ -207,4 +227,51 @@ def build(runs: RunConfig | Sequence[RunConfig], shape: F.FieldShape | None = No
         policy, axes = control.as_policy(c), 0
     mesh = jax.sharding.Mesh(np.array(list(devices or jax.devices())), ("batch",))
     mx = runtime.put(mx, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))
-    return Built(first, shape, ep, mj, mx, policy, axes, base, mesh)
+    module = None
+    if c.needs_mask and first.perception.source == "learned":
+        module, _ = perception.load_segmenter(first.checkpoint_path(), first.preset)
+    key = program_key(first, shape, ep, sim.model_xml(shape, ep.sim, first.robot_config()),
+                      module)
+    return Built(first, shape, ep, mj, mx, policy, axes, base, mesh, key=key)
+
+
+class _Foreign(Exception):
+    """Code from outside the mjxrow package (its source is not in runtime.code_version)."""
+
+
+def _stable(x: Any) -> str:
+    """Text of a config value that is the same in every process: dataclasses and tuples field
+    by field, functions by module and name (_Foreign when not mjxrow's), arrays by content."""
+    if dataclasses.is_dataclass(x) and not isinstance(x, type):
+        return f"{type(x).__qualname__}(" + ", ".join(
+            f"{f.name}={_stable(getattr(x, f.name))}" for f in dataclasses.fields(x)) + ")"
+    if isinstance(x, (tuple, list)):
+        return f"{type(x).__qualname__}[" + ", ".join(_stable(v) for v in x) + "]"
+    if isinstance(x, dict):
+        return "{" + ", ".join(f"{_stable(k)}: {_stable(v)}" for k, v in x.items()) + "}"
+    if isinstance(x, (np.ndarray, jax.Array)):
+        a = np.asarray(x)
+        return f"array{a.shape}{a.dtype}:{hashlib.sha256(a.tobytes()).hexdigest()}"
+    if isinstance(x, type) or callable(x):
+        mod = getattr(x, "__module__", "") or ""
+        if not mod.startswith("mjxrow"):
+            raise _Foreign(mod)
+        return f"{mod}.{getattr(x, '__qualname__', repr(x))}"
+    return repr(x)
+
+
+def program_key(run: RunConfig, shape: F.FieldShape, episode: E.EpisodeConfig, model_xml: str,
+                segmenter: Any = None) -> str:
+    """What fixes a group's closed-loop program, as text: the run's static values, the field
+    shape, the static episode config, the MJX model, the controller and the crop as
+    registered, the segmenter's architecture. '' when the controller is code from outside the
+    mjxrow package (then the program is traced every run)."""
+    from mjxrow import crops
+
+    try:
+        parts = (repr(run.static_key()), repr(shape), repr(episode), model_xml,
+                 _stable(control.get(run.controller.name)), _stable(crops.get(shape.crop)),
+                 repr(segmenter))
+    except _Foreign:
+        return ""
+    return "\n".join(parts)

@@ -78,7 +78,7 @@ def run_episodes(run: RunConfig, n: int, out: str | Path, progress: bool = True
         batch = built.batch([(run, e) for e in range(n)])
     t0 = time.perf_counter()
     with ticker("compiling", progress):
-        exe = built.compiled().lower(*batch.args(built.mx)).compile()
+        exe = built.executable(batch.args(built.mx))
     t1 = time.perf_counter()
     with ticker(f"running {n} episodes × {built.episode.n_steps} steps", progress):
         log = exe(*batch.args(built.mx))
