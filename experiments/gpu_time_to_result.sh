@@ -3,7 +3,8 @@
 # Run from the project root (mujoco importable, e.g. PYTHONPATH=/tmp/site:$PWD):
 #
 #   bash experiments/gpu_time_to_result.sh           # figures in $OUT (default /tmp/ttr_out)
-#   SMOKE=1 bash experiments/gpu_time_to_result.sh   # tiny sizes: checks the script on a CPU
+#   SMOKE=1 BUDGET=3000 bash experiments/gpu_time_to_result.sh   # tiny sizes: checks the
+#                                                    script on a CPU (step limits x LIMIT_SCALE=5)
 #
 # Steps, in order of priority; a step starts only while enough of the budget (BUDGET seconds,
 # default 530) is left, and is cut at what is left:
@@ -26,6 +27,7 @@ out=${OUT:-/tmp/ttr_out}; mkdir -p "$out"
 py=${PY:-python3}
 budget=${BUDGET:-530}
 smoke=${SMOKE:-0}
+scale=${LIMIT_SCALE:-$([ "$smoke" = 1 ] && echo 5 || echo 1)}  # per-step limits x scale
 work=${WORK:-/tmp/ttr_work}
 cache="$work/cache"
 rm -rf "$work"; mkdir -p "$work"
@@ -57,6 +59,7 @@ step() {
     echo "{\"step\": \"$name\", \"skipped\": true, \"left_s\": $l}" >>"$out/ttr.jsonl"
     return
   fi
+  max=$(( max * scale ))
   local limit=$(( max < l ? max : l ))
   echo "== $name ($(date +%T), $l s left, limit $limit s): $*"
   local t0; t0=$(date +%s.%N)

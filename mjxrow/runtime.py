@@ -28,6 +28,7 @@ import hashlib
 import json
 import os
 import pickle
+import re
 import sys
 import time
 import types
@@ -199,7 +200,8 @@ class _Program:
 def exported(fn: Any, args: tuple, key: str) -> Any | None:
     """A function equal to `fn(*args)` (fn: a jitted function) for arguments of `args`'
     shapes, dtypes and shardings, traced once and kept in the compilation cache's directory
-    (`exported/`); `key`: a description of everything static that `fn` closes over. None
+    (`exported/`); `key`: a description of everything static that `fn` closes over or that
+    the arguments' tree holds as aux data (for the closed loop: the MJX model's XML). None
     (use `fn`) when the cache is off, several processes run, or the program cannot be
     exported; a one-line warning says why, once."""
     global _EXPORT_WARNED
@@ -212,7 +214,9 @@ def exported(fn: Any, args: tuple, key: str) -> Any | None:
                                                                         strict=True))
     flat = [jax.random.key_data(x) if k else x for x, k in zip(leaves, keys, strict=True)]
     h = hashlib.sha256()
-    for part in (code_version(), key, str(treedef), str(impls),
+    tree = re.sub(r" at 0x[0-9a-fA-F]+", "", str(treedef))  # no addresses (MJX's wrappers);
+    # static arrays in the tree's aux data are the caller's `key`'s to describe (the model)
+    for part in (code_version(), key, tree, str(impls),
                  str(jax.config.jax_enable_x64), str(jax.config.jax_default_matmul_precision),
                  os.environ.get("MJXROW_RENDER_KERNEL", ""), jax.default_backend()):
         h.update(part.encode() + b"\0")
