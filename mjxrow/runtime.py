@@ -222,7 +222,8 @@ def exported(fn: Any, args: tuple, key: str) -> Any | None:
         h.update(part.encode() + b"\0")
     for x in flat:
         sh = getattr(x, "sharding", None)
-        h.update(f"{np.shape(x)}{np.result_type(x)}{sh}".encode())
+        dtype = x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype
+        h.update(f"{np.shape(x)}{dtype}{sh}".encode())
     digest = h.hexdigest()
     if digest in _EXPORTED:
         return _EXPORTED[digest]
