@@ -184,6 +184,8 @@ class Built:
         earlier process and kept beside the compilation cache (`runtime.exported`): equal
         results, no tracing."""
         fn = self.compiled()
+        _PROGRAMS.add((self.key or id(fn), str(jax.tree.map(
+            lambda x: (np.shape(x), str(getattr(x, "dtype", ""))), args))))
         if not self.key:
             return fn
         return runtime.exported(fn, args, self.key) or fn
@@ -201,6 +203,15 @@ class Built:
         """Per-episode metrics on the host (the first `n` episodes)."""
         out = runtime.to_host(summarise_fn()(log, self.episode))
         return {k: v[:n] if np.ndim(v) else v for k, v in out.items()}
+
+
+_PROGRAMS: set = set()  # (program key, argument shapes) of every closed-loop program asked for
+
+
+def program_count() -> int:
+    """Distinct closed-loop programs this process has run (compiled, loaded from the cache or
+    deserialized): one per group static values and argument shapes."""
+    return len(_PROGRAMS)
 
 
 def build(runs: RunConfig | Sequence[RunConfig], shape: F.FieldShape | None = None,

@@ -225,9 +225,6 @@ def compiled(policy, cfg: EpisodeConfig, params_axes: Any = None):
     return _compiled(policy, cfg, canonical_axes(params_axes))
 
 
-_JITS: list = []  # every closed-loop jit made by `_compiled`, for `program_count`
-
-
 @functools.lru_cache(maxsize=64)
 def _compiled(policy, cfg: EpisodeConfig, axes: tuple):
     treedef, leaves = axes
@@ -236,15 +233,7 @@ def _compiled(policy, cfg: EpisodeConfig, axes: tuple):
         return episode(mx, field, lane, key, noise, policy, params, cfg)
 
     in_axes = (None, 0, 0, 0, 0, jax.tree.unflatten(treedef, leaves))
-    fn = jax.jit(jax.vmap(one, in_axes=in_axes))
-    _JITS.append(fn)
-    return fn
-
-
-def program_count() -> int:
-    """Closed-loop programs this process has compiled (or loaded from the persistent cache)
-    so far: one per distinct (policy, static config, params axes) and argument shapes."""
-    return sum(f._cache_size() for f in _JITS)
+    return jax.jit(jax.vmap(one, in_axes=in_axes))
 
 
 def check_params(policy_params: Any, params_axes: Any, batch: int) -> None:

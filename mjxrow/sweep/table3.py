@@ -279,10 +279,10 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
     inject a fake). Returns (markdown, stats by (controller, preset))."""
     import jax
 
-    from mjxrow.rollout import episode as E
+    from mjxrow.rollout import build as B
     from mjxrow.sweep import run as S
 
-    watch, programs0 = runtime.Stopwatch(), E.program_count()
+    watch, programs0 = runtime.Stopwatch(), B.program_count()
     out = Path(out)
     base = base if base is not None else load_base()
     devs = jax.devices()
@@ -311,7 +311,7 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
             out / c / p, res["groups"][0].hashes[0], res["ran"], wall, device))
     bar.close()
     if runtime.writer():
-        print(f"{len(blocks)} blocks, {E.program_count() - programs0} closed-loop programs; "
+        print(f"{len(blocks)} blocks, {B.program_count() - programs0} closed-loop programs; "
               f"{watch.line()}", file=sys.stderr)
     for c in CONTROLLERS:
         if c not in controllers:
