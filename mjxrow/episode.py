@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from mjxrow import control, crops
+from mjxrow import control, crops, runtime
 from mjxrow.rollout import cli
 from mjxrow.sweep import config as C
 
@@ -38,6 +38,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="set a dotted config key, e.g. --set field.d_rr=3.0 (repeatable)")
     p.add_argument("--no-progress", action="store_true", help="no progress lines")
+    runtime.add_args(p)
     return p
 
 
@@ -50,6 +51,7 @@ def main(argv: list[str] | None = None) -> int:
             if getattr(args, k) or not args.config]
     sets += [f"seed={args.seed}", *args.set]
     try:
+        runtime.setup(args)
         cfg = C.load(args.config, sets) if args.config else C.from_dict({}, ".", sets)
         if cfg.axis_order:
             raise C.ConfigError(f"{cfg.axis_order[0]}: one run needs one value, got an axis")

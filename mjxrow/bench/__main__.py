@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 
+from mjxrow import runtime
 from mjxrow.bench import STAGES, print_table, record
 
 
@@ -23,8 +24,15 @@ def main(argv: list[str] | None = None) -> None:
         modules[stage].add_args(p)
         p.add_argument("--out", default="benchmarks.jsonl", help="JSON-lines file to append to")
         p.add_argument("--no-record", action="store_true", help="print only")
+        runtime.add_args(p)
     args = parser.parse_args(argv)
+    try:  # the closed loop runs as the sweep does: on a CPU, one device per core
+        runtime.setup(args, cpu_split=args.stage == "closed_loop")
+    except ValueError as e:
+        parser.error(str(e))
     rows = modules[args.stage].run(args)
+    if not runtime.writer():
+        return
     if not args.no_record:
         record(rows, args.out)
     print_table(rows)

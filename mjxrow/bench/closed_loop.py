@@ -1,68 +1,120 @@
-"""Closed-loop control steps per second: render → segment → SegZeros → physics for B worlds.
+"""Closed-loop throughput: render → segment → SegZeros → physics for B worlds, in control
+steps/s and episodes/min.
 
 One control step = one rendered frame, one segmenter call, one controller call and the physics
-substeps of a control period (7 at 15 Hz). Uses the episode CLI's own set-up, so the measured
-program is the one `python -m mjxrow.episode` and the sweep run.
+substeps of a control period (7 at 15 Hz). The program is the one the sweep and
+`python -m mjxrow.episode` run: a RunConfig (`sweep.config.from_dict`, any `--set KEY=VALUE`
+of the sweep YAML) assembled by `rollout.build`, fields of episodes 0..B-1 of seed 0, the batch
+sharded over the devices (on a CPU-only machine one device per core, as the sweep). Each call
+runs `--steps` control steps (episode.max_time = steps / control_hz; the path is longer than
+the robot drives in that time, so episodes run their full length and the figure is the steady
+rate); episodes/min = 60 · control steps/s / `--episode-steps` (600: the paper's 20 m at
+0.5 m/s and 15 Hz). Compile time (lower + compile, or the load from the persistent cache)
+apart from the median of `--repeats` calls.
+
+GPU: `--batch 1024 --image 64` (fast configuration) and `--batch 512 --image 224` (paper's
+224 × 224); CPU: `--batch 2 --image 64 --steps 30 --repeats 2`.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import statistics
 import time
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from mjxrow import field as F
-from mjxrow.physics import sim
-from mjxrow.rollout import episode as E
+from mjxrow import control, crops, runtime
+from mjxrow.control import perception
+from mjxrow.rollout import build as B
+from mjxrow.rollout.config import RunConfig
+from mjxrow.sweep import config as C
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--preset", default="zucchini", choices=F.CROPS)
+    p.add_argument("--preset", default="zucchini", choices=crops.names())
     p.add_argument("--batch", type=int, nargs="+", default=[256, 1024])
     p.add_argument("--image", type=int, default=64, help="camera image side [px]")
-    p.add_argument("--steps", type=int, default=150, help="control steps per episode")
+    p.add_argument("--steps", type=int, default=150, help="control steps per timed call")
+    p.add_argument("--episode-steps", type=int, default=600,
+                   help="control steps of one episode, for episodes/min (default: 20 m at "
+                        "0.5 m/s and 15 Hz)")
     p.add_argument("--perception", default="learned", choices=("learned", "ground_truth"))
     p.add_argument("--controller", default="segzeros", choices=("segzeros", "segmin", "oracle"))
+    p.add_argument("--seg-dtype", default="float32", choices=("float32", "bfloat16"),
+                   help="the segmenter's compute dtype (weights stay float32)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="a key of the sweep YAML, e.g. --set sim.iterations=2 (repeatable)")
     p.add_argument("--repeats", type=int, default=3)
 
 
+def run_config(args: argparse.Namespace) -> RunConfig:
+    """The RunConfig of the command line (ConfigError naming the key)."""
+    hz = C.from_dict({}, sets=args.set).sim.control_hz
+    raw = {"preset": args.preset, "controller": {"name": args.controller},
+           "perception": {"source": args.perception},
+           "camera": {"width": args.image, "height": args.image},
+           "episode": {"max_time": args.steps / hz}}
+    return C.expand(C.from_dict(raw, sets=args.set))[0].cfg
+
+
+def with_seg_dtype(built: B.Built, run: RunConfig, dtype: str) -> B.Built:
+    """`built` whose segmenter computes in `dtype` (its weights, shared params, unchanged)."""
+    if dtype == "float32" or built.base is None:
+        return built
+    module, _ = perception.load_segmenter(run.checkpoint_path(), run.preset)
+    policy = perception.perception_policy(run.controller.name, built.shape, run.camera,
+                                          "learned", module.clone(dtype=dtype), run.render)
+    return dataclasses.replace(built, policy=policy, placed={},
+                               key=built.key and f"{built.key}\nsegmenter dtype {dtype}")
+
+
+def measure(built: B.Built, run: RunConfig, b: int, repeats: int) -> dict:
+    """Compile (or cache load) seconds, the run times of `repeats` calls and the summary of
+    the last one, for episodes 0..b-1 of `run`."""
+    batch = built.batch([(run, e) for e in range(b)])
+    args = batch.args(built.mx)
+    watch = runtime.Stopwatch()
+    t0 = time.perf_counter()
+    exe = built.executable(args)
+    compile_s = time.perf_counter() - t0
+    split = watch.split()
+    runs = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        log = jax.block_until_ready(exe(*args))
+        runs.append(time.perf_counter() - t0)
+    summary = built.summarise(log, b)
+    return {"compile_s": compile_s, "cache_hits": split["cache_hits"], "runs_s": runs,
+            "alive_end": int(np.sum(runtime.to_host(log.alive[:, -1]))),
+            "success": float(np.mean(summary["success"]))}
+
+
 def run(args: argparse.Namespace) -> list[dict]:
+    try:
+        cfg = run_config(args)
+    except C.ConfigError as e:
+        raise SystemExit(f"bench closed_loop: {e}") from None
     rows = []
     for b in args.batch:
-        ep_args = E._parser().parse_args([
-            "--preset", args.preset, "--controller", args.controller, "--n", str(b),
-            "--out", "unused", "--perception", args.perception,
-            "--image", f"{args.image}x{args.image}", "--steps", str(args.steps), "--no-progress"])
-        params = jax.tree.map(lambda x, b=b: jnp.broadcast_to(x, (b,)),
-                              F.make_params(args.preset))
-        shape = F.fit_shape(params, args.preset)
-        cfg = E.EpisodeConfig(crop=args.preset, n_steps=args.steps, sim=sim.SimConfig())
-        policy, pparams, axes = E.make_policy(args.controller, shape, ep_args)
-        keys = jax.random.split(jax.random.key(0), 2 * b).reshape(b, 2)
-        fields = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)(
-            params, shape, keys[:, 0])
-        _, mx = sim.make_model(shape, cfg.sim)
-        call_args = E.rollout_args(mx, fields, None, keys[:, 1], pparams, axes,
-                                   sim.pose_noise(0.0, 0.0))
-        t0 = time.perf_counter()
-        exe = E.compiled(policy, cfg, axes).lower(*call_args).compile()
-        compile_s = time.perf_counter() - t0
-        runs = []
-        for _ in range(args.repeats):
-            t0 = time.perf_counter()
-            log = jax.block_until_ready(exe(*call_args))
-            runs.append(time.perf_counter() - t0)
-        med = float(np.median(runs))
-        summary = E.summarise(log, cfg)
-        config = (f"{args.preset}, {args.controller} on {args.perception} masks, "
-                  f"{args.image}x{args.image} px, {args.steps} control steps")
-        print(f"B={b}: {b * args.steps / med:,.0f} control steps/s (compile {compile_s:.1f} s, "
-              f"median run {med:.2f} s), alive at end {int(np.sum(np.asarray(log.alive[:, -1])))}"
-              f", success {float(np.mean(np.asarray(summary['success']))):.2f}")
-        rows.append({"stage": "closed_loop", "config": config, "batch": b,
-                     "value": b * args.steps / med, "unit": "control steps/s",
-                     "compile_s": compile_s, "runs_s": runs})
+        built = with_seg_dtype(B.build(cfg), cfg, args.seg_dtype)
+        m = measure(built, cfg, built.padded(b), args.repeats)
+        med = statistics.median(m["runs_s"])
+        steps_s = b * cfg.episode.n_steps / med
+        per_min = 60.0 * steps_s / args.episode_steps
+        seg = "" if not (control.get(cfg.controller.name).needs_mask and
+                         cfg.perception.source == "learned") else f", segmenter {args.seg_dtype}"
+        config = (f"{cfg.preset}, {cfg.controller.name} on {cfg.perception.source} masks, "
+                  f"{args.image}x{args.image} px, {cfg.episode.n_steps} control steps{seg}"
+                  + "".join(f", {s}" for s in args.set))
+        print(f"B={b}: {steps_s:,.0f} control steps/s = {per_min:,.0f} episodes/min of "
+              f"{args.episode_steps} steps (compile {m['compile_s']:.1f} s"
+              f"{', from the cache' if m['cache_hits'] else ''}, median run {med:.2f} s on "
+              f"{built.devices} device(s)), alive at end {m['alive_end']}/{b}, success "
+              f"{m['success']:.2f}", flush=True)
+        rows.append({"stage": "closed_loop", "config": config, "batch": b, "value": steps_s,
+                     "unit": "control steps/s", "episodes_per_min": per_min,
+                     "episode_steps": args.episode_steps, "devices": built.devices, **m})
     return rows

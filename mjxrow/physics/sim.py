@@ -223,7 +223,7 @@ def make_model(shape: F.FieldShape, sim_cfg: SimConfig | None = None,
     sim_cfg = sim_cfg or SimConfig()
     robot_cfg = robot_cfg or R.RobotConfig()
     m = mujoco.MjModel.from_xml_string(model_xml(shape, sim_cfg, robot_cfg))
-    mx = mjx.put_model(m, impl="jax")
+    mx = mjx.put_model(m, impl="jax", device=jax.local_devices()[0])  # this process's own
     return m, mx
 
 

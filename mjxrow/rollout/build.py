@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 from collections.abc import Sequence
 from typing import Any
 
@@ -28,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxrow import control
+from mjxrow import control, runtime
 from mjxrow import field as F
 from mjxrow.control import perception
 from mjxrow.physics import sim
@@ -48,6 +49,18 @@ def split_keys(keys: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Episode keys [N] → (field keys [N], rollout keys [N])."""
     k = jax.vmap(jax.random.split)(keys)
     return k[:, 0], k[:, 1]
+
+
+@functools.lru_cache(maxsize=1)
+def lanes_fn():
+    """jit(vmap(field.robot_lane)): fields [B] → int32 [B] lanes."""
+    return jax.jit(jax.vmap(F.robot_lane))
+
+
+@functools.lru_cache(maxsize=1)
+def summarise_fn():
+    """jit(episode.summarise) (config static): Log [B] → per-episode metrics."""
+    return jax.jit(E.summarise, static_argnums=1)
 
 
 @functools.lru_cache(maxsize=1)
@@ -97,6 +110,10 @@ class Built:
     base: Any  # what the policy params of every run share (perception params with weights)
     mesh: jax.sharding.Mesh
     placed: dict = dataclasses.field(default_factory=dict)
+    # everything static the closed-loop program closes over, as text (`program_key`; '' when
+    # some of it is code outside the mjxrow package): names the traced program kept by
+    # `runtime.exported`
+    key: str = ""
 
     @property
     def devices(self) -> int:
@@ -126,10 +143,10 @@ class Built:
         out = []
         for a, x in zip(leaves, treedef.flatten_up_to(params), strict=True):
             if a is not None:
-                out.append(jax.device_put(x, self.sharding(True)))
+                out.append(runtime.put(x, self.sharding(True)))
                 continue
             if id(x) not in self.placed:
-                self.placed[id(x)] = (x, jax.device_put(x, self.sharding(False)))
+                self.placed[id(x)] = (x, runtime.put(x, self.sharding(False)))
             out.append(self.placed[id(x)][1])
         return treedef.unflatten(out)
 
@@ -141,7 +158,7 @@ class Built:
             raise ValueError("batch: no episodes")
         B = self.padded(max(size or len(items), len(items)))
         full = items + [items[-1]] * (B - len(items))
-        put = functools.partial(jax.device_put, device=self.sharding(True))
+        put = functools.partial(runtime.put, sharding=self.sharding(True))
         by_run: dict[RunConfig, list[int]] = {}
         for i, (run, _) in enumerate(full):
             by_run.setdefault(run, []).append(i)
@@ -152,8 +169,8 @@ class Built:
         fkeys, rkeys = split_keys(keys)
         fparams = put(stack([cache[r][0] for r, _ in full]))
         fields = generate_fn()(fparams, self.shape, put(fkeys))
-        E.check_fields(fields)
-        lanes = jax.vmap(F.robot_lane)(fields)
+        E.check_fields(fields.replace(valid=runtime.to_host(fields.valid)))
+        lanes = lanes_fn()(fields)
         pol = self._put_params(E.stack_params([cache[r][1] for r, _ in full], self.axes))
         noise = put(E.batch_noise(stack([cache[r][2] for r, _ in full]), B))
         return Batch(fields, lanes, put(rkeys), noise, pol, len(items))
@@ -162,13 +179,39 @@ class Built:
         """The jitted rollout of this group: `(mx, fields, lanes, keys, noise, params) -> Log`."""
         return E.compiled(self.policy, self.episode, self.axes)
 
+    def program(self, args: tuple):
+        """`compiled()` for `args` (a Batch's `args(mx)`), or the same program traced by an
+        earlier process and kept beside the compilation cache (`runtime.exported`): equal
+        results, no tracing."""
+        fn = self.compiled()
+        _PROGRAMS.add((self.key or id(fn), str(jax.tree.map(
+            lambda x: (np.shape(x), str(getattr(x, "dtype", ""))), args))))
+        if not self.key:
+            return fn
+        return runtime.exported(fn, args, self.key) or fn
+
+    def executable(self, args: tuple):
+        """`program(args)` lowered and compiled (or loaded from the cache) for `args`."""
+        prog = self.program(args)
+        return prog.lower(*args).compile()
+
     def rollout(self, batch: Batch) -> Log:
-        return self.compiled()(*batch.args(self.mx))
+        args = batch.args(self.mx)
+        return self.program(args)(*args)
 
     def summarise(self, log: Log, n: int | None = None) -> dict[str, np.ndarray]:
         """Per-episode metrics on the host (the first `n` episodes)."""
-        out = jax.tree.map(np.asarray, E.summarise(log, self.episode))
+        out = runtime.to_host(summarise_fn()(log, self.episode))
         return {k: v[:n] if np.ndim(v) else v for k, v in out.items()}
+
+
+_PROGRAMS: set = set()  # (program key, argument shapes) of every closed-loop program asked for
+
+
+def program_count() -> int:
+    """Distinct closed-loop programs this process has run (compiled, loaded from the cache or
+    deserialized): one per group static values and argument shapes."""
+    return len(_PROGRAMS)
 
 
 def build(runs: RunConfig | Sequence[RunConfig], shape: F.FieldShape | None = None,
@@ -197,5 +240,52 @@ def build(runs: RunConfig | Sequence[RunConfig], shape: F.FieldShape | None = No
     else:
         policy, axes = control.as_policy(c), 0
     mesh = jax.sharding.Mesh(np.array(list(devices or jax.devices())), ("batch",))
-    mx = jax.device_put(mx, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))
-    return Built(first, shape, ep, mj, mx, policy, axes, base, mesh)
+    mx = runtime.put(mx, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))
+    module = None
+    if c.needs_mask and first.perception.source == "learned":
+        module, _ = perception.load_segmenter(first.checkpoint_path(), first.preset)
+    key = program_key(first, shape, ep, sim.model_xml(shape, ep.sim, first.robot_config()),
+                      module)
+    return Built(first, shape, ep, mj, mx, policy, axes, base, mesh, key=key)
+
+
+class _Foreign(Exception):
+    """Code from outside the mjxrow package (its source is not in runtime.code_version)."""
+
+
+def _stable(x: Any) -> str:
+    """Text of a config value that is the same in every process: dataclasses and tuples field
+    by field, functions by module and name (_Foreign when not mjxrow's), arrays by content."""
+    if dataclasses.is_dataclass(x) and not isinstance(x, type):
+        return f"{type(x).__qualname__}(" + ", ".join(
+            f"{f.name}={_stable(getattr(x, f.name))}" for f in dataclasses.fields(x)) + ")"
+    if isinstance(x, (tuple, list)):
+        return f"{type(x).__qualname__}[" + ", ".join(_stable(v) for v in x) + "]"
+    if isinstance(x, dict):
+        return "{" + ", ".join(f"{_stable(k)}: {_stable(v)}" for k, v in x.items()) + "}"
+    if isinstance(x, (np.ndarray, jax.Array)):
+        a = np.asarray(x)
+        return f"array{a.shape}{a.dtype}:{hashlib.sha256(a.tobytes()).hexdigest()}"
+    if isinstance(x, type) or callable(x):
+        mod = getattr(x, "__module__", "") or ""
+        if not mod.startswith("mjxrow"):
+            raise _Foreign(mod)
+        return f"{mod}.{getattr(x, '__qualname__', repr(x))}"
+    return repr(x)
+
+
+def program_key(run: RunConfig, shape: F.FieldShape, episode: E.EpisodeConfig, model_xml: str,
+                segmenter: Any = None) -> str:
+    """What fixes a group's closed-loop program, as text: the run's static values, the field
+    shape, the static episode config, the MJX model, the controller and the crop as
+    registered, the segmenter's architecture. '' when the controller is code from outside the
+    mjxrow package (then the program is traced every run)."""
+    from mjxrow import crops
+
+    try:
+        parts = (repr(run.static_key()), repr(shape), repr(episode), model_xml,
+                 _stable(control.get(run.controller.name)), _stable(crops.get(shape.crop)),
+                 repr(segmenter))
+    except _Foreign:
+        return ""
+    return "\n".join(parts)

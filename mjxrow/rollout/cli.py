@@ -15,6 +15,7 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 from mjxrow import field as F
+from mjxrow import runtime
 from mjxrow.rollout import build as B
 from mjxrow.rollout import metrics as M
 from mjxrow.rollout.config import RunConfig
@@ -77,13 +78,15 @@ def run_episodes(run: RunConfig, n: int, out: str | Path, progress: bool = True
         batch = built.batch([(run, e) for e in range(n)])
     t0 = time.perf_counter()
     with ticker("compiling", progress):
-        exe = built.compiled().lower(*batch.args(built.mx)).compile()
+        exe = built.executable(batch.args(built.mx))
     t1 = time.perf_counter()
     with ticker(f"running {n} episodes × {built.episode.n_steps} steps", progress):
         log = exe(*batch.args(built.mx))
         summary = built.summarise(log, n)
     t2 = time.perf_counter()
-    table = results_table(run, np.arange(n), np.asarray(batch.lanes)[:n], summary)
+    table = results_table(run, np.arange(n), runtime.to_host(batch.lanes)[:n], summary)
+    if not runtime.writer():  # several processes: process 0 reports and writes
+        return table
     out.mkdir(parents=True, exist_ok=True)
     table.to_csv(out / "episodes.csv", index=False)
     print(f"{run.controller.name} on {run.preset}: {n} episodes, compile {t1 - t0:.1f} s, "

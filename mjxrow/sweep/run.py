@@ -21,7 +21,6 @@ import argparse
 import contextlib
 import dataclasses
 import datetime
-import os
 import signal
 import sys
 import threading
@@ -36,6 +35,7 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 from mjxrow import field as F
+from mjxrow import runtime as R
 from mjxrow.rollout import build as B
 from mjxrow.rollout import metrics as M
 from mjxrow.sweep import config as C
@@ -159,7 +159,7 @@ def evaluate_group(group: Group, cfg: C.SweepConfig,
         batch = built.batch([(by_cell[c], e) for c, e in real], size)
         met = built.summarise(built.rollout(batch), len(real))
         rows = pd.DataFrame({"cell": [c for c, _ in real], "episode": [e for _, e in real],
-                             "lane": np.asarray(batch.lanes)[:len(real)],
+                             "lane": R.to_host(batch.lanes)[:len(real)],
                              **{k: (np.asarray(M.REASONS)[v] if k == "reason" else v)
                                 for k, v in met.items() if np.ndim(v) == 1}})
         on_batch_done(rows)
@@ -183,8 +183,10 @@ class _CellWriter:
     """on_batch_done of one group: collects episode rows per cell and writes each cell's file
     (atomically) as soon as all its episodes are in; advances the progress bar."""
 
-    def __init__(self, group: Group, seeds: int, cells_dir: Path, bar):
+    def __init__(self, group: Group, seeds: int, cells_dir: Path, bar,
+                 watch: R.Stopwatch | None = None):
         self.group, self.seeds, self.dir, self.bar = group, seeds, cells_dir, bar
+        self.watch = watch or R.Stopwatch()
         self.pending: dict[int, list[pd.DataFrame]] = {}
         self.times = [time.perf_counter()]
         self.episodes = 0
@@ -196,7 +198,9 @@ class _CellWriter:
             parts.append(part)
             if sum(len(p) for p in parts) >= self.seeds:
                 df = cell_rows(self.group, int(ci), pd.concat(self.pending.pop(int(ci))))
-                atomic_write_csv(self.dir / f"{df['cell_hash'].iloc[0]}.csv", df)
+                if R.writer():
+                    with self.watch.writing():
+                        atomic_write_csv(self.dir / f"{df['cell_hash'].iloc[0]}.csv", df)
         self.episodes += len(rows)
         self.bar.update(len(rows))
         self.bar.set_postfix_str(f"group {self.group.index}")
@@ -239,8 +243,12 @@ def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
     hold them, and KeyboardInterrupt propagates."""
     evaluate = evaluate or evaluate_group
     out = Path(out)
-    (out / "cells").mkdir(parents=True, exist_ok=True)
-    groups = plan(cfg, finished_cells(out / "cells"))
+    watch = R.Stopwatch()
+    done: list[str] = []
+    if R.writer():  # several processes: process 0 writes, and decides what is finished
+        (out / "cells").mkdir(parents=True, exist_ok=True)
+        done = sorted(finished_cells(out / "cells"))
+    groups = plan(cfg, set(R.agree(done)))
     n_cells = sum(len(g.cells) for g in groups)
     total, todo = n_cells * cfg.seeds, sum(len(g.episodes) for g in groups)
     skipped = (total - todo) // cfg.seeds
@@ -258,7 +266,7 @@ def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
                 if not g.episodes:
                     continue
                 bar.set_postfix_str(f"group {g.index}: compiling")
-                writer = _CellWriter(g, cfg.seeds, out / "cells", bar)
+                writer = _CellWriter(g, cfg.seeds, out / "cells", bar, watch)
                 try:
                     evaluate(g, cfg, writer)
                 finally:
@@ -267,7 +275,8 @@ def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
                         writer.timing()
     except KeyboardInterrupt:
         bar.close()
-        write_outputs(cfg, groups, out, info, figures=False)
+        if R.writer():
+            write_outputs(cfg, groups, out, info, figures=False)
         kept = len(finished_cells(out / "cells") & {h for g in groups for h in g.hashes})
         print(f"interrupted: {kept} of {n_cells} cells finished and kept in {out}; run the "
               "same command again to resume", file=sys.stderr)
@@ -277,8 +286,12 @@ def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
         if old is not None:
             signal.signal(signal.SIGTERM, old)
     info["wall time"] = f"{time.perf_counter() - t0:.1f} s for {ran} episodes"
-    return {"groups": groups, "ran": ran, "skipped": skipped,
-            "files": write_outputs(cfg, groups, out, info, figures)}
+    split = watch.split()
+    info["time"] = (f"compile {split['compile']:.1f} s, run {split['run']:.1f} s, write cells "
+                    f"{split['write']:.1f} s")
+    with watch.writing():
+        files = write_outputs(cfg, groups, out, info, figures) if R.writer() else {}
+    return {"groups": groups, "ran": ran, "skipped": skipped, "files": files, "time": watch}
 
 
 def _main_thread() -> bool:
@@ -294,14 +307,7 @@ def _device() -> str:
 # CLI
 
 
-def cpu_devices() -> None:
-    """On a CPU-only machine, one XLA CPU device per core, so that the batch is sharded over
-    the cores (XLA runs most of one device's program on one thread). Call before the first
-    computation; accelerators are unaffected; an explicit XLA_FLAGS setting wins."""
-    flags = os.environ.get("XLA_FLAGS", "")
-    if "xla_force_host_platform_device_count" not in flags:
-        os.environ["XLA_FLAGS"] = (flags + " --xla_force_host_platform_device_count="
-                                   f"{os.cpu_count() or 1}").strip()
+cpu_devices = R.cpu_devices  # one XLA CPU device per core (runtime.cpu_devices)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -314,11 +320,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a dotted key, e.g. --set field.d_rr=[1.2,1.8] (repeatable)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    R.add_args(p)
     args = p.parse_args(argv)
-    cpu_devices()
     try:
+        R.setup(args, cpu_split=True)
         cfg = C.load(args.config, args.set, args.smoke)
-    except C.ConfigError as e:
+    except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     out = Path(args.out or cfg.out)
@@ -329,8 +336,10 @@ def main(argv: list[str] | None = None) -> int:
         res = run(cfg, out, progress=not args.no_progress, command=command)
     except KeyboardInterrupt:
         return 130
-    print(f"{res['ran']} episodes run, {res['skipped']} cells skipped; report: "
-          f"{res['files'].get('report', out)}")
+    if R.writer():
+        print(f"{res['ran']} episodes run, {res['skipped']} cells skipped; report: "
+              f"{res['files'].get('report', out)}")
+        print(res["time"].line())
     return 0
 
 

@@ -44,7 +44,7 @@ import pandas as pd
 import yaml
 from tqdm.auto import tqdm
 
-from mjxrow import crops
+from mjxrow import crops, runtime
 from mjxrow.rollout import metrics as M
 from mjxrow.sweep import config as C
 
@@ -283,8 +283,10 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
     inject a fake). Returns (markdown, stats by (controller, preset))."""
     import jax
 
+    from mjxrow.rollout import build as B
     from mjxrow.sweep import run as S
 
+    watch, programs0 = runtime.Stopwatch(), B.program_count()
     out = Path(out)
     base = base if base is not None else load_base()
     devs = jax.devices()
@@ -305,11 +307,16 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
         t0 = time.perf_counter()
         res = S.run(cfg, out / c / p, evaluate=evaluate, progress=progress, command=command)
         wall = time.perf_counter() - t0
+        if not runtime.writer():  # several processes: process 0 reads and writes
+            continue
         results = pd.read_csv(res["files"]["results"])
         stats[(c, p)] = block_stats(results)
         timings.append(f"{p}, {CONTROLLERS[c][0]}: " + block_timing(
             out / c / p, res["groups"][0].hashes[0], res["ran"], wall, device))
     bar.close()
+    if runtime.writer():
+        print(f"{len(blocks)} blocks, {B.program_count() - programs0} closed-loop programs; "
+              f"{watch.line()}", file=sys.stderr)
     for c in CONTROLLERS:
         if c not in controllers:
             missing = [p for p in presets if c == "segzeros_learned" and checkpoint_missing(p)]
@@ -361,12 +368,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--smoke", action="store_true",
                    help="tiny check: 2 episodes, 16 × 16 images, 1.5 m paths in 6 m rows")
     p.add_argument("--no-progress", action="store_true")
+    runtime.add_args(p)  # --cache-dir, --no-cache, --coordinator, ...
     args = p.parse_args(argv)
     if args.episodes < 1 or (args.image is not None and args.image < 8):
         p.error("--episodes must be ≥ 1 and --image ≥ 8")
     out = Path(args.out + "_smoke" if args.smoke else args.out)
     command = "python experiments/table3_navigation.py " + " ".join(
         argv if argv is not None else sys.argv[1:])
+    try:
+        runtime.setup(args)
+    except ValueError as e:
+        p.error(str(e))
     try:
         base = load_base(args.base)
         md, stats = run_table(args.presets, args.controllers, args.episodes, out, args.image,
@@ -379,6 +391,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"interrupted: finished cells are kept in {out}; run the same command again to "
               "resume", file=sys.stderr)
         return 130
+    if not runtime.writer():
+        return 0
     out.mkdir(parents=True, exist_ok=True)
     (out / "table3.md").write_text(md)
     (out / "table3.json").write_text(json.dumps(
