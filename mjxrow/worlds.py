@@ -14,13 +14,13 @@ from pathlib import Path
 
 
 def _parser() -> argparse.ArgumentParser:
-    from mjxrow import field as F
+    from mjxrow import crops
     from mjxrow.field import export as X
 
     ap = argparse.ArgumentParser(prog="python -m mjxrow.worlds",
                                  description=__doc__.split("\n")[0].split(": ", 1)[1],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--preset", choices=tuple(F.PRESETS), default="zucchini")
+    ap.add_argument("--preset", choices=crops.names(), default="zucchini")
     ap.add_argument("--all", action="store_true", help="export every preset")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default="worlds", help="output folder")
@@ -52,6 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     import jax
     from tqdm import tqdm
 
+    from mjxrow import crops
     from mjxrow import field as F
     from mjxrow.field import export as X
     from mjxrow.field import replay
@@ -64,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
             jobs = [(ep.name, lambda ep=ep: (ep.field, ep.shape, ep.robot, ep.start))]
         else:
             sets = parse_sets(args.sets)
-            presets = tuple(F.PRESETS) if args.all else (args.preset,)
+            presets = crops.names() if args.all else (args.preset,)
             resolved = {p: X.resolve(p, sets) for p in presets}
             gen = jax.jit(F.generate, static_argnums=1)
 
