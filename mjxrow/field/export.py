@@ -106,15 +106,3 @@ def export(field: F.Field, shape: F.FieldShape, out_dir: str | Path, name: str,
         paths[key] = out / f"{name}_{key}.csv"
         table.to_csv(paths[key], index=False, float_format="%.4f")
     return paths
-
-
-def resolve(preset: str, sets: dict[str, float]) -> tuple[F.FieldParams, F.FieldShape]:
-    """Validated params of `preset` with overrides, and the smallest static shape that holds
-    them (so overrides that need more rows or plants still work). Raises ValueError naming the
-    offending key."""
-    params = F.make_params(preset, **sets)
-    F.validate(params, F.FieldShape(crop=preset, max_rows=10**6, max_plants_per_row=10**6,
-                                    obstacle_slots=10**6))
-    shape = F.fit_shape(params, preset)
-    F.validate(params, shape)
-    return params, shape

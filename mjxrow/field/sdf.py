@@ -192,8 +192,9 @@ def field_sdf(field: F.Field, shape: F.FieldShape, model: str, flavour: str,
              f"</size><pos>0 0 {S.num(z_lo, 6)}</pos>")
     out = ['<?xml version="1.0"?>', f'<sdf version="{VERSION[flavour]}">',
            f'<model name="{model}"><static>true</static><link name="terrain">',
-           f'<collision name="terrain_collision"><geometry><heightmap>{hgeom}</heightmap></geometry>'
-           '</collision><visual name="terrain"><geometry><heightmap><use_terrain_paging>false'
+           f'<collision name="terrain_collision"><geometry><heightmap>{hgeom}</heightmap>'
+           '</geometry></collision><visual name="terrain"><geometry><heightmap>'
+           '<use_terrain_paging>false'
            f"</use_terrain_paging><texture><size>2</size><diffuse>{uri}/{tex}/soil.png</diffuse>"
            f"<normal>{uri}/{tex}/soil_normal.png</normal></texture>{hgeom}</heightmap>"
            "</geometry></visual></link>"]
