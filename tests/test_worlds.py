@@ -1,10 +1,13 @@
-"""Exported worlds: spacings read back from the CSV, MJCF and SDF of a tiny field, MuJoCo loading,
-heightfield heights, camera view, CLI errors."""
+"""Exported worlds: spacings read back from the CSV, MJCF and SDF of a tiny field, MuJoCo loading
+and stepping with the robot, heightfield heights, camera view, both Gazebo flavours (parsed by
+sdformat where installed), the export of a sweep episode, CLI errors."""
 
 import os
+import shutil
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "osmesa")
 
@@ -16,8 +19,10 @@ import pytest  # noqa: E402
 from PIL import Image  # noqa: E402
 
 from mjxrow import field as F  # noqa: E402
+from mjxrow import worlds  # noqa: E402
 from mjxrow.crops import prims as PL  # noqa: E402
 from mjxrow.field import export as Wd  # noqa: E402
+from mjxrow.field import scene as S  # noqa: E402
 
 # 12 × 12 m terrain, 2 groups of 2 rows: rows at y = -3.6, -1.8, 1.8, 3.6 (gaps 1.8, 3.6, 1.8),
 # 8 m rows with a plant every 0.7 m → 12 plants per row.
@@ -40,7 +45,7 @@ def tiny():
 
 @pytest.fixture(scope="module")
 def paths(tiny, tmp_path_factory):
-    return Wd.export(*tiny, tmp_path_factory.mktemp("worlds"), "tiny")
+    return Wd.export(*tiny, tmp_path_factory.mktemp("worlds"), "tiny", gazebo="both")
 
 
 @pytest.fixture(scope="module")
@@ -82,13 +87,24 @@ def test_lanes_csv(tiny, paths):
     field, _ = tiny
     t = pd.read_csv(paths["lanes"])
     assert list(t.columns) == ["lane", "y", "x_start", "x_end", "z_start", "z_end", "width",
-                               "default"]
+                               "default"] + [f"spawn_{k}" for k in ("x", "y", "z", "roll",
+                                                                    "pitch", "yaw")]
     np.testing.assert_allclose(t["width"], [D_RR, D_RGROUP, D_RR], atol=1e-3)
     np.testing.assert_allclose(t["y"], [-2.7, 0.0, 2.7], atol=1e-3)
     # rows start at −row_length/2 and end at the last plant slot: −4 + 11 · 0.7 = 3.7 m
     np.testing.assert_allclose(t[["x_start", "x_end"]].to_numpy(), [[-4.0, 3.7]] * 3, atol=1e-3)
     assert t["default"].sum() == 1 and int(t["lane"][t["default"] == 1].iloc[0]) == int(
         F.robot_lane(field))
+    # spawn: path_length (here the 8 m rows' length) before the row end, on the centre line,
+    # heading +x, chassis origin above the terrain by about the wheels' radius
+    robot = S.robot_for(field)
+    np.testing.assert_allclose(t["spawn_x"], 3.7 - robot.sim.path_length, atol=1e-3)
+    np.testing.assert_allclose(t["spawn_y"], t["y"], atol=1e-3)
+    np.testing.assert_allclose(t["spawn_yaw"], 0.0, atol=1e-3)
+    ground = F.terrain_height(field.terrain, field.terrain_size, t["spawn_x"].to_numpy(),
+                              t["spawn_y"].to_numpy())
+    lift = t["spawn_z"] - ground
+    assert (lift > 0.5 * robot.robot.wheel_radius).all() and (lift < 0.3).all(), lift
 
 
 def _plant_geoms(m):
@@ -169,27 +185,83 @@ def test_eye_camera_looks_down_the_default_lane(tiny, model):
                       for g in range(m.ngeom)] + ["sky"])
     what = np.char.partition(names[seg], "_")[..., 0]
     assert (what[0] == "sky").all()  # camera pitched 15° down, fovy 45°: the top row is sky
-    assert what[-1, 40] == "terrain"  # the lane ahead is free
+    # no plant in the lane ahead (the robot stands in it, further back; stones lie in it)
+    ahead = set(what[-20:, 38:42].ravel())
+    assert "terrain" in ahead and "plant" not in ahead, ahead
     assert (what[-20:, :15] == "plant").mean() > 0.3  # rows on both sides
     assert (what[-20:, -15:] == "plant").mean() > 0.3
 
 
-def test_sdf(tiny, paths):
+def test_mjcf_robot_drives_from_the_lane_start(tiny, paths, model):
+    field, _ = tiny
+    m, d = model
+    lanes = pd.read_csv(paths["lanes"])
+    spawn = lanes[lanes["default"] == 1].iloc[0]
+    assert m.nu == 4 and m.nkey == 4  # wheel actuators with a ctrlrange; keyframes
+    assert (m.actuator_ctrlrange[:, 1] > 0).all() and m.actuator_ctrllimited.all()
+    assert mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, "front") >= 0
+    chassis = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "chassis")
+    np.testing.assert_allclose(d.xpos[chassis][:2], spawn[["spawn_x", "spawn_y"]], atol=1e-3)
+    ground = float(F.terrain_height(field.terrain, field.terrain_size, *d.xpos[chassis][:2]))
+    for key, moved in (("start", (0.0, 0.02)), ("forward", (0.3, 5.0))):
+        mujoco.mj_resetDataKeyframe(m, d, mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, key))
+        x0 = d.qpos[0]
+        for _ in range(int(1.0 / m.opt.timestep)):
+            mujoco.mj_step(m, d)
+        # on the ground (the origin a wheel radius above it, give or take the tilt), upright
+        z = d.xpos[chassis][2] - ground
+        assert 0.03 < z < 0.2, (key, z)
+        assert d.xmat[chassis][8] > 0.95
+        assert moved[0] <= d.qpos[0] - x0 <= moved[1], (key, d.qpos[0] - x0)
+        assert abs(d.qpos[1] - spawn["spawn_y"]) < 0.1
+
+
+def _model_file(world: Path, uri: str) -> Path:
+    """A model:// URI of an export resolved against its `models/` folder."""
+    assert uri.startswith("model://"), uri
+    p = world.parent / "models" / uri.removeprefix("model://")
+    assert p.exists(), uri
+    return p
+
+
+def _models(paths, flavour):
+    world = paths["sdf" if flavour == "sim" else "world"]
+    root = ET.parse(world).getroot()
+    inc = {i.findtext("name"): _model_file(world, i.findtext("uri")) for i in root.iter("include")}
+    assert set(inc) == {"field", "robot"}
+    return world, root, {k: ET.parse(v / "model.sdf").getroot() for k, v in inc.items()}
+
+
+@pytest.mark.parametrize("flavour", ["sim", "classic"])
+def test_sdf(tiny, paths, flavour):
     field, shape = tiny
-    root = ET.parse(paths["sdf"]).getroot()
-    assert root.tag == "sdf" and root.get("version") == "1.9"
-    visuals = [v.get("name") for v in root.iter("visual")]
-    plant_vis = [n for n in visuals if n.startswith("plant_")]
+    world, root, models = _models(paths, flavour)
+    version = "1.9" if flavour == "sim" else "1.6"
+    assert {r.get("version") for r in (root, *models.values())} == {version}
+    assert root.find("world/physics/max_step_size") is not None
+    fm = models["field"]
+    visuals = [v.get("name") for v in fm.iter("visual")]
+    plant_vis = [n for n in visuals if n.startswith("plant_") and "_end" not in n]
     assert len(plant_vis) == len(set(plant_vis)) == field.plant_active.sum() * K
-    coll = [c.get("name") for c in root.iter("collision") if c.get("name").startswith("plant_")]
+    coll = [c.get("name") for c in fm.iter("collision") if c.get("name").startswith("plant_")]
     assert len(coll) == field.plant_active.sum()  # one footprint dome per plant
-    prim_root = ET.fromstring(Wd.to_sdf(field, shape, "t", collisions="primitives")[0])
-    assert sum(c.get("name").startswith("plant_") for c in prim_root.iter("collision")) == len(
-        plant_vis)
-    assert sum(n.startswith(("stone_", "branch_")) for n in visuals) == field.obst_active.sum()
-    # the heightmap: square 2^n+1, row 0 at +y, heights = pos.z + pixel/65535 · size.z
-    hm = root.find(".//collision/geometry/heightmap")
-    img = np.asarray(Image.open(paths["sdf"].parent / hm.findtext("uri")), np.float64)
+    assert sum(n.startswith(("stone_", "branch_")) and "_end" not in n
+               for n in visuals) == field.obst_active.sum()
+    for v in fm.iter("visual"):  # shaded sides: ambient as well as diffuse
+        if v.get("name") != "terrain":
+            assert v.find("material/ambient") is not None and v.find("material/diffuse") is not None
+    for uri in fm.iter("uri"):
+        _model_file(world, uri.text)
+    if flavour == "classic":  # SDF 1.6 geometry only
+        assert fm.find(".//ellipsoid") is None and fm.find(".//capsule") is None
+        meshes = {m.findtext("uri") for m in fm.iter("mesh")}
+        assert len(meshes) == 1 and meshes.pop().endswith("sphere.dae")
+    # the heightmap: square 2^n+1, row 0 at +y, heights = pos.z + pixel/(2^bits − 1) · size.z
+    hm = fm.find(".//collision/geometry/heightmap")
+    img = Image.open(_model_file(world, hm.findtext("uri")))
+    top = 255 if flavour == "classic" else 65535
+    assert img.mode == ("L" if flavour == "classic" else "I;16")
+    img = np.asarray(img, np.float64)
     n = img.shape[0]
     assert img.shape == (n, n) and (n - 1) & (n - 2) == 0
     size = np.array(hm.findtext("size").split(), float)
@@ -199,25 +271,154 @@ def test_sdf(tiny, paths):
     x = (i / (n - 1) - 0.5) * size[0]
     y = (0.5 - j / (n - 1)) * size[1]
     ref = F.terrain_height(field.terrain, field.terrain_size, x, y)
-    np.testing.assert_allclose(z0 + img[j, i] / 65535 * size[2], ref, atol=1e-3)
+    np.testing.assert_allclose(z0 + img[j, i] / top * size[2], ref,
+                               atol=1e-3 + size[2] / top)
+    # the robot: four wheel joints, a camera with our image size and field of view, spawned at
+    # the default lane's start
+    rm = models["robot"]
+    assert len(rm.findall("model/joint")) == 4
+    cam = rm.find(".//sensor[@type='camera']/camera")
+    robot = S.robot_for(field)
+    assert (int(cam.findtext("image/width")), int(cam.findtext("image/height"))) == robot.image
+    assert abs(float(cam.findtext("horizontal_fov")) - robot.hfov) < 1e-5
+    lanes = pd.read_csv(paths["lanes"])
+    spawn = lanes[lanes["default"] == 1].iloc[0]
+    pose = np.array(root.find("world/include[name='robot']/pose").text.split(), float)
+    np.testing.assert_allclose(pose[:2], spawn[["spawn_x", "spawn_y"]], atol=1e-3)
+
+
+def _sdformat() -> str | None:
+    """`ign` when it has the sdformat `sdf` command, else None (the test fails when
+    MJXROW_REQUIRE_SDFORMAT is set, as .ci/run does; else it skips, saying why)."""
+    ign = shutil.which("ign")
+    if ign:
+        out = subprocess.run([ign, "sdf", "--help"], capture_output=True, text=True)
+        if out.returncode == 0 and "-k" in out.stdout + out.stderr:
+            return ign
+    if os.environ.get("MJXROW_REQUIRE_SDFORMAT"):
+        pytest.fail("MJXROW_REQUIRE_SDFORMAT is set but `ign sdf` is not installed "
+                    "(Debian: ignition-tools libsdformat-dev)")
+    pytest.skip("`ign sdf` not installed (Debian: ignition-tools libsdformat-dev); "
+                "set MJXROW_REQUIRE_SDFORMAT=1 to make this a failure")
+
+
+# lines the tools print on a healthy install (a missing optional backtrace library)
+SDFORMAT_NOISE = ("Library error: libignition-tools-backward.so not found",)
+
+
+def test_sdformat_parses_every_file(paths):
+    ign = _sdformat()
+    out_dir = paths["xml"].parent
+    files = [paths["sdf"], paths["world"], *sorted(out_dir.glob("models/*/model.sdf"))]
+    assert len(files) == 6
+    env = {**os.environ, "SDF_PATH": str(out_dir / "models")}
+    for f in files:
+        res = subprocess.run([ign, "sdf", "-k", str(f)], capture_output=True, text=True,
+                             env=env, cwd="/")
+        lines = [ln for ln in (res.stdout + res.stderr).splitlines()
+                 if ln.strip() and not ln.startswith(SDFORMAT_NOISE)]
+        # `ign sdf -k` can print an error and still exit 0: any other line fails
+        assert res.returncode == 0 and lines == ["Valid."], (f.name, res.returncode, lines)
+
+
+def test_sdformat_check_catches_errors(tmp_path):
+    """The check above can fail: an unresolved include is reported."""
+    ign = _sdformat()
+    bad = tmp_path / "bad.sdf"
+    bad.write_text('<?xml version="1.0"?><sdf version="1.6"><world name="w"><include><uri>'
+                   "model://missing</uri></include></world></sdf>")
+    res = subprocess.run([ign, "sdf", "-k", str(bad)], capture_output=True, text=True,
+                         env={**os.environ, "SDF_PATH": str(tmp_path)})
+    lines = [ln for ln in (res.stdout + res.stderr).splitlines()
+             if ln.strip() and not ln.startswith(SDFORMAT_NOISE)]
+    assert res.returncode != 0 or lines != ["Valid."]
 
 
 def test_cli_bad_input_names_the_key(tmp_path, capsys):
-    for item, key in (("d_rr=-1", "d_rr"), ("bogus=1", "bogus"), ("d_pp", "d_pp"),
-                      ("terrain_dh=abc", "terrain_dh"), ("p_missing=1.5", "p_missing")):
-        assert Wd.main(["--preset", "lettuce", "--out", str(tmp_path), "--set", item]) == 2
+    for args, key in ((["--set", "field.d_rr=-1"], "field.d_rr"),
+                      (["--set", "field.bogus=1"], "field.bogus"),
+                      (["--set", "d_pp"], "d_pp"),
+                      (["--set", "field.terrain_dh=abc"], "field.terrain_dh"),
+                      (["--set", "field.p_missing=1.5"], "field.p_missing"),
+                      (["--set", "robot.wheel_radius=-1"], "robot.wheel_radius"),
+                      (["--from-run", str(tmp_path / "none"), "--cell", "0", "--episode", "0"],
+                       "--from-run")):
+        assert worlds.main(["--preset", "lettuce", "--out", str(tmp_path), *args]) == 2
         err = capsys.readouterr().err
-        assert key in err and len(err.strip().splitlines()) == 1
+        assert key in err and len(err.strip().splitlines()) == 1, err
     assert not any(tmp_path.iterdir())
     proc = subprocess.run([sys.executable, "-m", "mjxrow.worlds", "--preset", "chard", "--set",
-                           "d_RR=0.2", "--out", str(tmp_path)], capture_output=True, text=True)
+                           "field.d_RR=0.2", "--out", str(tmp_path)], capture_output=True,
+                          text=True)
     assert proc.returncode == 2 and "plant_width" in proc.stderr and "d_RR" in proc.stderr
 
 
 def test_overrides_grow_the_shape():
     # 30 m wide chard: 10 groups of 3 rows, more than the preset shape's max_rows
-    sets = dict(terrain_width=30.0, terrain_length=8.0, row_length=6.0)
-    params, shape = Wd.resolve("chard", sets)
+    run, shape = worlds.resolve_run("chard", 0, ["field.terrain_width=30.0",
+                                                 "field.terrain_length=8.0",
+                                                 "field.row_length=6.0", "sim.path_length=5"])
+    params = run.field_params()
     assert F.preset_shape("chard").max_rows < 30 <= shape.max_rows
     assert bool(np.all([np.all(ok) for ok, _ in F.checks(params, shape).values()]))
     assert not bool(F.checks(params, F.preset_shape("chard"))["max_rows"][0])
+
+
+# ---------------------------------------------------------------------------------------------
+# The field of a sweep episode
+
+SWEEP = {"name": "replay", "seeds": 2, "batch_size": 2, "controller": {"name": "oracle"},
+         "perception": {"source": "ground_truth"},
+         "field": {"row_length": 6.0, "terrain_length": 10.0, "terrain_width": 10.0,
+                   "rows_per_group": 2, "terrain_dh": 0.1},
+         "sim": {"path_length": 1.5}, "episode": {"start_offset_std": 0.1},
+         "camera": {"width": 16, "height": 16}}
+
+
+def test_from_run_exports_the_episode_the_sweep_ran(tmp_path):
+    """A 2-episode sweep whose evaluator builds its batch as the real one does (rollout.build)
+    and records the fields; `--from-run` then regenerates episode 1's field exactly."""
+    from mjxrow.rollout import build as B
+    from mjxrow.sweep import config as C
+    from mjxrow.sweep import run as SW
+
+    seen = {}
+
+    def evaluate(group, cfg, on_batch_done):
+        by_cell = {c.index: c.cfg for c in group.cells}
+        built = B.build(list(by_cell.values()), group.shape)
+        batch = built.batch([(by_cell[c], e) for c, e in group.episodes])
+        fields = jax.tree.map(np.asarray, batch.fields)
+        rows = []
+        for i, (c, e) in enumerate(group.episodes):
+            seen[(c, e)] = jax.tree.map(lambda x, i=i: x[i], fields)
+            rows.append({"cell": c, "episode": e, "lane": int(batch.lanes[i]), "success": True})
+        rows = pd.DataFrame(rows)
+        on_batch_done(rows)
+        return rows
+
+    run_dir = tmp_path / "run"
+    SW.run(C.from_dict(SWEEP), run_dir, evaluate=evaluate, progress=False, figures=False)
+    out = tmp_path / "world"
+    assert worlds.main(["--from-run", str(run_dir), "--cell", "0", "--episode", "1",
+                        "--gazebo", "none", "--out", str(out)]) == 0
+    ref = seen[(0, 1)]
+    assert not np.array_equal(ref.plant_pos, seen[(0, 0)].plant_pos)
+    t = pd.read_csv(out / "zucchini_c0_e1_plants.csv")
+    r, p = np.nonzero(ref.plant_active)
+    want = np.sort(ref.plant_pos[r, p], axis=0)
+    np.testing.assert_allclose(np.sort(t[["x", "y", "z"]].to_numpy(), axis=0), want, atol=6e-5)
+    from mjxrow.field import replay
+
+    ep = replay.from_run(run_dir, 0, 1)
+    for name in ("plant_pos", "plant_size", "plant_active", "terrain", "obst_pos"):
+        np.testing.assert_array_equal(getattr(ep.field, name), getattr(ref, name))
+    # the start: the lane results.csv names, path_length before the row end, off the centre
+    # line by the start noise (std 0.1 m)
+    res = pd.read_csv(run_dir / "results.csv")
+    lane = int(res[(res["cell"] == 0) & (res["episode"] == 1)]["lane"].iloc[0])
+    lanes = pd.read_csv(out / "zucchini_c0_e1_lanes.csv")
+    spawn = lanes[lanes["lane"] == ep.start.lane].iloc[0]
+    assert int(S.field_lanes(ep.field)[ep.start.lane]) == lane
+    np.testing.assert_allclose(spawn["spawn_x"], spawn["x_end"] - 1.5, atol=1e-3)
+    assert 1e-4 < abs(spawn["spawn_y"] - spawn["y"]) < 0.4

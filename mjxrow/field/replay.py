@@ -1,0 +1,114 @@
+"""The field, lane and start pose of ONE episode, for export: an episode of `python -m
+mjxrow.episode` or of a finished sweep run, replayed in Gazebo or the MuJoCo viewer.
+
+An episode is what `rollout.build` makes of (run config, episode index): the keys
+`episode_keys(run.seed, [episode])` split by `split_keys` into the field's key and the
+rollout's key, the field from `generate_fn` on the run's static shape, the lane
+`field.robot_lane`, and the start `sim.reset` with `k_reset, _ = split(rollout key)`
+(`rollout.episode.episode`) and the run's start-pose noise. `episode_world` repeats exactly
+that; `from_run` finds a sweep cell's run config and its group's shape (`sweep.run.plan`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+import pandas as pd
+import yaml
+
+from mjxrow import field as F
+from mjxrow.field import scene as S
+from mjxrow.rollout import build as B
+from mjxrow.rollout.config import RunConfig
+
+
+@dataclasses.dataclass(frozen=True)
+class Episode:
+    """One episode, ready to export: `field` (numpy, one field), its static `shape`, the robot
+    as the run drives it, and the `start` (lane index by y and the exact start qpos)."""
+
+    field: F.Field
+    shape: F.FieldShape
+    robot: S.Robot
+    start: S.Start
+    name: str  # e.g. "zucchini" or "zucchini_c3_e5"
+
+
+def run_robot(run: RunConfig) -> S.Robot:
+    """The robot of a run config: its RobotConfig (camera fov from `camera.fovy`), the
+    episode's SimConfig and the camera's image size."""
+    return S.Robot(run.robot_config(), run.episode.sim, (int(run.camera.width),
+                                                         int(run.camera.height)))
+
+
+def episode_world(run: RunConfig, shape: F.FieldShape, episode: int = 0,
+                  lane: int | None = None, name: str | None = None) -> Episode:
+    """Episode `episode` of `run` on the static `shape` (module doc). With `lane` (index of
+    `lanes_table`, 0..n-1 by y), the robot starts in that lane instead, without pose noise."""
+    if episode < 0:
+        raise ValueError(f"episode: must be non-negative, got {episode}")
+    fkeys, rkeys = B.split_keys(B.episode_keys(run.seed, [episode]))
+    params = B.stack([run.field_params()])
+    fld = S.host(jax.tree.map(lambda x: x[0], B.generate_fn()(params, shape, fkeys)))
+    robot = run_robot(run)
+    if lane is not None:
+        start = S.default_start(fld, shape, robot, lane)
+    else:
+        field_lane = int(F.robot_lane(fld))
+        k_reset, _ = jax.random.split(rkeys[0])
+        qpos = S.start_poses(fld, shape, robot, [field_lane], k_reset[None],
+                             run.episode.noise)[0]
+        table_lane = int(np.flatnonzero(S.field_lanes(fld) == field_lane)[0])
+        start = S.Start(table_lane, qpos)
+    return Episode(fld, shape, robot, start, name or run.preset)
+
+
+def from_run(run_dir: str | Path, cell: int, episode: int) -> Episode:
+    """Episode `episode` of cell `cell` of the sweep run in `run_dir`, exactly as the sweep
+    made it. The cell is found by its hash in `results.csv` when the run wrote one (cell numbers
+    follow `config.yaml`'s axes), else by its number. ValueError naming the offending flag
+    (--from-run, --cell, --episode) when something is missing or does not match."""
+    from mjxrow.sweep import config as C
+    from mjxrow.sweep import run as SW
+
+    run_dir = Path(run_dir)
+    try:
+        raw = yaml.safe_load((run_dir / "config.yaml").read_text())
+    except OSError as e:
+        raise ValueError(f"--from-run: cannot read {run_dir / 'config.yaml'} ({e.strerror}); "
+                         "is it a sweep's output folder?") from None
+    try:
+        cfg = C.from_dict(raw, run_dir)
+    except ValueError as e:
+        raise ValueError(f"--from-run: {run_dir / 'config.yaml'}: {e}") from None
+    if not 0 <= episode < cfg.seeds:
+        raise ValueError(f"--episode: {episode} is not an episode of this run "
+                         f"(0..{cfg.seeds - 1})")
+    row = None
+    if (run_dir / "results.csv").exists():
+        res = pd.read_csv(run_dir / "results.csv")
+        hit = res[(res["cell"] == cell) & (res["episode"] == episode)]
+        row = hit.iloc[0] if len(hit) else None
+    groups = SW.plan(cfg)
+    found = [(g, c) for g in groups for c, h in zip(g.cells, g.hashes, strict=True)
+             if row is not None and h == row["cell_hash"]]
+    if not found:
+        if row is not None:
+            print(f"warning: cell {cell}'s hash {row['cell_hash']} is not in config.yaml's grid "
+                  f"(a retrained checkpoint?); taking cell number {cell}", file=sys.stderr)
+        found = [(g, c) for g in groups for c in g.cells if c.index == cell]
+    if not found:
+        n = sum(len(g.cells) for g in groups)
+        raise ValueError(f"--cell: {cell} is not a cell of this run (0..{n - 1})")
+    group, c = found[0]
+    ep = episode_world(c.cfg, group.shape, episode, name=f"{c.cfg.preset}_c{cell}_e{episode}")
+    lane = int(S.field_lanes(ep.field)[ep.start.lane])
+    if row is not None and "lane" in row and int(row["lane"]) != lane:
+        raise ValueError(f"--episode: results.csv says episode {episode} of cell {cell} drove "
+                         f"lane {int(row['lane'])}, the regenerated field's lane is {lane}: the "
+                         "field generator changed since this run")
+    return ep
