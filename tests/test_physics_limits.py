@@ -1,0 +1,192 @@
+"""The robot's drive limits and the checks around the physics: the default physics step agrees
+with a 5× finer one on hard manoeuvres, the configured wheel friction is the one used, no
+episode starts inside an obstacle, the terrain patch holds the field's relief, the lane kind
+is explicit.
+
+Manoeuvre tolerances (default step 9.52 ms against 1.90 ms, mjxrow.physics.manoeuvres): before
+the wheel servos were integrated consistently with the contacts the two steps differed by 11°
+of pitch in a stop, 9.6 cm of hop and 5 rad/s of yaw rate in a flipped turn, and the coarse
+step flipped the robot on both slopes. With the servo fixed they agree within 1° (pitch), 2 mm
+(stop distance), 0.15 rad/s (yaw rate) and 1.2 cm (distances) (measured on CPU). The bounds
+below sit 2-5× above that, room for float32 on other devices and jax versions, and 5-10× below
+the artefacts they guard against.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+from mujoco import mjx
+
+from mjxrow import field as F
+from mjxrow.field.generate import LANE_MODES, PATH_LENGTH
+from mjxrow.physics import manoeuvres as MV
+from mjxrow.physics import robot as R
+from mjxrow.physics import sim as S
+
+CFG = S.SimConfig()
+
+
+@pytest.fixture(scope="module")
+def manoeuvres():
+    fine = dataclasses.replace(CFG, dt=CFG.physics_dt / 5)
+    assert fine.substeps == 5 * CFG.substeps
+    return {k: MV.figures(MV.run(c, seconds=3.0)) for k, c in (("coarse", CFG), ("fine", fine))}
+
+
+def test_ramp_and_servo_hand_computed():
+    cfg = R.RobotConfig()  # max_accel 20 m/s², max_alpha 25 rad/s², kv 30, 5 N·m
+    t = np.asarray(R.ramp(jnp.zeros(2), jnp.array([3.0, -0.1]), cfg, 0.01))
+    np.testing.assert_allclose(t, [0.2, -0.1], atol=1e-6)  # 20·0.01; ω within 25·0.01
+    t = np.asarray(R.ramp(jnp.array([0.45, 0.0]), jnp.array([3.0, 0.0]), cfg, 0.01))
+    np.testing.assert_allclose(t, [0.5, 0.0], atol=1e-6)  # clipped to v_max first
+    free = R.RobotConfig(max_accel=0.0, max_alpha=0.0)
+    np.testing.assert_allclose(R.ramp(jnp.zeros(2), jnp.array([0.3, 0.7]), free, 0.01),
+                               [0.3, 0.7], atol=1e-6)
+    tau, stiff = R.servo(jnp.array([0.01, 10.0, -10.0, 0.0]), jnp.zeros(4), cfg)
+    np.testing.assert_allclose(tau, [0.3, 5.0, -5.0, 0.0], atol=2e-4)  # kv·e, then ±5 N·m
+    np.testing.assert_allclose(stiff, [30.0, 0.0, 0.0, 30.0], atol=0.01)
+    tau, stiff = R.servo(jnp.array([10.0]), jnp.zeros(1), R.RobotConfig(wheel_torque=0.0))
+    np.testing.assert_allclose([tau[0], stiff[0]], [300.0, 30.0])  # unlimited
+    with pytest.raises(ValueError, match="robot.max_accel"):
+        R.RobotConfig(max_accel=-1.0)
+
+
+def test_model_has_motors_with_the_torque_limit_and_wheel_priority():
+    shape = F.FieldShape(max_rows=4, max_plants_per_row=8, terrain_cells=(16, 16),
+                         obstacle_slots=1)
+    m, _ = S.make_model(shape, CFG, R.RobotConfig(friction=0.3, wheel_torque=4.0))
+    np.testing.assert_allclose(m.actuator_forcerange, np.tile([-4.0, 4.0], (4, 1)))
+    wheels = [m.geom(f"wheel_{n}").id for n in R.WHEELS]
+    assert (m.geom_priority[wheels] == 1).all() and (m.geom_priority[m.geom("terrain").id] == 0)
+    np.testing.assert_allclose(m.geom_friction[wheels, 0], 0.3)
+    np.testing.assert_allclose(m.dof_armature[S.wheel_dofs(m)], 0.05)
+
+
+def test_default_step_agrees_with_a_fine_step(manoeuvres):
+    c, f = manoeuvres["coarse"], manoeuvres["fine"]
+    for name in MV.MANOEUVRES:
+        assert c[name]["flipped"] == 0 and f[name]["flipped"] == 0, name
+    # a start from rest settles within 1 s without overshoot
+    for fig in (c, f):
+        assert fig["start"]["overshoot_pct"] < 2.0 and fig["start"]["settle_s"] <= 1.0
+    assert abs(c["start"]["settle_s"] - f["start"]["settle_s"]) <= 0.1
+    # a stop from 0.5 m/s: no nose dive, the same braking distance
+    assert max(c["stop"]["pitch_deg"], f["stop"]["pitch_deg"]) < 2.0
+    assert abs(c["stop"]["stop_cm"] - f["stop"]["stop_cm"]) < 1.0
+    assert 0.0 < f["stop"]["stop_cm"] < 10.0
+    # ω flipped every control period: no hop, the same wiggle
+    assert max(c["flip_turn"]["hop_cm"], f["flip_turn"]["hop_cm"]) < 1.0
+    assert abs(c["flip_turn"]["yaw_rate"] - f["flip_turn"]["yaw_rate"]) < 0.4
+    assert abs(c["flip_turn"]["dist_m"] - f["flip_turn"]["dist_m"]) < 0.05
+    # 25° down, 30° up: the chassis stays on the slope's plane and covers the same ground
+    for name in ("descent", "climb"):
+        assert abs(c[name]["pitch_deg"] - f[name]["pitch_deg"]) < 2.0, name
+        assert max(c[name]["pitch_deg"], f[name]["pitch_deg"]) < 6.0, name
+        assert abs(c[name]["dist_m"] - f[name]["dist_m"]) < 0.05, name
+        assert c[name]["dist_m"] > 0.5, name  # commanded 0.75 m; it kept going
+
+
+def test_configured_friction_is_used():
+    """Standing (cmd 0) on a 20° slope for 2 s: at friction 1 the wheels hold (tan 20° = 0.36),
+    at 0.3 the robot slides down. The terrain keeps friction 1: without the wheels' priority
+    MuJoCo would use max(0.3, 1) and both would hold."""
+    params = F.make_params("zucchini", **MV.FIELD, slope_x=math.tan(math.radians(20.0)))
+    shape = F.fit_shape(params, "zucchini", obstacle_slots=1)
+    cfg = MV.sim_config(CFG)
+    _, mx = S.make_model(shape, cfg)
+    wheels = np.array([mjx.name2id(mx, mujoco.mjtObj.mjOBJ_GEOM, f"wheel_{n}") for n in R.WHEELS])
+
+    def run(mu):
+        field = F.generate(params, shape, jax.random.key(0))
+        lane = F.robot_lane(field)
+        mw = S.world_model(mx, field, lane, cfg)
+        mw = mw.tree_replace({"geom_friction": mw.geom_friction.at[wheels, 0].set(mu)})
+        s = S.reset(mw, field, lane, jax.random.key(0), cfg)
+        x0 = s.data.qpos[0]
+        s, _ = jax.lax.scan(lambda s, _: (S.step(mw, s, jnp.zeros(2), cfg), None), s, None,
+                            length=30)
+        return s.data.qpos[0] - x0
+
+    dx = np.asarray(jax.jit(jax.vmap(run))(jnp.array([0.3, 1.0])))
+    assert dx[0] < -0.2, dx  # slid downhill (−x)
+    assert abs(dx[1]) < 0.02, dx
+
+
+def test_no_obstacle_at_any_start():
+    """256 small fields dense with stones and branches: no obstacle (capsule: segment + radius)
+    comes within the robot's footprint + 0.2 m of the start, on any lane, at the default and at
+    a shorter path length."""
+    n = 256
+    params = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,)), F.make_params(
+        "zucchini", **{**MV.FIELD, "stone_density": 15.0, "branch_density": 8.0}))
+    shape = F.fit_shape(params, "zucchini")
+    keys = jax.random.split(jax.random.key(3), n)
+    rc = R.RobotConfig()
+    for path_length in (PATH_LENGTH, 11.0):
+        fields = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0, None)), static_argnums=1)(
+            params, shape, keys, path_length)
+        act = np.asarray(fields.obst_active)
+        assert act.sum(1).min() >= 30  # dense: ~40 obstacles per field
+        x0 = np.asarray(fields.row_x[:, 1]) - path_length
+        pos, size = np.asarray(fields.obst_pos), np.asarray(fields.obst_size)
+        yaw = np.asarray(fields.obst_yaw)
+        t = np.linspace(-1.0, 1.0, 21)
+        px = pos[..., None, 0] + t * size[..., None, 1] * np.cos(yaw)[..., None]  # [n, S, 21]
+        gap = np.abs(px - x0[:, None, None]) - size[..., None, 0] - 0.5 * rc.length
+        gap = np.where(act[..., None], gap, np.inf)  # along x, across every lane
+        assert gap.min() > 0.2, (path_length, gap.min())
+
+
+def test_patch_z_is_checked_and_fitted():
+    steep = F.make_params("zucchini", slope_x=0.25, terrain_dh=0.5)
+    np.testing.assert_allclose(S.patch_relief(steep, CFG), 0.5 + 0.25 * 24.0)  # 6.5 m
+    with pytest.raises(ValueError, match=r"sim\.patch_z: 4 m .* 6\.50 m at field\.slope_x=0\.25"):
+        S.check_params(steep, CFG)
+    fitted = S.fit_patch_z(steep, CFG)
+    assert fitted.patch_z == 7.0 and S.fit_patch_z(F.make_params("zucchini"), CFG) is CFG
+    S.check_params(steep, fitted)
+    # the fitted patch follows the field's terrain where the default one was flattened
+    p = F.make_params("zucchini", **MV.FIELD, slope_x=0.25)
+    shape = F.fit_shape(p, "zucchini", obstacle_slots=1)
+    field = F.generate(p, shape, jax.random.key(0))
+    lane = F.robot_lane(field)
+    c = np.asarray(S.patch_frame(field, lane, CFG))
+    x, y = c[0] + np.linspace(-11.0, 11.0, 23), np.full(23, c[1])
+    h = np.asarray(F.terrain_height(field.terrain, field.terrain_size, x, y))
+    for cfg, ok in ((CFG, False), (S.fit_patch_z(p, CFG), True)):
+        mw = S.world_model(S.make_model(shape, cfg)[1], field, lane, cfg)
+        err = np.abs(np.asarray(S._patch_surface(mw, cfg, jnp.asarray(x), jnp.asarray(y))) - h)
+        assert (err.max() < 5e-3) == ok, (cfg.patch_z, err.max())
+
+
+def test_lane_choice_is_explicit():
+    base = dict(terrain_length=30.0, row_length=24.0, terrain_width=12.0, rows_per_group=3,
+                stone_density=0.0, branch_density=0.0)
+    shape = F.fit_shape(F.make_params("zucchini", **base, d_rr=1.2), "zucchini")
+    for d_rr in (1.8, 1.2):
+        field = F.generate(F.make_params("zucchini", **base, d_rr=d_rr), shape, jax.random.key(0))
+        rpg = 3
+        lanes = {m: int(F.robot_lane(field, mode=m)) for m in LANE_MODES}
+        assert (lanes["in_group"] + 1) % rpg != 0 and (lanes["between_groups"] + 1) % rpg == 0
+        assert float(field.lane_width[lanes["in_group"]]) == pytest.approx(d_rr, abs=1e-5)
+        assert float(field.lane_width[lanes["between_groups"]]) == pytest.approx(3.6, abs=1e-5)
+        # auto: in-group while it fits (1.8 − 0.9 ≥ 0.53), between groups at 1.2 (0.3 m free)
+        assert lanes["auto"] == lanes["in_group" if d_rr == 1.8 else "between_groups"]
+        assert int(S.lane_of(field, S.SimConfig(lane="in_group"))) == lanes["in_group"]
+    narrow = F.make_params("zucchini", **base, d_rr=1.2)
+    S.check_lane(narrow, S.SimConfig(lane="between_groups"))
+    S.check_lane(narrow, S.SimConfig())
+    with pytest.raises(ValueError, match=r"sim\.lane: the in_group lane is 0\.30 m wide .* "
+                                         r"field\.d_rr=1\.2 .* needs 0\.53 m"):
+        S.check_lane(narrow, S.SimConfig(lane="in_group"))
+    with pytest.raises(ValueError, match=r"sim\.lane: in_group needs rows_per_group > 1"):
+        S.check_lane(F.make_params("pear"), S.SimConfig(lane="in_group"))
+    with pytest.raises(ValueError, match="sim.lane: must be one of"):
+        S.SimConfig(lane="widest")
