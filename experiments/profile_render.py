@@ -27,7 +27,7 @@ from pathlib import Path
 
 import jax
 
-from mjxrow import field as F
+from mjxrow import crops
 from mjxrow import render as RD
 from mjxrow.bench import render as BR
 from mjxrow.bench import time_call
@@ -91,7 +91,7 @@ def profile(fn, inputs, calls: int) -> tuple[dict, list]:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--preset", default="zucchini", choices=F.CROPS)
+    p.add_argument("--preset", default="zucchini", choices=crops.names())
     p.add_argument("--batch", type=int, default=1024)
     p.add_argument("--res", type=int, nargs="+", default=[64, 128])
     p.add_argument("--tile", type=int, default=RD.DEFAULT_CONFIG.tile)

@@ -22,7 +22,7 @@ import sys
 import jax
 import numpy as np
 
-from mjxrow import field as F
+from mjxrow import crops
 from mjxrow import render as RD
 from mjxrow.bench import render as BR
 
@@ -61,7 +61,7 @@ def compare(preset: str, n: int, res: int, cfg: RD.RenderConfig, seed: int = 0,
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--presets", nargs="+", default=list(F.CROPS), choices=F.CROPS)
+    p.add_argument("--presets", nargs="+", default=list(crops.names()), choices=crops.names())
     p.add_argument("--poses", type=int, default=16)
     p.add_argument("--res", type=int, default=64)
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")

@@ -5,7 +5,7 @@
 # Each run logs to OUT/<crop>.log and keeps its state in runs/seg_<crop>_ft (re-running resumes).
 set -uo pipefail
 out=$1; steps=${2:-4000}; mkdir -p "$out"
-crops="zucchini lettuce chard pear vineyard"
+crops=$(python3 -c "from mjxrow import crops; print(*crops.names())")
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
 export XLA_PYTHON_CLIENT_MEM_FRACTION=0.18  # five processes share the GPU
 for c in $crops; do

@@ -13,6 +13,7 @@ from mjxrow import field as F
 from mjxrow import render
 from mjxrow.control import perception as CL
 from mjxrow.physics import sim
+from mjxrow.rollout import build as B
 from mjxrow.rollout import episode as E
 
 N = 2
@@ -50,7 +51,7 @@ LEFT, RIGHT = weights(1.0, 23.5), weights(-1.0, 15.5)
 def world():
     params = jax.tree.map(lambda x: jnp.broadcast_to(x, (N,)), F.make_params("vineyard", **FLAT))
     shape = F.fit_shape(params, "vineyard")
-    gen = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)
+    gen = B.generate_fn()
     fields = gen(params, shape, jax.random.split(jax.random.key(0), N))
     return shape, fields
 
@@ -108,7 +109,7 @@ def test_rollout_takes_weights_as_shared_arguments(world):
     """Lowering the batched rollout for two checkpoints of one architecture traces once, and
     the weights are arguments of the program, not constants in it."""
     shape, fields = world
-    cfg = E.EpisodeConfig(crop="vineyard", n_steps=5, sim=sim.SimConfig(path_length=3.0))
+    cfg = E.EpisodeConfig(crop="vineyard", max_time=5 / 15, sim=sim.SimConfig(path_length=3.0))
     _, mx = sim.make_model(shape, cfg.sim)
     policy = CL.perception_policy("segzeros", shape, INTR, "learned", Ramp())
     keys = jax.random.split(jax.random.key(1), N)

@@ -27,9 +27,12 @@ def test_defaults_are_the_papers():
     cfg = cfg_of({})
     assert cfg.preset == "zucchini" and cfg.controller.name == "segzeros"
     assert cfg.controller.variant == "paper" and cfg.controller.omega_gain == 3.0
-    assert cfg.episode.v_max == 0.5 and cfg.episode.omega_max == 1.0
-    assert cfg.episode.control_hz == 15.0 and cfg.episode.path_length == 20.0
+    assert cfg.robot.v_max == 0.5 and cfg.robot.omega_max == 1.0
+    assert cfg.controller.v_limit == 0.5 and cfg.controller.omega_limit == 1.0
+    assert cfg.sim.control_hz == 15.0 and cfg.sim.path_length == 20.0
     assert C.field_values(cfg)["d_rr"] == 1.8 and C.expand(cfg)[0].point == ()
+    run = C.expand(cfg)[0].cfg  # every section is the domain config itself
+    assert run.episode.n_steps == 900 and run.camera.width == 64 and run.sim.substeps == 7
 
 
 def test_unknown_keys_name_their_dotted_path():
@@ -45,16 +48,30 @@ def test_wrong_types():
     assert error_of({"camera": {"width": 1.5}}).startswith("camera.width: expected an integer")
     assert error_of({**GT, "field": {"d_rr": [1.8, "wide"]}}).startswith(
         "field.d_rr[1]: expected a number")
-    assert error_of({"episode": {"v_max": True}}).startswith("episode.v_max: expected")
+    assert error_of({"robot": {"v_max": True}}).startswith("robot.v_max: expected")
+    assert error_of({"render": {"shadows": 1}}).startswith("render.shadows: expected true")
+    assert error_of({"robot": {"cam_fovy": 40}}) == (
+        "robot.cam_fovy: cannot be set here: the camera's vertical field of view is camera.fovy")
+    # a key of another controller is that controller's only (one YAML can switch controllers)
+    oracle = C.expand(C.from_dict({"controller": {"name": "oracle", "omega_gain": 2}}))[0].cfg
+    assert not hasattr(oracle.controller_params(), "omega_gain")
+    assert error_of({"controller": {"omega_gian": 2}}).startswith(
+        "controller.omega_gian: unknown key; did you mean omega_gain?")
+    assert error_of({"episode": {"path_length": 20}}) == (
+        "episode.path_length: unknown key; did you mean sim.path_length?")
     assert error_of({"controller": {"name": "pid"}}).startswith(
-        "controller.name: 'pid' is not one of segzeros")
+        "controller.name: 'pid' is not one of oracle, segzeros, segmin")
     assert error_of({"seeds": [1, 2]}) == "seeds: cannot be a grid axis; give one value"
     assert error_of({"field": [1]}).startswith("field: expected a mapping")
 
 
 def test_impossible_values():
-    assert error_of({"episode": {"v_max": -0.5}}) == "episode.v_max: must be > 0, got -0.5"
-    assert error_of({"camera": {"pitch": -95}}).startswith("camera.pitch: must be in (-90, 90)")
+    assert error_of({"robot": {"v_max": -0.5}}) == "robot.v_max: must be positive, got -0.5"
+    assert error_of({"robot": {"cam_pitch_deg": -95}}).startswith(
+        "robot.cam_pitch_deg: must lie in (-90, 90)")
+    assert error_of({"sim": {"dt": [0.01, -1]}}) == (
+        "sim.dt: must be positive, got -1.0 (cell sim.dt=-1.0)")
+    assert error_of({"render": {"kernel": "cuda"}}).startswith("render.kernel: 'cuda' is not")
     # negative spacing is caught by field.checks, naming the cell
     msg = error_of({**GT, "field": {"d_pp": [0.7, -0.1]}})
     assert msg == "field.d_pp: must be positive (cell field.d_pp=-0.1)"
@@ -62,19 +79,19 @@ def test_impossible_values():
     msg = error_of({**GT, "field": {"d_rr": [1.8, 0.5], "terrain_dh": [0.1, 0.2]}})
     assert msg.startswith("field.plant_width: plants are wider than their row spacing")
     assert "field.d_rr=0.5, field.terrain_dh=0.1" in msg
-    assert error_of({**GT, "episode": {"path_length": 60}}).startswith(
-        "episode.path_length: 60.0 m is longer than the rows (50 m)")
+    assert error_of({**GT, "sim": {"path_length": 60}}).startswith(
+        "sim.path_length: 60.0 m is longer than the rows (50 m)")
     assert error_of({**GT, "controller": {"name": "segmin", "smooth": 4}}).startswith(
-        "controller.smooth: must be odd")
+        "controller.smooth: must be a positive odd width")
     assert error_of({**GT, "controller": {"heading_alpha": 0}}) == (
-        "controller.heading_alpha: must be in (0, 1], got 0.0")
+        "controller.heading_alpha: must lie in (0, 1], got 0.0")
 
 
 def test_heading_alpha_reaches_the_controller():
-    from mjxrow.sweep import run as S
     cell = C.expand(cfg_of({"controller": {"heading_alpha": 0.02}}))[0]
-    assert float(S.controller_params(cell.cfg).heading_alpha) == pytest.approx(0.02)
-    assert float(S.controller_params(cfg_of({})).heading_alpha) == pytest.approx(0.005)
+    assert float(cell.cfg.controller_params().heading_alpha) == pytest.approx(0.02)
+    default = C.expand(cfg_of({}))[0].cfg
+    assert float(default.controller_params().heading_alpha) == pytest.approx(0.005)
 
 
 def test_missing_checkpoint(tmp_path):
@@ -159,7 +176,7 @@ def test_smoke_shrinks_to_two_by_two():
     assert [c.point for c in cells] == [
         (("field.d_rr", a), ("field.terrain_dh", b)) for a in (1.6, 2.4) for b in (0.0, 0.3)]
     assert cfg.field.d_pp == 0.6 and cfg.seeds == 2 and cfg.camera.width == 16
-    assert cfg.episode.path_length <= C.field_values(cfg)["row_length"]
+    assert cfg.sim.path_length <= C.field_values(cells[0].cfg)["row_length"]
 
 
 def test_hashes_and_static_keys():
@@ -174,6 +191,8 @@ def test_hashes_and_static_keys():
     assert C.static_key(a[0].cfg) == C.static_key(a[1].cfg)
     w = C.expand(cfg_of({"camera": {"width": [16, 32]}}))
     assert C.static_key(w[0].cfg) != C.static_key(w[1].cfg)
+    s = C.expand(cfg_of({"sim": {"iterations": [4, 8]}, "render": {"shadows": [True, False]}}))
+    assert len({C.static_key(c.cfg) for c in s}) == 4  # solver and renderer settings sweep too
     # start-pose noise is per episode: an axis of it is one group
     n = C.expand(cfg_of({"episode": {"start_offset_std": [0.0, 0.1], "start_yaw_std": [0, 5]}}))
     assert len(n) == 4 and len({C.static_key(c.cfg) for c in n}) == 1
@@ -184,6 +203,9 @@ def test_docs_list_every_key():
     doc = (Path(__file__).parents[1] / "docs" / "sweep.md").read_text()
     for key, _ in C.leaf_keys():
         assert f"`{key}`" in doc, key
+    # the domain configs' own fields are the keys, and their comments the docs
+    assert "`sim.iterations`" in doc and "`render.terrain_steps`" in doc
+    assert "`controller.lane_k_yaw`" in doc and "`robot.friction`" in doc
 
 
 @pytest.mark.parametrize("name", ["sweeps.yaml", "sweeps/presets.yaml",

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from mjxrow import control as C
+from mjxrow.control.segzeros import heading_reference
 
 H, W = 4, 40
 PAPER = C.seg_params("zeros")
@@ -97,7 +98,7 @@ def test_end_of_row_holds_the_in_row_heading():
 def test_heading_reference_across_pi():
     # ref 3.1, yaw −3.1 (0.0832 rad further on, across ±π): ref 3.1 + 0.1·0.0832, not a jump
     state = C.seg_init(HOLD01).replace(yaw_ref=jnp.float32(3.1), has_ref=jnp.bool_(True))
-    ref = C.heading_reference(HOLD01, state, jnp.float32(-3.1), jnp.bool_(False))
+    ref = heading_reference(HOLD01, state, jnp.float32(-3.1), jnp.bool_(False))
     assert float(ref) == pytest.approx(3.1 + 0.1 * (2 * np.pi - 6.2), abs=1e-5)
     assert float(C.wrap_angle(jnp.float32(3 * np.pi / 2))) == pytest.approx(-np.pi / 2)
     with pytest.raises(ValueError, match="heading_alpha"):

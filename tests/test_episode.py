@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 
 from mjxrow import control as C
+from mjxrow import crops
 from mjxrow import field as F
 from mjxrow.physics import sim
+from mjxrow.rollout import build as RB
 from mjxrow.rollout import episode as E
 from mjxrow.rollout import metrics as M
 
@@ -21,7 +23,7 @@ SHAPE = F.FieldShape(crop="vineyard", max_rows=8, max_plants_per_row=32, terrain
                      obstacle_slots=8)
 FLAT = dict(terrain_length=26.0, row_length=22.0, terrain_width=12.0, terrain_dh=0.0,
             stone_density=0.0, branch_density=0.0, p_missing=0.0)
-CFG = E.EpisodeConfig(crop="vineyard", n_steps=640)  # 42.7 s, 20 m, goal radius 0.40 m
+CFG = E.EpisodeConfig(crop="vineyard", max_time=640 / 15)  # 640 steps, 20 m, goal 0.40 m
 ORACLE = C.oracle_params()
 
 
@@ -45,7 +47,7 @@ def policy_params(mode, v=0.0, yaw=0.0, oracle=ORACLE):
     return oracle, {"mode": arr(mode), "v": arr(v), "yaw": arr(yaw)}
 
 
-generate = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)
+generate = RB.generate_fn()
 
 
 def make_fields(seed, **varied):
@@ -116,7 +118,7 @@ def test_prepare_runs_once_per_episode_and_reaches_every_step(setup):
     def act(params, state, obs, key):
         return state, jnp.stack([obs.aux["v"], jnp.float32(0.0)])
 
-    cfg = dataclasses.replace(CFG, n_steps=30)
+    cfg = dataclasses.replace(CFG, max_time=2.0)  # 30 steps
     log = E.rollout(mx, fields, None, jax.random.split(jax.random.key(1), B),
                     C.Policy(lambda p: (), act, prepare), (), cfg)
     assert len(calls) == 1  # outside the step loop: traced (and run) once per episode
@@ -238,29 +240,31 @@ def test_termination_reasons(setup):
 
 
 def test_cli_rejects_bad_input(tmp_path, capsys):
-    cases = [["--set", "d_rr=-1"], ["--set", "nope=1"], ["--set", "d_rr=abc"],
-             ["--path-length", "80"], ["--n", "0"], ["--controller", "segzeros", "--image", "64"],
-             ["--lateral-std", "-0.1"], ["--heading-std-deg", "nan"],
-             ["--controller", "segmin", "--perception", "learned", "--checkpoint",
-              str(tmp_path / "no_such_checkpoint")]]
+    from mjxrow import episode as cli
+
+    cases = [["--set", "field.d_rr=-1"], ["--set", "nope=1"], ["--set", "field.d_rr=abc"],
+             ["--set", "sim.path_length=80"], ["--n", "0"], ["--set", "camera.width=0"],
+             ["--set", "episode.start_offset_std=-0.1"], ["--set", "episode.start_yaw_std=.nan"],
+             ["--set", "field.d_rr=[2, 3]"],
+             ["--controller", "segmin", "--perception", "learned", "--set",
+              f"perception.checkpoint={tmp_path / 'no_such_checkpoint'}"]]
     for extra in cases:
-        with pytest.raises(SystemExit) as e:
-            E.main(["--preset", "vineyard", "--out", str(tmp_path), "--no-progress", *extra])
-        assert e.value.code == 2, extra
+        code = cli.main(["--preset", "vineyard", "--out", str(tmp_path), "--no-progress", *extra])
+        assert code == 2, extra
         err = capsys.readouterr().err
         assert "error" in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "episodes.csv").exists()
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("preset", F.CROPS)
+@pytest.mark.parametrize("preset", crops.names())
 def test_oracle_every_preset(preset):
     """The oracle drives a 20 m lane of each preset's default geometry on flat terrain."""
     n = 2
     params = F.make_params(preset, terrain_dh=0.0, stone_density=0.0, branch_density=0.0)
     params = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,)), params)
     shape = F.fit_shape(params, preset)
-    gen = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)
+    gen = RB.generate_fn()
     fields = gen(params, shape, jax.random.split(jax.random.key(0), n))
     cfg = E.EpisodeConfig(crop=preset)
     _, mx = sim.make_model(shape, cfg.sim)
@@ -275,12 +279,15 @@ def test_oracle_every_preset(preset):
 def test_cli_writes_episodes_csv(tmp_path, capsys):
     import pandas as pd
 
-    E.main(["--preset", "vineyard", "--n", "2", "--seed", "3", "--out", str(tmp_path),
-            "--set", "terrain_dh=0.05", "--no-progress"])
+    from mjxrow import episode as cli
+    from mjxrow.rollout.cli import CSV_METRICS
+
+    assert cli.main(["--preset", "vineyard", "--n", "2", "--seed", "3", "--out", str(tmp_path),
+                     "--set", "field.terrain_dh=0.05", "--no-progress"]) == 0
     df = pd.read_csv(tmp_path / "episodes.csv")
-    assert df["seed"].tolist() == [3, 4]
-    assert set(E.CSV_METRICS) <= set(df.columns) and set(F.PARAM_NAMES) <= set(df.columns)
-    assert (df["terrain_dh"] == 0.05).all() and (df["reason"] == "goal").all()
+    assert df["episode"].tolist() == [0, 1]
+    assert set(CSV_METRICS) <= set(df.columns) and set(F.PARAM_NAMES) <= set(df.columns)
+    assert (df["terrain_dh"] == np.float32(0.05)).all() and (df["reason"] == "goal").all()
     out = capsys.readouterr().out
     assert "cha [deg]" in out and "95% CI" in out
 
@@ -295,9 +302,9 @@ def test_segzeros_on_rendered_masks_steers_back():
     n = 2
     params = F.make_params("vineyard", **FLAT)
     params = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,)), params)
-    fields = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)(
+    fields = RB.generate_fn()(
         params, SHAPE, jax.random.split(jax.random.key(0), n))
-    cfg = E.EpisodeConfig(crop="vineyard", n_steps=200, sim=sim.SimConfig(path_length=6.0))
+    cfg = E.EpisodeConfig(crop="vineyard", max_time=200 / 15, sim=sim.SimConfig(path_length=6.0))
     _, mx = sim.make_model(SHAPE, cfg.sim)
     intr = render.Intrinsics(48, 32, 42.0)
     policy, pparams = closed_loop.make("segzeros", SHAPE, intr)

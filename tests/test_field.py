@@ -5,6 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from mjxrow import crops
 from mjxrow import field as F
 
 SMALL = dict(terrain_length=14.0, row_length=10.0, terrain_width=14.0, p_missing=0.0)
@@ -101,7 +102,7 @@ def test_default_lane_prefers_group_lane_unless_too_narrow():
 
 
 def test_presets_generate_valid_fields():
-    for crop in F.CROPS:
+    for crop in crops.names():
         p = F.make_params(crop)
         shape = F.preset_shape(crop)
         F.validate(p, shape)

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from mjxrow import crops
 from mjxrow import field as F
 from mjxrow import render as RD
 from mjxrow.field import export as WD
@@ -115,7 +116,7 @@ def mujoco_scenes(tmp_path_factory):
     depth for every pose."""
     tmp = tmp_path_factory.mktemp("mj")
     scenes, job = {}, {}
-    for crop in F.CROPS:
+    for crop in crops.names():
         fld, shape = tiny_field(crop)
         pos, rot = lane_poses(fld)
         xml, assets = WD.to_mjcf(fld, shape, crop)
@@ -132,7 +133,7 @@ def mujoco_scenes(tmp_path_factory):
     return scenes, ref
 
 
-@pytest.mark.parametrize("crop", F.CROPS)
+@pytest.mark.parametrize("crop", crops.names())
 def test_agrees_with_mujoco(mujoco_scenes, crop):
     scenes, ref = mujoco_scenes
     fld, shape, pos, rot = scenes[crop]

@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-from mjxrow.field import CROPS
+from mjxrow import crops
 from mjxrow.seg import checkpoint as C
 from mjxrow.seg import data as D
 from mjxrow.seg import eval as E
@@ -317,7 +317,7 @@ def test_eval_tables(tiny, tmp_path):
     assert ((table["iou"] >= 0) & (table["iou"] <= 1) & (table["accuracy"] <= 1)).all()
 
 
-SHIPPED = [c for c in CROPS if any((C.CHECKPOINT_DIR / n / "config.json").is_file()
+SHIPPED = [c for c in crops.names() if any((C.CHECKPOINT_DIR / n / "config.json").is_file()
                                    for n in (c, "all"))]
 
 

@@ -11,6 +11,7 @@ import pandas as pd
 import pytest
 import yaml
 
+from mjxrow.rollout import build as B
 from mjxrow.sweep import config as C
 from mjxrow.sweep import run as S
 
@@ -67,7 +68,7 @@ def test_two_by_two_sweep_writes_everything(tmp_path):
     results = pd.read_csv(tmp_path / "results.csv")
     assert len(results) == 4 * 3
     assert set(results.groupby("cell").size()) == {3}
-    assert {"field.d_rr", "field.d_pp", "episode.v_max", "controller.omega_gain",
+    assert {"field.d_rr", "field.d_pp", "robot.v_max", "controller.omega_gain",
             "camera.width", "success", "mae", "reason", "cell_hash"} <= set(results.columns)
     assert results["field.d_pp"].eq(0.7).all()  # zucchini's preset value, resolved
     summary = pd.read_csv(tmp_path / "summary.csv")
@@ -162,7 +163,7 @@ def test_one_axis_gives_line_plots_and_categorical_axes_work(tmp_path):
 
 def test_episode_keys_are_deterministic():
     def data(seed, eps):
-        return np.asarray(jax.random.key_data(S.episode_keys(seed, eps)))
+        return np.asarray(jax.random.key_data(B.episode_keys(seed, eps)))
 
     a = data(0, [0, 1, 2])
     assert a.shape[0] == 3 and np.array_equal(a, data(0, [0, 1, 2]))
@@ -200,7 +201,8 @@ REAL = {"name": "real", "seeds": 2, "batch_size": 4, "controller": {"name": "ora
         "perception": {"source": "ground_truth"},
         "field": {"d_rr": [1.6, 2.4], "terrain_dh": 0.0, "row_length": 6.0,
                   "terrain_length": 10.0, "terrain_width": 10.0, "rows_per_group": 2},
-        "episode": {"path_length": 1.5, "max_time": 4.0, "start_offset_std": [0.0, 0.1]},
+        "sim": {"path_length": 1.5},
+        "episode": {"max_time": 4.0, "start_offset_std": [0.0, 0.1]},
         "camera": {"width": 16, "height": 16}}
 
 
@@ -277,19 +279,18 @@ def test_learned_weights_are_shared_params_of_one_policy(tmp_path):
         groups = S.plan(C.from_dict(raw))
         assert len(groups) == 1  # threshold and geometry are traced: one group, one compile
         g = groups[0]
-        _, _, intr = S.static_configs(g.cfg, g.shape)
-        return g, S.make_policy(g.cfg, g.shape, intr)
+        return g, B.build([c.cfg for c in g.cells], g.shape)
 
-    g, (policy, params_of) = group("a")
-    params = [params_of(c.cfg) for c in g.cells]
-    axes = S.params_axes(g.cfg)
+    g, built = group("a")
+    policy, axes = built.policy, built.axes
+    params = [built.policy_params(c.cfg) for c in g.cells]
     batch = E.stack_params(params, axes)
     assert batch[0].variables is params[0][0].variables is params[-1][0].variables
     np.testing.assert_allclose(batch[0].threshold, [0.5, 0.5, 0.7, 0.7])  # first axis slowest
     assert batch[1].omega_gain.shape == (4,)
     E.check_params(batch, axes, 4)
-    _, (policy_b, params_of_b) = group("b")
-    assert policy_b is policy
+    _, built_b = group("b")
+    assert built_b.policy is policy
     wa = jax.tree.leaves(params[0][0].variables)
-    wb = jax.tree.leaves(params_of_b(g.cells[0].cfg)[0].variables)
+    wb = jax.tree.leaves(built_b.policy_params(g.cells[0].cfg)[0].variables)
     assert max(float(np.abs(a - b).max()) for a, b in zip(wa, wb, strict=True)) > 0

@@ -1,20 +1,14 @@
-"""experiments/table3_navigation.py: configs of the blocks, statistics and the markdown table
-on hand-made results, resumable runs with a fake evaluator, blocks left out without a
+"""mjxrow.sweep.table3: configs of the blocks, statistics and the markdown table on
+hand-made results, resumable runs with a fake evaluator, blocks left out without a
 checkpoint, CLI errors. No episode is simulated here (the --smoke run does that)."""
 
-import importlib.util
 import math
-from pathlib import Path
 
 import pandas as pd
 import pytest
 
 from mjxrow.seg import checkpoint as ckpt
-
-_path = Path(__file__).resolve().parents[1] / "experiments" / "table3_navigation.py"
-_spec = importlib.util.spec_from_file_location("table3_navigation", _path)
-T3 = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(T3)
+from mjxrow.sweep import table3 as T3
 
 
 def test_block_configs():
@@ -24,12 +18,12 @@ def test_block_configs():
     assert (cfg.controller.name, cfg.controller.variant) == ("segzeros", "paper")
     assert cfg.perception.source == "ground_truth"
     assert (cfg.camera.width, cfg.camera.height) == (32, 32)
-    assert cfg.episode.path_length == 20.0 and cfg.episode.omega_max == 1.0  # presets.yaml
+    assert cfg.sim.path_length == 20.0 and cfg.robot.omega_max == 1.0  # presets.yaml
     oracle = T3.build_config("oracle", "pear", episodes=100)
     assert oracle.controller.name == "oracle" and oracle.camera.width == 64
     assert oracle.batch_size == 100
     smoke = T3.build_config("oracle", "pear", episodes=100, smoke=True)
-    assert (smoke.seeds, smoke.camera.width, smoke.episode.path_length) == (2, 16, 1.5)
+    assert (smoke.seeds, smoke.camera.width, smoke.sim.path_length) == (2, 16, 1.5)
     with pytest.raises(ValueError, match="controller: unknown 'segmin'"):
         T3.build_config("segmin", "pear", episodes=1)
 
@@ -58,9 +52,12 @@ def test_block_stats_and_table_by_hand():
     ours = next(line for line in md.splitlines() if "ours: oracle" in line)
     assert "| pear | ours: oracle pure pursuit | 4 | 0.75 [0.30, 0.95] |" in ours
     assert "0.2500 [0.0446, 0.4554]" in ours and ours.endswith("| goal 3, collision 1 |")
-    paper = [line for line in md.splitlines() if "paper: SegZeros" in line]
-    assert paper[0].startswith("| pear |") and "n/a" in paper[0]
-    assert "not in the paper" in paper[1]  # vineyard
+    paper = [line for line in md.splitlines() if "paper:" in line]
+    # the paper's Table 3 as printed (one SegZeros row per crop; no success rate or time)
+    assert paper == ["| pear | paper: SegZeros | – | n/a | -0.0005 | 0.0058 | 3.8349 | 0.0028 | "
+                     "n/a | – |",
+                     "| vineyard | paper: SegZeros | – | n/a | 0.0053 | 0.033 | 0.0014 | 0.0255 | "
+                     "n/a | – |"]
     assert "pear, oracle pure pursuit: success 0.75 (goal 3, collision 1)" in \
         T3.failures_markdown({("oracle", "pear"): s})
 
@@ -110,5 +107,5 @@ def test_cli_bad_base_yaml_exits_2(tmp_path, capsys):
     code = T3.main(["--base", str(bad), "--presets", "lettuce", "--controllers", "oracle",
                     "--out", str(tmp_path / "runs"), "--no-progress"])
     assert code == 2
-    assert "episode.path_lenght: unknown key; did you mean path_length?" in \
+    assert "episode.path_lenght: unknown key; did you mean sim.path_length?" in \
         capsys.readouterr().err

@@ -8,6 +8,7 @@ import jax
 
 from mjxrow import field as F
 from mjxrow.bench import time_call
+from mjxrow.rollout import build as B
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
@@ -18,7 +19,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> list[dict]:
     shape = F.preset_shape(args.preset)
-    gen = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)
+    gen = B.generate_fn()
     rows = []
     for b in args.batch:
         params = jax.tree.map(lambda x, b=b: jax.numpy.broadcast_to(x, (b,)),

@@ -16,6 +16,7 @@ the image, so a free lane left of the image centre (x_c < w/2, d < 0) gives ω >
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -24,10 +25,6 @@ import jax.numpy as jnp
 from flax import struct
 
 from mjxrow.field import Field
-
-LAWS = ("linear", "quadratic")
-METHODS = ("zeros", "min")
-ON_END = ("straight", "lane", "stop", "hold")
 
 
 @struct.dataclass
@@ -60,381 +57,51 @@ class Policy(NamedTuple):
         return self.act(params, state, obs, key)
 
 
-# ---------------------------------------------------------------------------------------------
-# Oracle: pure pursuit on the ground-truth lane centre line
-
-
-@struct.dataclass
-class OracleParams:
-    lookahead: jax.Array  # pure-pursuit lookahead distance [m]
-    v_max: jax.Array  # forward speed [m/s]
-    omega_max: jax.Array  # |ω| limit [rad/s]
-
-
-def oracle_params(lookahead: float = 1.0, v_max: float = 0.5, omega_max: float = 1.0
-                  ) -> OracleParams:
-    if lookahead <= 0:
-        raise ValueError(f"lookahead: must be positive, got {lookahead}")
-    f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
-    return OracleParams(lookahead=f(lookahead), v_max=f(v_max), omega_max=f(omega_max))
-
-
-def oracle_init(params: OracleParams) -> tuple:
-    return ()
-
-
-def pursuit_command(params: OracleParams, pose: jax.Array, lane_y: jax.Array) -> jax.Array:
-    """(v, ω) [2] of pure pursuit on the line y = lane_y driven towards +x.
-
-    The target is the point of the line at `lookahead` from the robot (or, when the robot is
-    farther than that from the line, a point 0.1·lookahead ahead of its projection);
-    curvature κ = 2·y_r / (x_r² + y_r²) with the target at (x_r, y_r) in the robot frame;
-    ω = v_max·κ clipped to ±omega_max, v = v_max."""
-    y, yaw = pose[1], pose[2]
-    e = y - lane_y
-    L = params.lookahead
-    ahead = jnp.sqrt(jnp.maximum(L * L - e * e, (0.1 * L) ** 2))
-    dx, dy = ahead, lane_y - y
-    c, s = jnp.cos(yaw), jnp.sin(yaw)
-    xr, yr = c * dx + s * dy, -s * dx + c * dy
-    kappa = 2.0 * yr / jnp.maximum(xr * xr + yr * yr, 1e-9)
-    omega = jnp.clip(params.v_max * kappa, -params.omega_max, params.omega_max)
-    return jnp.stack([params.v_max, omega]).astype(jnp.float32)
-
-
-def oracle_act(params: OracleParams, state: tuple, obs: Obs) -> tuple[tuple, jax.Array]:
-    return state, pursuit_command(params, obs.pose, obs.lane_y)
-
-
-# ---------------------------------------------------------------------------------------------
-# SegZeros / SegMin on a plant mask
-
-
-@struct.dataclass
-class SegParams:
-    """Parameters of SegZeros (method "zeros") and SegMin (method "min")."""
-
-    v_max: jax.Array  # v at d = 0 before clipping [m/s]
-    omega_gain: jax.Array  # ω gain [rad/s]
-    v_limit: jax.Array  # clip of |v| [m/s]
-    omega_limit: jax.Array  # clip of |ω| [rad/s]
-    min_run: jax.Array  # zero-column runs of ≤ min_run columns are dropped [columns]
-    end_frac: jax.Array  # a run wider than end_frac·w means end of row [-]
-    min_count: jax.Array  # a column with ≤ min_count plant pixels counts as free [pixels]
-    ema_alpha: jax.Array  # EMA on commands: cmd = α·new + (1 − α)·previous (1 = off) [-]
-    depth_max: jax.Array  # plant pixels farther than this (or depth 0) are ignored [m]
-    heading_alpha: jax.Array  # EMA factor of the in-row heading that on_end "straight" holds [-]
-    lane_alpha: jax.Array  # EMA factor of the in-row line's direction (on_end "lane") [-]
-    lane_xy_alpha: jax.Array  # EMA factor of the in-row line's point (on_end "lane") [-]
-    lane_k_yaw: jax.Array  # on_end "lane": ω per rad of heading error [rad/s / rad]
-    lane_k_lat: jax.Array  # on_end "lane": ω per m of lateral offset from the line [rad/s / m]
-    method: str = struct.field(pytree_node=False, default="zeros")  # "zeros" | "min"
-    law: str = struct.field(pytree_node=False, default="linear")  # "linear" | "quadratic"
-    n_frames: int = struct.field(pytree_node=False, default=1)  # masks OR'd (sliding window)
-    smooth: int = struct.field(pytree_node=False, default=11)  # SegMin moving-average width
-    on_end: str = struct.field(pytree_node=False, default="straight")  # see seg_params
-    image_hw: tuple[int, int] | None = struct.field(pytree_node=False, default=None)
-
-
-def seg_params(method: str = "zeros", variant: str = "paper", *, v_max: float = 1.0,
-               omega_gain: float = 3.0, v_limit: float = 0.5, omega_limit: float = 1.0,
-               min_run: int = 3, end_frac: float = 0.8, min_count: int = 0,
-               ema_alpha: float | None = None, depth_max: float | None = None,
-               n_frames: int | None = None, law: str | None = None, smooth: int = 11,
-               on_end: str = "straight", heading_alpha: float = 0.005,
-               lane_alpha: float = 0.005, lane_xy_alpha: float = 0.02, lane_k_yaw: float = 1.5,
-               lane_k_lat: float = 1.0,
-               image_hw: tuple[int, int] | None = None) -> SegParams:
-    """SegParams for `method` ("zeros": SegZeros, "min": SegMin) and `variant`:
-
-    - "paper": ω = −ω_gain·d/(w/2), no EMA, one mask, no depth cut;
-    - "public" (the authors' public code): ω = −sign(d)·ω_gain·K with K = d²/(w/2)², EMA
-      α = 0.5 on the commands, OR of the last 3 masks (a sliding window; `image_hw` needed),
-      plant pixels with depth > 5 m ignored.
-
-    Both: v = v_max·(1 − d²/(w/2)²), v_max = 1, ω_gain = 3, then clipped to v_limit = 0.5 m/s
-    and ω_limit = 1.0 rad/s. Explicit keyword values override the variant's.
-
-    on_end, at the end of a row (SegZeros: no zero-column run left after dropping runs of
-    ≤ min_run columns, or the longest wider than end_frac·w; SegMin: no plant pixel at all):
-    "straight" drives on at v_limit holding the heading the robot had inside the row (so that
-    an episode can reach a goal at the row's end), "lane" drives on at v_limit following the
-    line the robot drove inside the row (heading and lateral position), "stop" commands (0, 0)
-    as the public code does, "hold" keeps the last command.
-
-    The paper leaves the end of the row open. "Straight" is a heading hold on the robot's yaw
-    (`obs.pose`, what its odometry / IMU give): ω = −omega_gain·wrap(yaw − yaw_ref), clipped,
-    where yaw_ref is an EMA of the yaw over the steps that saw the row, frozen while the row
-    end is seen (factor `heading_alpha` per step: 0.005 at 15 Hz ≈ 13 s ≈ 6.7 m at 0.5 m/s,
-    long enough to average SegZeros' in-row weaving; with 0.1 ≈ 0.7 s, 8 of 100 pear episodes
-    with ground-truth masks passed the goal more than 0.40 m beside it, 1 with 0.005). ω = 0
-    instead would leave the robot's heading to terrain bumps and stones for the metres it
-    drives without seeing a plant (pear: 7-9 m with a 42° wide image). `seg_command` alone
-    (no memory) commands ω = 0 there; `seg_act` adds the hold.
-
-    "Lane" follows a line estimated from the same odometry pose over the steps that saw the
-    row, frozen while the row end is seen: its direction yaw_l is an EMA of the yaw with factor
-    `lane_alpha` per step (0.005, as heading_alpha), and a point (x_l, y_l) on it an EMA of the
-    position with factor `lane_xy_alpha` (0.02 ≈ 3.3 s ≈ 1.7 m at 0.5 m/s: the robot's recent
-    mean lateral position, SegZeros' weaving averaged out). The point lags that far behind the
-    robot along its path, and a direction error δ shifts the line by δ·lag at the robot, so
-    the point's window is the shorter one (pear, seed 1, 100 episodes: lane_xy_alpha 0.005
-    reached the goal in 97 and 94 with ground-truth and learned masks, 0.02 in 100 and 99).
-    ω = −lane_k_yaw·wrap(yaw − yaw_l) − lane_k_lat·e_lat, clipped to ±omega_limit, with
-    e_lat = −sin(yaw_l)·(x − x_l) + cos(yaw_l)·(y − y_l) the signed offset from the line [m],
-    positive to the LEFT of the direction of travel (so ω < 0 turns back right). Linearised on
-    a unicycle at speed v (e' = v·θ, θ' = ω) the loop is s² + k_yaw·s + k_lat·v: the defaults
-    k_yaw = 1.5 rad/s, k_lat = 1.0 rad/(s·m) give at v = 0.5 m/s a natural frequency of
-    0.71 rad/s with damping 1.06 (no overshoot; an offset shrinks to ~2 % in 8 s, 4 m); the
-    approach angle to the line settles at k_lat·e_lat/k_yaw (0.2 rad for 0.3 m). On pear
-    (Table 3 scenario, seeds 0 and 1, 100 episodes each) it reached the goal as often as
-    "straight" with heading_alpha 0.005 (ground-truth / learned masks: 100/99 and 100/99
-    against 100/99 and 99/99), not more; its remaining failures are inside the row."""
-    if method not in METHODS:
-        raise ValueError(f"method: unknown {method!r}; expected one of {METHODS}")
-    presets = {"paper": dict(law="linear", ema_alpha=1.0, n_frames=1, depth_max=float("inf")),
-               "public": dict(law="quadratic", ema_alpha=0.5, n_frames=3, depth_max=5.0)}
-    if variant not in presets:
-        raise ValueError(f"variant: unknown {variant!r}; expected one of {tuple(presets)}")
-    base = presets[variant]
-    law = base["law"] if law is None else law
-    ema_alpha = base["ema_alpha"] if ema_alpha is None else ema_alpha
-    n_frames = base["n_frames"] if n_frames is None else n_frames
-    depth_max = base["depth_max"] if depth_max is None else depth_max
-    if law not in LAWS:
-        raise ValueError(f"law: unknown {law!r}; expected one of {LAWS}")
-    if on_end not in ON_END:
-        raise ValueError(f"on_end: unknown {on_end!r}; expected one of {ON_END}")
-    if not 0 < ema_alpha <= 1:
-        raise ValueError(f"ema_alpha: must lie in (0, 1], got {ema_alpha}")
-    if not 0 < heading_alpha <= 1:
-        raise ValueError(f"heading_alpha: must lie in (0, 1], got {heading_alpha}")
-    for name, a in (("lane_alpha", lane_alpha), ("lane_xy_alpha", lane_xy_alpha)):
-        if not 0 < a <= 1:
-            raise ValueError(f"{name}: must lie in (0, 1], got {a}")
-    for name, gain in (("lane_k_yaw", lane_k_yaw), ("lane_k_lat", lane_k_lat)):
-        if not gain >= 0:
-            raise ValueError(f"{name}: must be non-negative, got {gain}")
-    if int(n_frames) < 1:
-        raise ValueError(f"n_frames: must be at least 1, got {n_frames}")
-    if n_frames > 1 and image_hw is None:
-        raise ValueError("image_hw: needed (height, width) to buffer masks when n_frames > 1")
-    if smooth < 1 or smooth % 2 == 0:
-        raise ValueError(f"smooth: must be a positive odd width, got {smooth}")
-    f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
-    return SegParams(v_max=f(v_max), omega_gain=f(omega_gain), v_limit=f(v_limit),
-                     omega_limit=f(omega_limit), min_run=f(min_run), end_frac=f(end_frac),
-                     min_count=f(min_count), ema_alpha=f(ema_alpha), depth_max=f(depth_max),
-                     heading_alpha=f(heading_alpha), lane_alpha=f(lane_alpha),
-                     lane_xy_alpha=f(lane_xy_alpha), lane_k_yaw=f(lane_k_yaw),
-                     lane_k_lat=f(lane_k_lat), method=method, law=law,
-                     n_frames=int(n_frames), smooth=int(smooth), on_end=on_end,
-                     image_hw=None if image_hw is None else tuple(image_hw))
-
-
-@struct.dataclass
-class SegState:
-    cmd: jax.Array  # float32 [2], last command (v, ω)
-    masks: jax.Array  # bool [n_frames − 1, H, W], previous masks, newest first
-    end_of_row: jax.Array  # bool [], the last step saw the end of the row
-    yaw_ref: jax.Array  # float32 [], heading held at the end of the row (EMA of the yaw) [rad]
-    has_ref: jax.Array  # bool [], yaw_ref (and the lane line) hold measured values
-    lane_yaw: jax.Array  # float32 [], direction of the in-row line (EMA of the yaw) [rad]
-    lane_xy: jax.Array  # float32 [2], a point of the in-row line (EMA of x, y) [m]
-
-
-def seg_init(params: SegParams) -> SegState:
-    h, w = params.image_hw or (0, 0)
-    return SegState(cmd=jnp.zeros(2, jnp.float32),
-                    masks=jnp.zeros((params.n_frames - 1, h, w), bool),
-                    end_of_row=jnp.zeros((), bool), yaw_ref=jnp.zeros((), jnp.float32),
-                    has_ref=jnp.zeros((), bool), lane_yaw=jnp.zeros((), jnp.float32),
-                    lane_xy=jnp.zeros(2, jnp.float32))
-
 
 def wrap_angle(a: jax.Array) -> jax.Array:
     """Angle [rad] wrapped into [−π, π)."""
     return jnp.mod(a + jnp.pi, 2.0 * jnp.pi) - jnp.pi
 
 
-def _yaw_ema(ref: jax.Array, has_ref: jax.Array, yaw: jax.Array, alpha: jax.Array,
-             end: jax.Array) -> jax.Array:
-    """EMA [rad] of the yaw with factor alpha on the wrapped difference (continuous across
-    ±π); the first yaw when there is no reference yet; unchanged when `end`."""
-    new = jnp.where(has_ref, ref + alpha * wrap_angle(yaw - ref), yaw)
-    return jnp.where(end, ref, wrap_angle(new)).astype(jnp.float32)
-
-
-def heading_reference(params: SegParams, state: SegState, yaw: jax.Array,
-                      end: jax.Array) -> jax.Array:
-    """The heading [rad] on_end "straight" holds, updated with this step's yaw [rad] unless the
-    step sees the end of the row (`end`): the first yaw, then an EMA with factor
-    heading_alpha (on the wrapped difference, so it is continuous across ±π)."""
-    return _yaw_ema(state.yaw_ref, state.has_ref, yaw, params.heading_alpha, end)
-
-
-def lane_reference(params: SegParams, state: SegState, pose: jax.Array,
-                   end: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """The line on_end "lane" follows, updated with this step's pose (x [m], y [m], yaw [rad])
-    unless the step sees the end of the row (`end`): (direction [rad] [], point [m] [2]), the
-    EMA with factor lane_alpha of the yaw (wrapped, as `heading_reference`) and the EMA with
-    factor lane_xy_alpha of (x, y); the first pose when there is no reference yet."""
-    yaw = _yaw_ema(state.lane_yaw, state.has_ref, pose[2], params.lane_alpha, end)
-    xy = pose[:2]
-    new = jnp.where(state.has_ref, state.lane_xy + params.lane_xy_alpha * (xy - state.lane_xy), xy)
-    return yaw, jnp.where(end, state.lane_xy, new).astype(jnp.float32)
-
-
-def lane_command(params: SegParams, pose: jax.Array, lane_yaw: jax.Array,
-                 lane_xy: jax.Array) -> jax.Array:
-    """ω [rad/s] [] that steers the pose (x [m], y [m], yaw [rad]) onto the line through
-    lane_xy [m] [2] with direction lane_yaw [rad]: −lane_k_yaw·wrap(yaw − lane_yaw) −
-    lane_k_lat·e_lat, clipped to ±omega_limit; e_lat [m] is the offset from the line,
-    positive to the left of its direction (so a robot left of the line turns right, ω < 0)."""
-    d = pose[:2] - lane_xy
-    e_lat = -jnp.sin(lane_yaw) * d[0] + jnp.cos(lane_yaw) * d[1]
-    omega = (-params.lane_k_yaw * wrap_angle(pose[2] - lane_yaw)
-             - params.lane_k_lat * e_lat)
-    return jnp.clip(omega, -params.omega_limit, params.omega_limit).astype(jnp.float32)
-
-
-def free_runs(free: jax.Array) -> jax.Array:
-    """Lengths of runs of True in `free` (bool [W]): at the last column of each run its
-    length, 0 elsewhere. int32 [W]; no Python loop over columns (a cumulative max)."""
-    idx = jnp.arange(free.shape[-1])
-    last_blocked = jax.lax.cummax(jnp.where(free, -1, idx), axis=0)
-    ends = free & ~jnp.concatenate([free[1:], jnp.zeros(1, bool)])
-    return jnp.where(ends, idx - last_blocked, 0).astype(jnp.int32)
-
-
-def segzeros_target(hist: jax.Array, params: SegParams) -> tuple[jax.Array, jax.Array]:
-    """SegZeros on a column histogram hist [W] (plant pixels per column): the centre x_c of
-    the longest run of free columns, in pixels from the image's left edge (column c spans
-    [c, c + 1)), and the end-of-row flag. Runs of ≤ min_run columns are dropped; no run, or
-    the longest wider than end_frac·W, is the end of the row."""
-    W = hist.shape[-1]
-    length = free_runs(hist <= params.min_count)
-    length = jnp.where(length > params.min_run, length, 0)
-    last = jnp.argmax(length)  # first of the longest runs
-    L = length[last]
-    x_c = last + 1.0 - 0.5 * L
-    end = (L == 0) | (L > params.end_frac * W)
-    return x_c.astype(jnp.float32), end
-
-
-def segmin_target(hist: jax.Array, params: SegParams) -> tuple[jax.Array, jax.Array]:
-    """SegMin on a column histogram hist [W]: normalise to its maximum, smooth with a moving
-    average of `smooth` columns (edges padded with the first/last fully averaged value), take
-    the mean position of the columns at the minimum; end of row when no plant pixel is seen.
-    Returns (x_c [pixels from the left edge], end_of_row)."""
-    W, k = hist.shape[-1], params.smooth
-    h = hist.astype(jnp.float32)
-    top = jnp.max(h)
-    h = h / jnp.maximum(top, 1e-9)
-    if k > 1:
-        if W < k + 4:
-            raise ValueError(f"smooth: window {k} too wide for an image {W} columns wide")
-        h = jnp.convolve(h, jnp.ones(k, jnp.float32) / k, mode="same")
-        idx = jnp.arange(W)
-        h = jnp.where(idx <= k // 2, h[k // 2 + 1], h)
-        h = jnp.where(idx >= W - k // 2 - 1, h[W - k // 2 - 2], h)
-    at_min = h <= jnp.min(h) + 1e-6
-    x_c = jnp.sum(jnp.where(at_min, jnp.arange(W) + 0.5, 0.0)) / jnp.sum(at_min)
-    return x_c.astype(jnp.float32), top <= 0
-
-
-def steering_law(x_c: jax.Array, width: int, params: SegParams) -> jax.Array:
-    """(v, ω) [2] from the target column x_c [pixels] of an image `width` columns wide.
-
-    d = x_c − w/2, K = d²/(w/2)², v = v_max·(1 − K); "linear": ω = −ω_gain·d/(w/2),
-    "quadratic": ω = −sign(d)·ω_gain·K; then |v| ≤ v_limit, |ω| ≤ omega_limit."""
-    half = 0.5 * width
-    dn = (x_c - half) / half
-    K = dn * dn
-    if params.law == "linear":
-        omega = -params.omega_gain * dn
-    else:
-        omega = -jnp.sign(dn) * params.omega_gain * K
-    v = params.v_max * (1.0 - K)
-    return jnp.stack([jnp.clip(v, -params.v_limit, params.v_limit),
-                      jnp.clip(omega, -params.omega_limit, params.omega_limit)])
-
-
-def seg_command(params: SegParams, mask: jax.Array, depth: jax.Array | None = None,
-                prev_cmd: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
-    """One SegZeros/SegMin decision, no memory: mask bool (or probability, > 0.5) [H, W],
-    depth float32 [H, W] or None, prev_cmd [2] (used by on_end "hold"). Returns (cmd [2],
-    end_of_row bool [])."""
-    m = mask if mask.dtype == bool else mask > 0.5
-    if depth is not None:
-        m = m & (depth > 0) & (depth <= params.depth_max)
-    hist = jnp.sum(m, axis=0)
-    target = segzeros_target if params.method == "zeros" else segmin_target
-    x_c, end = target(hist, params)
-    cmd = steering_law(x_c, mask.shape[-1], params)
-    if params.on_end in ("straight", "lane"):
-        end_cmd = jnp.stack([params.v_limit, jnp.zeros_like(params.v_limit)])
-    elif params.on_end == "stop":
-        end_cmd = jnp.zeros(2, jnp.float32)
-    else:
-        end_cmd = jnp.zeros(2, jnp.float32) if prev_cmd is None else prev_cmd
-    return jnp.where(end, end_cmd, cmd).astype(jnp.float32), end
-
-
-def seg_act(params: SegParams, state: SegState, obs: Obs) -> tuple[SegState, jax.Array]:
-    """SegZeros / SegMin step: OR the mask with the buffered ones, decide (at the end of the
-    row with on_end "straight": hold the in-row heading; "lane": follow the in-row line; see
-    `seg_params`), smooth with the EMA. Needs obs.mask (bool [H, W]) and obs.pose (x, y, yaw);
-    obs.depth is used when present. Inside the row the command does not depend on on_end."""
-    if obs.mask is None:
-        raise ValueError("mask: the seg controllers need obs.mask (use with_perception)")
-    mask = obs.mask if obs.mask.dtype == bool else obs.mask > 0.5
-    if params.n_frames > 1:
-        if state.masks.shape[1:] != mask.shape:
-            raise ValueError(f"image_hw: params say {state.masks.shape[1:]}, the mask is "
-                             f"{mask.shape}")
-        used = mask | jnp.any(state.masks, axis=0)
-        masks = jnp.concatenate([mask[None], state.masks[:-1]], 0)
-    else:
-        used, masks = mask, state.masks
-    new, end = seg_command(params, used, obs.depth, state.cmd)
-    yaw = obs.pose[2]
-    yaw_ref = heading_reference(params, state, yaw, end)
-    lane_yaw, lane_xy = lane_reference(params, state, obs.pose, end)
-    has_ref = state.has_ref | ~end
-    if params.on_end in ("straight", "lane"):
-        if params.on_end == "straight":
-            hold = jnp.clip(-params.omega_gain * wrap_angle(yaw - yaw_ref),
-                            -params.omega_limit, params.omega_limit)
-        else:
-            hold = lane_command(params, obs.pose, lane_yaw, lane_xy)
-        new = jnp.where(end & has_ref, new.at[1].set(hold), new).astype(jnp.float32)
-    cmd = params.ema_alpha * new + (1.0 - params.ema_alpha) * state.cmd
-    return SegState(cmd=cmd, masks=masks, end_of_row=end, yaw_ref=yaw_ref, has_ref=has_ref,
-                    lane_yaw=lane_yaw, lane_xy=lane_xy), cmd
 
 
 # ---------------------------------------------------------------------------------------------
 # Registry and policies
 
 
-class Controller(NamedTuple):
+@dataclasses.dataclass(frozen=True, eq=False)
+class Controller:
+    """A registered controller. `config` is a frozen dataclass of its settings (the YAML
+    section `controller`, same names; class attributes `STATIC` / `TRACED` say which fields
+    fix the compiled program, `CHOICES` the allowed strings); `make_params(config, image_hw)`
+    turns one into the traced params pytree `init` / `act` take; `needs_mask`: the controller
+    reads `obs.mask` (it runs behind the perception loop)."""
+
+    name: str
+    config: type
+    make_params: Callable[[Any, tuple[int, int] | None], Any]
     init: Callable[[Any], Any]
     act: Callable[[Any, Any, Obs], tuple[Any, jax.Array]]
-    make_params: Callable[..., Any]
-    needs_mask: bool
+    needs_mask: bool = False
 
 
-CONTROLLERS: dict[str, Controller] = {
-    "oracle": Controller(oracle_init, oracle_act, oracle_params, False),
-    "segzeros": Controller(seg_init, seg_act, lambda **kw: seg_params("zeros", **kw), True),
-    "segmin": Controller(seg_init, seg_act, lambda **kw: seg_params("min", **kw), True),
-}
+CONTROLLERS: dict[str, Controller] = {}
+
+
+def register(controller: Controller) -> Controller:
+    """Add a controller to the registry under its name (the YAML's `controller.name`)."""
+    CONTROLLERS[controller.name] = controller
+    return controller
+
+
+def names() -> tuple[str, ...]:
+    """Registered controller names, in registration order."""
+    return tuple(CONTROLLERS)
 
 
 def get(name: str) -> Controller:
     if name not in CONTROLLERS:
-        raise ValueError(f"controller: unknown {name!r}; expected one of {tuple(CONTROLLERS)}")
+        raise ValueError(f"controller.name: unknown {name!r}; expected one of {names()}")
     return CONTROLLERS[name]
 
 

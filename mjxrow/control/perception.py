@@ -17,8 +17,9 @@ rollout and the weights are never baked into the program.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -28,6 +29,33 @@ from mjxrow import control
 from mjxrow import field as F
 
 SOURCES = ("ground_truth", "learned")
+CONDITION_NAMES = ("sunny", "cloudy", "crepuscular", "long_shadows")
+
+
+@dataclasses.dataclass(frozen=True)
+class PerceptionConfig:
+    """Where a mask controller's mask comes from (YAML section `perception`)."""
+
+    source: str = "learned"  # mask from the learned segmenter or the renderer's ground truth
+    checkpoint: str = "shipped"  # 'shipped' (mjxrow/checkpoints/<crop>/) or a checkpoint
+    # directory (relative to the working directory or the YAML file); one group per checkpoint,
+    # but the weights are traced, so checkpoints of one architecture share one compile
+    threshold: float = 0.7  # -, a pixel is a plant where the segmenter's sigmoid exceeds this
+    condition: str = "sunny"  # sky / lighting condition of the rendered images
+
+    TRACED: ClassVar[tuple[str, ...]] = ("threshold", "condition")
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"source": SOURCES,
+                                                     "condition": CONDITION_NAMES}
+
+    def __post_init__(self):
+        if self.source not in SOURCES:
+            raise ValueError(f"perception.source: {self.source!r} is not one of "
+                             f"{', '.join(SOURCES)}")
+        if self.condition not in CONDITION_NAMES:
+            raise ValueError(f"perception.condition: {self.condition!r} is not one of "
+                             f"{', '.join(CONDITION_NAMES)}")
+        if not 0.0 <= self.threshold <= 1.0:
+            raise ValueError(f"perception.threshold: must be in [0, 1], got {self.threshold}")
 
 
 @struct.dataclass

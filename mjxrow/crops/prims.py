@@ -1,5 +1,8 @@
-"""The geometry of each crop's plants, defined once for the renderer, the exports and the
-collision check: every plant is a fixed number K of primitives (ellipsoids and capsules).
+"""The geometry of the crops' plants, defined once for the renderer, the exports and the
+collision check: every plant is a fixed number K of primitives (ellipsoids and capsules). The
+builders here (`rosette`, `upright`, `vertical_capsule`, `compose`) are what the crop modules
+compose their `Crop.local` from; `plant_prims`, `n_prims` and `footprint` look the crop up in
+the registry (`mjxrow.crops.get`) when called.
 
 A primitive is (type, material, centre, rotation, size):
 - ellipsoid: `size` = its three semi-axes along the columns of `rot` [m];
@@ -8,12 +11,17 @@ A primitive is (type, material, centre, rotation, size):
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from mjxrow.field import Field, FieldShape
+from mjxrow import crops
+
+if TYPE_CHECKING:
+    from mjxrow.field import Field, FieldShape
 
 ELLIPSOID, CAPSULE = 0, 1
 LEAF, STEM, TRUNK, CANOPY, FRUIT = 0, 1, 2, 3, 4
@@ -42,8 +50,8 @@ def _rot(yaw, pitch):
                       jnp.stack([sp, z, cp], -1)], -2)
 
 
-def _rosette(L, W, H, yaw, phase, n, reach, leaf_len, leaf_wid, leaf_thick, tilt, z_frac,
-             upright=False):
+def rosette(L, W, H, yaw, phase, n, reach, leaf_len, leaf_wid, leaf_thick, tilt, z_frac,
+            upright=False):
     """n leaves around the plant axis, tips reaching `reach` of the half extents. The leaf
     semi-length is `leaf_len` of the half extent, or of the height for `upright` leaves.
     Local frame: [..., n, 3] centres, [..., n, 3, 3] rotations, [..., n, 3] sizes."""
@@ -59,7 +67,7 @@ def _rosette(L, W, H, yaw, phase, n, reach, leaf_len, leaf_wid, leaf_thick, tilt
     return centre, rot, size
 
 
-def _upright(L, W, H, n):
+def upright(L, W, H, n):
     """A centred, axis-aligned element (head, mound, canopy) with semi-axes n[:3] of (L, W, H)
     at height n[3]·H."""
     c = jnp.stack([jnp.zeros_like(L), jnp.zeros_like(L), n[3] * H], -1)
@@ -68,79 +76,41 @@ def _upright(L, W, H, n):
     return c[..., None, :], rot[..., None, :, :], s[..., None, :]
 
 
-def _vertical_capsule(H, r, z0, z1):
+def vertical_capsule(H, r, z0, z1):
+    """A vertical capsule of radius r [m] (trunk) from height z0·H to z1·H."""
     c = jnp.stack([jnp.zeros_like(H), jnp.zeros_like(H), 0.5 * (z0 + z1) * H], -1)
     rot = jnp.broadcast_to(jnp.eye(3), H.shape + (3, 3))
     s = jnp.stack([r, r, jnp.maximum(0.5 * (z1 - z0) * H - r, 1e-3)], -1)
     return c[..., None, :], rot[..., None, :, :], s[..., None, :]
 
 
-def _compose(parts):
+def compose(parts):
+    """Concatenate the (centre, rot, size) of several parts along the primitive axis K."""
     return tuple(jnp.concatenate([p[i] for p in parts], axis=-2 if i != 1 else -3)
                  for i in range(3))
-
-
-def _local(crop: str, L, W, H, yaw, phase):
-    """Local-frame primitives of one crop (origin at the plant base). Returns centre, rot, size,
-    kind [K], material [K]."""
-    if crop == "zucchini":  # broad leaves in a low dome around a central mound
-        parts = [_rosette(L, W, H, yaw, phase, 5, 0.98, 0.36, 0.34, 0.12, 0.25, 0.36),
-                 _rosette(L, W, H, yaw + 0.6, phase, 2, 0.45, 0.40, 0.30, 0.10, 1.0, 0.56,
-                          upright=True),
-                 _upright(L, W, H, (0.25, 0.25, 0.30, 0.25))]
-        kind = [ELLIPSOID] * 8
-        mat = [LEAF] * 7 + [STEM]
-    elif crop == "lettuce":  # a compact head and a ring of flattened leaves
-        parts = [_rosette(L, W, H, yaw, phase, 4, 0.98, 0.30, 0.34, 0.18, 0.25, 0.38),
-                 _upright(L, W, H, (0.32, 0.32, 0.50, 0.50))]
-        kind = [ELLIPSOID] * 5
-        mat = [LEAF] * 5
-    elif crop == "chard":  # a few upright leaves on stems
-        parts = [_rosette(L, W, H, yaw, phase, 4, 0.95, 0.50, 0.30, 0.12, 1.1, 0.5,
-                          upright=True)]
-        kind = [ELLIPSOID] * 4
-        mat = [LEAF] * 4
-    elif crop == "pear":  # trunk + a canopy of three lobes
-        r = 0.09 * jnp.ones_like(H)
-        trunk = _vertical_capsule(H, r, 0.0, 0.45)
-        canopy = _upright(L, W, H, (0.50, 0.50, 0.32, 0.66))
-        lobes = _rosette(L, W, H, yaw, phase, 2, 0.95, 0.30, 0.45, 0.18, 0.2, 0.72)
-        parts = [trunk, canopy, lobes]
-        kind = [CAPSULE] + [ELLIPSOID] * 3
-        mat = [TRUNK, CANOPY, CANOPY, CANOPY]
-    elif crop == "vineyard":  # a trunk and a canopy wall elongated along the row
-        r = 0.045 * jnp.ones_like(H)
-        trunk = _vertical_capsule(H, r, 0.0, 0.55)
-        wall = _upright(L, W, H, (0.50, 0.50, 0.25, 0.72))
-        low = _upright(L, W, H, (0.40, 0.36, 0.14, 0.50))
-        parts = [trunk, wall, low]
-        kind = [CAPSULE, ELLIPSOID, ELLIPSOID]
-        mat = [TRUNK, CANOPY, CANOPY]
-    else:
-        raise ValueError(f"crop: unknown crop {crop!r}")
-    centre, rot, size = _compose(parts)
-    return centre, rot, size, np.asarray(kind), np.asarray(mat)
 
 
 def plant_prims(field: Field, shape: FieldShape) -> Prims:
     """World-frame primitives of every plant of one field (pure; vmap for a batch)."""
     L, W, H = (field.plant_size[..., i] for i in range(3))
-    centre, rot, size, kind, mat = _local(shape.crop, L, W, H, field.plant_yaw, field.plant_phase)
+    centre, rot, size, kind, mat = crops.get(shape.crop).local(L, W, H, field.plant_yaw,
+                                                                field.plant_phase)
     centre = centre + field.plant_pos[..., None, :]
     active = jnp.broadcast_to(field.plant_active[..., None], centre.shape[:-1])
     return Prims(centre=centre, rot=rot, size=size, active=active, kind=kind, material=mat)
 
 
 def n_prims(crop: str) -> int:
+    """K, the primitives per plant of `crop`."""
     one = jnp.ones((1,))
-    return len(_local(crop, one, one, one, one * 0, one * 0)[3])
+    return len(crops.get(crop).local(one, one, one, one * 0, one * 0)[3])
 
 
 def footprint(crop: str, plant_size: jax.Array) -> jax.Array:
     """Collision footprint of each plant as an axis-aligned ellipse: semi-axes (along x, along y)
-    [..., 2] in metres. Trunks for pear and vineyard, the leaf footprint for low crops."""
-    if crop == "pear":
-        return jnp.full(plant_size.shape[:-1] + (2,), 0.09)
-    if crop == "vineyard":
-        return jnp.full(plant_size.shape[:-1] + (2,), 0.045)
+    [..., 2] in metres, from plant_size [..., 3]. The trunk for crops with a `trunk_radius`
+    (pear, vineyard), half the plant's length and width otherwise (the leaves of low crops)."""
+    r = crops.get(crop).trunk_radius
+    if r is not None:
+        return jnp.full(plant_size.shape[:-1] + (2,), r)
     return 0.5 * plant_size[..., :2]

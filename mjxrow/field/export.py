@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 from PIL import Image
 
+from mjxrow import crops
 from mjxrow import field as F
 from mjxrow.crops import prims as PL
 from mjxrow.overrides import parse_sets
@@ -381,7 +382,7 @@ def snapshot(xml_path: str | Path, png_path: str | Path, width: int = 960,
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjxrow.worlds", description=__doc__.split("\n")[0])
-    ap.add_argument("--preset", choices=tuple(F.PRESETS), default="zucchini")
+    ap.add_argument("--preset", choices=crops.names(), default="zucchini")
     ap.add_argument("--all", action="store_true", help="export every preset")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default="worlds", help="output folder")
@@ -395,7 +396,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.picture and args.all:
         ap.error("--picture takes one preset, not --all")
-    presets = tuple(F.PRESETS) if args.all else (args.preset,)
+    presets = crops.names() if args.all else (args.preset,)
     try:
         sets = parse_sets(args.sets)
         resolved = {p: resolve(p, sets) for p in presets}

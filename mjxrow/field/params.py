@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-CROPS = ("zucchini", "lettuce", "chard", "pear", "vineyard")
+from mjxrow import crops
 
 ROBOT_WIDTH = 0.430  # m, lateral footprint of the UGV (robot.py holds the rest)
 LANE_CLEARANCE = 0.10  # m, free width a lane needs beyond the robot's width
@@ -58,7 +58,8 @@ PARAM_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(FieldPar
 
 @dataclasses.dataclass(frozen=True)
 class FieldShape:
-    """Static description that fixes array shapes: one compile per distinct value."""
+    """Static description that fixes array shapes: one compile per distinct value. `crop`: a
+    registered crop's name (`mjxrow.crops.names()`), which fixes the plants' primitives."""
 
     crop: str = "zucchini"
     max_rows: int = 16
@@ -67,8 +68,7 @@ class FieldShape:
     obstacle_slots: int = 32
 
     def __post_init__(self):
-        if self.crop not in CROPS:
-            raise ValueError(f"crop: unknown crop {self.crop!r}; expected one of {CROPS}")
+        crops.get(self.crop)  # ValueError naming an unknown crop
         for name in ("max_rows", "max_plants_per_row", "obstacle_slots"):
             if int(getattr(self, name)) < (2 if name == "max_rows" else 1):
                 raise ValueError(f"{name}: must be a positive count, got {getattr(self, name)}")
@@ -111,51 +111,22 @@ class Field:
 
 STONE, BRANCH = 0, 1
 
-_COMMON: dict[str, float] = dict(
-    plant_size_var=0.08,
-    plant_jitter=0.03,
-    p_missing=0.03,
-    terrain_scale=4.0,
-    slope_x=0.0,
-    slope_y=0.0,
-    stone_density=1.0,
-    branch_density=0.3,
-    scale=1.0,
-)
-
-# The paper's Table 1 (terrain L×W, |ΔH|; plant L×W×H; d_rr, d_RR, d_pp; rows per group);
-# vineyard with typical values. Rows stop HEADLAND·5 m short of the terrain ends.
-PRESETS: dict[str, dict[str, float]] = {
-    "zucchini": dict(terrain_length=60.0, terrain_width=38.0, terrain_dh=0.2, plant_length=0.82,
-                     plant_width=0.9, plant_height=0.6, d_rr=1.8, d_RR=3.6, d_pp=0.7,
-                     rows_per_group=7, row_length=50.0),
-    "lettuce": dict(terrain_length=60.0, terrain_width=25.0, terrain_dh=0.25, plant_length=0.38,
-                    plant_width=0.34, plant_height=0.22, d_rr=0.7, d_RR=1.4, d_pp=0.4,
-                    rows_per_group=3, row_length=50.0),
-    "chard": dict(terrain_length=60.0, terrain_width=12.0, terrain_dh=0.25, plant_length=0.25,
-                  plant_width=0.4, plant_height=0.25, d_rr=0.7, d_RR=1.4, d_pp=0.3,
-                  rows_per_group=3, row_length=50.0),
-    "pear": dict(terrain_length=80.0, terrain_width=45.0, terrain_dh=0.3, plant_length=1.4,
-                 plant_width=2.2, plant_height=3.2, d_rr=5.0, d_RR=5.0, d_pp=2.2,
-                 rows_per_group=1, row_length=70.0),
-    "vineyard": dict(terrain_length=60.0, terrain_width=30.0, terrain_dh=0.15, plant_length=1.2,
-                     plant_width=0.5, plant_height=1.9, d_rr=2.7, d_RR=2.7, d_pp=1.0,
-                     rows_per_group=1, row_length=50.0),
-}
-for _p in PRESETS.values():
-    for _k, _v in _COMMON.items():
-        _p.setdefault(_k, _v)
-assert all(set(p) == set(PARAM_NAMES) for p in PRESETS.values())
-
 
 def make_params(preset: str = "zucchini", **overrides: Any) -> FieldParams:
-    """FieldParams of a preset with `overrides` (name → number, or array for a batch)."""
-    if preset not in PRESETS:
-        raise ValueError(f"preset: unknown preset {preset!r}; expected one of {tuple(PRESETS)}")
+    """FieldParams of a crop's preset (`mjxrow.crops.get(preset).preset`) with `overrides`
+    (name → number, or array for a batch)."""
+    if preset not in crops.CROPS:
+        raise ValueError(f"preset: unknown preset {preset!r}; expected one of {crops.names()}")
     unknown = sorted(set(overrides) - set(PARAM_NAMES))
     if unknown:
         raise ValueError(f"{unknown[0]}: unknown field parameter; known: {', '.join(PARAM_NAMES)}")
-    values = {**PRESETS[preset], **overrides}
+    values = {**crops.get(preset).preset, **overrides}
+    stray = sorted(set(values) - set(PARAM_NAMES))
+    if stray:
+        raise ValueError(f"{stray[0]}: unknown field parameter in crop {preset!r}'s preset")
+    missing = [k for k in PARAM_NAMES if k not in values]
+    if missing:
+        raise ValueError(f"{missing[0]}: crop {preset!r}'s preset has no value for it")
     return FieldParams(**{k: jnp.asarray(values[k], jnp.float32) for k in PARAM_NAMES})
 
 

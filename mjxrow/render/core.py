@@ -17,34 +17,10 @@ the centre of the pixel, row 0 at the top.
 What is not drawn: anything beyond `RenderConfig.far` metres (150 m: every preset field fits);
 the terrain's side walls; a plant primitive that contains the camera (seen from inside).
 
-How it stays fast (`render_tiles`): plants are culled once per tile of `tile × tile` pixels
-(`default_tile`: 8 at 64 × 64, 16 from 128, so that a tile's cone stays as narrow as at 64 px)
-through the row structure (per row the stretch of the tile's cone inside the row's slab gives
-the blocks of plants it can meet; block and plant boxes grown by the cone give lower bounds of
-the entry distances), every ray of a tile tests its tile's `keep` candidates exactly, and the
-tiles where more plants may lie in front of a ray's hit (grazing views along rows) test a longer
-list. Shadow rays are culled the same way per tile (the box of the tile's surface points swept
-toward the sun), and so are the obstacles (the `obstacle_keep` of the frame's nearest
-`obstacles` that a tile's camera or shadow sweep enters first). The terrain is marched
-(`terrain_steps` samples over the ray's part in the terrain's height band, `terrain_refine`
-bisections, then the triangle's exact plane). The per-ray tests run as `RenderConfig.kernel`
-says: on a GPU as Pallas (Triton) kernels that keep a block of tiles' rays in registers and loop
-over the candidates or the march samples (`render_pallas`; a block skips the candidates whose
-entry bound lies beyond all its rays' hits), on other accelerators as one fused XLA reduction,
-on CPU as an XLA scan; all three give the same images (tests).
-
-Limits: a plant can be missed where a tile's rays meet more plants than its lists hold
-before their hits (far, nearly horizontal views over many rows of small plants); a march step
-can step over a thin terrain feature on grazing rays; a tile near the horizon, whose surface
-points spread over tens of metres, can keep too few shadow casters, and some of its shadowed
-pixels are drawn lit (3–6 % of the non-sky pixels differ in colour from a one-pixel-tile
-reference, `render_accuracy.py --shading`). Against an all-plants reference, on the
-dataset's camera poses (`dataset.sample_pose`, 16 per preset at 64×64, 8 at 128×128) the
-plant masks agree with IoU ≥ 0.996 for every preset (the deep-tile knobs are
-set per crop: `DEEP`), and the terrain depths with a 128-sample march exactly
-(`experiments/render_accuracy.py`). Shadows are cast by plants and obstacles, not by the
-terrain (which is only shaded by its slope). Sky pixels have `depth = SKY_DEPTH`,
-`mask = False`, `classes = SKY`.
+How it stays fast (tiles, culling through the row structure, the Pallas kernels) and what it
+does not draw: docs/render.md. Sky pixels have `depth = SKY_DEPTH`, `mask = False`,
+`classes = SKY`. The kernel (`RenderConfig.kernel`) defaults by backend (`default_kernel`);
+the environment variable MJXROW_RENDER_KERNEL overrides it for every command.
 """
 
 from __future__ import annotations
@@ -52,12 +28,14 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from mjxrow import crops
 from mjxrow import field as F
 from mjxrow.render import geom as G
 from mjxrow.render import pallas as RP
@@ -85,16 +63,17 @@ KERNELS = ("scan", "fused", "pallas")
 class Intrinsics:
     """Pinhole camera (static). Defaults: the robot's camera (vertical fov 42°)."""
 
-    width: int = 128
-    height: int = 128
-    fovy: float = 42.0  # vertical field of view [deg]
+    width: int = 64  # px, image width
+    height: int = 64  # px, image height
+    fovy: float = 42.0  # deg, vertical field of view (the robot's camera; the horizontal one
+    # follows from width / height)
 
     def __post_init__(self):
         if int(self.width) < 1 or int(self.height) < 1:
-            raise ValueError(f"intrinsics: width and height must be positive, got "
+            raise ValueError(f"camera.width/height: must be positive, got "
                              f"{self.width}x{self.height}")
         if not 0.0 < float(self.fovy) < 180.0:
-            raise ValueError(f"intrinsics.fovy: must lie in (0, 180) degrees, got {self.fovy}")
+            raise ValueError(f"camera.fovy: must lie in (0, 180) degrees, got {self.fovy}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -122,6 +101,8 @@ class RenderConfig:
     near: float = 0.01  # m, nothing nearer the camera is drawn
     far: float = 150.0  # m, nothing further is drawn
 
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"kernel": KERNELS}
+
     def __post_init__(self):
         for name in ("tile", "row_blocks", "block_keep", "keep", "deep_row_blocks",
                      "deep_block_keep", "shadow_row_blocks", "shadow_block_keep", "shadow_keep",
@@ -142,10 +123,9 @@ class RenderConfig:
 
 DEFAULT_CONFIG = RenderConfig()
 
-# deep tiles (share, row_blocks, block_keep, keep) per crop: small plants in many rows put more
-# plants in front of a far ray's hit than large ones
-DEEP = {"lettuce": (0.25, 24, 64, 192), "chard": (0.25, 24, 64, 192)}
-DEEP_OTHERS = (0.25, 12, 16, 48)
+# deep tiles (share, row_blocks, block_keep, keep) of the crops without their own `Crop.deep`
+# (small plants in many rows put more plants in front of a far ray's hit than large ones)
+DEEP_DEFAULT = (0.25, 12, 16, 48)
 
 
 def default_tile(intr: Intrinsics) -> int:
@@ -172,10 +152,11 @@ def default_kernel(tile: int) -> str:
 
 
 def resolve(cfg: RenderConfig, crop: str, intr: Intrinsics | None = None) -> RenderConfig:
-    """`cfg` with the knobs left at None set: the deep-tile ones for `crop` (DEEP), the tile
-    side for `intr` (`default_tile`; 4 without intr) and the kernels (`default_kernel`)."""
+    """`cfg` with the knobs left at None set: the deep-tile ones of `crop` (its `Crop.deep`,
+    else DEEP_DEFAULT), the tile side for `intr` (`default_tile`; 4 without intr) and the
+    kernels (`default_kernel`)."""
     names = ("deep_share", "deep_row_blocks", "deep_block_keep", "deep_keep")
-    by_crop = dict(zip(names, DEEP.get(crop, DEEP_OTHERS), strict=True))
+    by_crop = dict(zip(names, crops.get(crop).deep or DEEP_DEFAULT, strict=True))
     cfg = dataclasses.replace(cfg, **{k: v for k, v in by_crop.items()
                                       if getattr(cfg, k) is None})
     if cfg.tile is None:

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from mjxrow import crops
 from mjxrow.crops import prims as PL
 
 CONDITIONS = ("sunny", "cloudy", "crepuscular", "long_shadows")
@@ -139,19 +140,6 @@ def fbm2(x: jax.Array, y: jax.Array, octaves: int, seed: int = 0) -> jax.Array:
 
 _SOIL = (0.43, 0.32, 0.22)
 _STONE, _BRANCH = (0.55, 0.53, 0.50), (0.42, 0.31, 0.20)
-# per crop: material → sRGB albedo (LEAF, STEM, TRUNK, CANOPY, FRUIT)
-_PALETTE = {
-    "zucchini": ((0.20, 0.42, 0.13), (0.42, 0.55, 0.22), (0.36, 0.27, 0.18), (0.2, 0.4, 0.13),
-                 (0.85, 0.72, 0.20)),
-    "lettuce": ((0.45, 0.66, 0.22), (0.62, 0.78, 0.36), (0.36, 0.27, 0.18), (0.4, 0.6, 0.2),
-                (0.85, 0.72, 0.20)),
-    "chard": ((0.14, 0.34, 0.11), (0.70, 0.22, 0.20), (0.36, 0.27, 0.18), (0.15, 0.35, 0.1),
-              (0.85, 0.72, 0.20)),
-    "pear": ((0.22, 0.42, 0.14), (0.40, 0.52, 0.22), (0.33, 0.25, 0.18), (0.21, 0.40, 0.13),
-             (0.75, 0.72, 0.25)),
-    "vineyard": ((0.27, 0.45, 0.15), (0.40, 0.52, 0.22), (0.40, 0.30, 0.21), (0.26, 0.44, 0.14),
-                 (0.30, 0.20, 0.35)),
-}
 
 
 def _lin(rgb) -> jax.Array:
@@ -173,10 +161,12 @@ def plant_albedo(crop: str, material: jax.Array, p: jax.Array, local: jax.Array,
                  phase: jax.Array, plant: jax.Array, k: jax.Array,
                  cond: Conditions) -> jax.Array:
     """Plant albedo (linear) at hit points p [N, 3] (local [N, 3]: the point in its primitive's
-    frame): the crop's material colour, varied per plant (phase [N]) and per primitive (plant,
-    k [N] ints), leaf veins (a pale midrib along the leaf's long axis and lateral veins),
-    clumps of foliage on canopies, bark streaks on trunks."""
-    pal = _lin(_PALETTE[crop])  # [5, 3]
+    frame): the crop's material colour (`Crop.palette`), varied per plant (phase [N]) and per
+    primitive (plant, k [N] ints), leaf veins (a pale midrib along the leaf's long axis and
+    lateral veins), pale patches on the blades of crops with `Crop.silver_leaf`, clumps of
+    foliage on canopies, bark streaks on trunks."""
+    spec = crops.get(crop)
+    pal = _lin(spec.palette)  # [5, 3]
     base = pal[material]
     per_plant = 0.80 + 0.40 * phase
     yellow = 1.0 + 0.18 * (phase - 0.5)[:, None] * jnp.array([1.0, 0.3, -1.0])
@@ -190,7 +180,7 @@ def plant_albedo(crop: str, material: jax.Array, p: jax.Array, local: jax.Array,
     veins = jnp.clip(midrib + 0.6 * lateral * (jnp.abs(u1) < 0.8), 0, 1)
     rim = jnp.clip((u0 * u0 + u1 * u1 - 0.55) * 2.5, 0, 1)  # darker towards the blade's edge
     f_leaf = (0.8 + 0.4 * mottle) * (1.0 + 0.45 * veins) * (1.0 - 0.25 * rim)
-    if crop == "zucchini":  # pale mottled patches on the blades
+    if spec.silver_leaf:  # pale mottled patches on the blades
         silver = jnp.clip((value_noise2(30 * x, 30 * y, seed=7) - 0.62) * 4, 0, 1)
         f_leaf = f_leaf + 0.6 * silver
     clumps = fbm2(9.0 * (x + 0.5 * z), 9.0 * (y - 0.5 * z), 2, seed=9)

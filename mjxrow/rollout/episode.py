@@ -19,33 +19,23 @@ simulated terrain), stuck (moved less than `stuck_dist` over `stuck_window` step
 batch stops stepping once every one of its episodes has ended (checked every `CHUNK` steps), so
 the timeout costs only batches in which some episode runs that long.
 
-CLI: `python -m mjxrow.episode --preset vineyard --controller oracle --n 8 --seed 0 --out DIR
-[--set key=value ...]` (see `main`).
+The assembly of model, fields, policy and keys from a config is `rollout.build`; the CLI is
+`python -m mjxrow.episode`.
 """
 
 from __future__ import annotations
 
-import argparse
-import contextlib
 import dataclasses
 import functools
 import math
-import sys
-import threading
-import time
-from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-import pandas as pd
-from tqdm.auto import tqdm
 
-from mjxrow import control
+from mjxrow import control, crops
 from mjxrow import field as F
-from mjxrow.control import perception as closed_loop
-from mjxrow.overrides import parse_sets
 from mjxrow.physics import sim
 from mjxrow.rollout import metrics as M
 from mjxrow.rollout.metrics import Log
@@ -56,30 +46,45 @@ CHUNK = 25  # control steps per scan between checks for the end of every episode
 
 @dataclasses.dataclass(frozen=True)
 class EpisodeConfig:
-    """Static episode settings (hashable). `crop` picks the plants' collision footprint.
-
-    The path length (`sim.path_length`, 20 m), the control rate (`sim.control_hz`, 15 Hz) and
-    the flip threshold (`sim.max_tilt_deg`) live in the simulation config `sim`."""
+    """Episode settings (YAML section `episode`; hashable). `crop` picks the plants' collision
+    footprint and `sim` holds the physics (control rate, path length, flip threshold); the YAML
+    sets those through `preset` and the `sim` section. Everything is static except the
+    start-pose noise (`TRACED`), which the rollout takes per episode."""
 
     crop: str
-    n_steps: int = 600  # control steps before timeout (600 at 15 Hz = 40 s)
+    max_time: float = 60.0  # s, timeout; an episode has ceil(max_time · sim.control_hz)
+    # control steps
     goal_radius: float = 0.40  # m, goal reached within this distance
     stuck_window: int = 45  # control steps between stuck checks (3 s at 15 Hz)
     stuck_dist: float = 0.05  # m, moving less than this over a window is stuck
     collision_window: int = 4  # plants checked each side along a row (metrics.collides)
     end_off_patch: bool = True  # end an episode that leaves the terrain patch as off_patch
     end_missed_goal: bool = True  # end an episode that passes the goal's line as missed_goal
+    start_offset_std: float = 0.0  # m, std of the start's lateral offset from the lane centre
+    start_yaw_std: float = 0.0  # deg, std of the start heading about the row direction
     sim: sim.SimConfig = sim.SimConfig()
 
+    TRACED: ClassVar[tuple[str, ...]] = ("start_offset_std", "start_yaw_std")
+
     def __post_init__(self):
-        if self.crop not in F.CROPS:
-            raise ValueError(f"crop: unknown crop {self.crop!r}; expected one of {F.CROPS}")
-        for name in ("n_steps", "stuck_window", "collision_window"):
+        if self.crop not in crops.CROPS:
+            raise ValueError(f"episode.crop: unknown crop {self.crop!r}; expected one of "
+                             f"{crops.names()}")
+        for name in ("stuck_window", "collision_window"):
             if int(getattr(self, name)) < 1:
-                raise ValueError(f"{name}: must be at least 1, got {getattr(self, name)}")
-        for name in ("goal_radius", "stuck_dist"):
+                raise ValueError(f"episode.{name}: must be at least 1, got {getattr(self, name)}")
+        for name in ("max_time", "goal_radius", "stuck_dist"):
             if not getattr(self, name) > 0:
-                raise ValueError(f"{name}: must be positive, got {getattr(self, name)}")
+                raise ValueError(f"episode.{name}: must be positive, got {getattr(self, name)}")
+        for name in ("start_offset_std", "start_yaw_std"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"episode.{name}: must be finite and non-negative, got {v}")
+
+    @property
+    def n_steps(self) -> int:
+        """Control steps before the timeout: ceil(max_time · control_hz)."""
+        return max(1, math.ceil(self.max_time * self.sim.control_hz - 1e-9))
 
     @property
     def control_dt(self) -> float:
@@ -90,6 +95,15 @@ class EpisodeConfig:
     def path_length(self) -> float:
         """m, start → goal along the lane (sim.path_length)."""
         return self.sim.path_length
+
+    @property
+    def noise(self) -> sim.PoseNoise:
+        """The start-pose noise (traced): lateral std [m], heading std [rad]."""
+        return sim.pose_noise(self.start_offset_std, math.radians(self.start_yaw_std))
+
+    def static(self) -> EpisodeConfig:
+        """This config with the traced fields at their defaults: the compile key."""
+        return dataclasses.replace(self, start_offset_std=0.0, start_yaw_std=0.0)
 
 
 def _select(c, a, b):
@@ -272,11 +286,8 @@ def batch_noise(noise: sim.PoseNoise | None, batch: int) -> sim.PoseNoise:
     return sim.PoseNoise(**out)
 
 
-def rollout_args(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array,
-                 policy_params: Any = None, params_axes: Any = None,
-                 noise: sim.PoseNoise | None = None) -> tuple:
-    """Checked arguments of the compiled function (host): (mx, fields, lanes, keys, noise [B],
-    policy_params)."""
+def check_fields(fields: F.Field) -> int:
+    """The batch size of `fields` (host); ValueError unless it is a batch of valid fields."""
     valid = np.asarray(fields.valid)
     if valid.ndim != 1:
         raise ValueError(f"fields: expected a batch (leading [B] axis), valid has shape "
@@ -284,7 +295,15 @@ def rollout_args(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array,
     if not valid.all():
         raise ValueError(f"fields: field {int(np.argmin(valid))} is not a valid field "
                          "(field.validate names the parameter)")
-    B = valid.shape[0]
+    return valid.shape[0]
+
+
+def rollout_args(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array,
+                 policy_params: Any = None, params_axes: Any = None,
+                 noise: sim.PoseNoise | None = None) -> tuple:
+    """Checked arguments of the compiled function (host): (mx, fields, lanes, keys, noise [B],
+    policy_params)."""
+    B = check_fields(fields)
     if keys.shape[0] != B:
         raise ValueError(f"keys: {keys.shape[0]} keys for {B} fields")
     if lanes is None:
@@ -321,164 +340,3 @@ def rollout(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array, polic
 def summarise(log: Log, ep_cfg: EpisodeConfig) -> dict[str, jax.Array]:
     """metrics.summarise with this config's control period."""
     return M.summarise(log, ep_cfg.control_dt)
-
-
-# ---------------------------------------------------------------------------------------------
-# CLI
-
-CSV_METRICS = ("success", "collision", "reason", "cha", "mae", "mse", "omega_std", "v_mean",
-               "time", "path_ratio", "max_offset")
-
-
-@contextlib.contextmanager
-def _ticker(desc: str, enabled: bool = True):
-    """Progress while a blocking call runs: on a terminal a line with the elapsed time,
-    refreshed every second; otherwise one line at the start and one at the end."""
-    if not enabled:
-        yield
-        return
-    t0 = time.perf_counter()
-    if not sys.stderr.isatty():
-        print(f"{desc} ...", file=sys.stderr, flush=True)
-        yield
-        print(f"{desc}: done in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
-        return
-    bar = tqdm(total=None, desc=desc, bar_format="{desc}: {elapsed}")
-    stop = threading.Event()
-
-    def tick():
-        while not stop.wait(1.0):
-            bar.refresh()
-
-    thread = threading.Thread(target=tick, daemon=True)
-    thread.start()
-    try:
-        yield
-    finally:
-        stop.set()
-        thread.join()
-        bar.close()
-
-
-def make_policy(controller: str, shape: F.FieldShape, args: argparse.Namespace):
-    """(policy, params, params_axes) for the CLI's controller choice: the oracle, or a mask
-    controller in the perception loop (closed_loop.make), segmenter weights shared."""
-    if controller == "oracle":
-        return control.as_policy("oracle"), control.oracle_params(lookahead=args.lookahead), None
-    from mjxrow import render
-
-    w, _, h = args.image.partition("x")
-    try:
-        intr = render.Intrinsics(int(w), int(h), args.fovy)
-    except ValueError as e:
-        raise ValueError(f"--image: expected WIDTHxHEIGHT, got {args.image!r} ({e})") from None
-    method = "zeros" if controller == "segzeros" else "min"
-    cparams = control.seg_params(method, args.variant, image_hw=(intr.height, intr.width))
-    policy, pparams = closed_loop.make(controller, shape, intr, args.perception,
-                                      args.checkpoint, args.condition)
-    return policy, (pparams, cparams), None
-
-
-def results_table(params: F.FieldParams, seeds: np.ndarray, lanes: np.ndarray,
-                  summary: dict[str, Any]) -> pd.DataFrame:
-    """One row per episode: seed, lane, field parameters, metrics (reason as its name)."""
-    cols: dict[str, Any] = {"seed": seeds, "lane": lanes}
-    cols.update({k: np.asarray(getattr(params, k)) for k in F.PARAM_NAMES})
-    for k in CSV_METRICS:
-        v = np.asarray(summary[k])
-        cols[k] = np.asarray(M.REASONS)[v] if k == "reason" else v
-    return pd.DataFrame(cols)
-
-
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m mjxrow.episode",
-                                description="Run one batch of episodes and score them.")
-    p.add_argument("--preset", default="vineyard", choices=F.CROPS)
-    p.add_argument("--controller", default="oracle", choices=tuple(control.CONTROLLERS))
-    p.add_argument("--n", type=int, default=8, help="episodes (one field each)")
-    p.add_argument("--seed", type=int, default=0, help="episode i uses seed + i")
-    p.add_argument("--out", required=True, help="output directory (episodes.csv)")
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="field parameter override (repeatable), e.g. --set d_rr=3.0")
-    p.add_argument("--steps", type=int, default=600, help="control steps before timeout")
-    p.add_argument("--path-length", type=float, default=20.0, help="m, start → goal")
-    p.add_argument("--goal-radius", type=float, default=0.40, help="m")
-    p.add_argument("--lateral-std", type=float, default=0.0, help="m, start offset std")
-    p.add_argument("--heading-std-deg", type=float, default=0.0, help="deg, start heading std")
-    p.add_argument("--lookahead", type=float, default=1.0, help="m, oracle look-ahead")
-    p.add_argument("--variant", default="paper", choices=("paper", "public"),
-                   help="SegZeros/SegMin law: the paper's or the authors' public code's")
-    p.add_argument("--perception", default="ground_truth", choices=closed_loop.SOURCES,
-                   help="mask source of segzeros/segmin")
-    p.add_argument("--checkpoint", default="", help="segmenter checkpoint (default: the crop's)")
-    p.add_argument("--image", default="112x64", help="camera image WIDTHxHEIGHT [px]")
-    p.add_argument("--fovy", type=float, default=42.0, help="deg, vertical field of view")
-    p.add_argument("--condition", default="sunny",
-                   choices=("sunny", "cloudy", "crepuscular", "long_shadows"))
-    p.add_argument("--no-progress", action="store_true", help="no progress lines")
-    return p
-
-
-def run_cli(args: argparse.Namespace) -> pd.DataFrame:
-    if args.n < 1:
-        raise ValueError(f"--n: must be at least 1, got {args.n}")
-    if args.seed < 0:
-        raise ValueError(f"--seed: must be non-negative, got {args.seed}")
-    for flag, v in (("--lateral-std", args.lateral_std),
-                    ("--heading-std-deg", args.heading_std_deg)):
-        if not (math.isfinite(v) and v >= 0):
-            raise ValueError(f"{flag}: must be finite and non-negative, got {v}")
-    sets = parse_sets(args.set)
-    params = F.make_params(args.preset, **sets)
-    params = jax.tree.map(lambda x: jnp.broadcast_to(x, (args.n,)), params)
-    big = 1 << 20  # limits of the static shape are checked once it is fitted
-    F.validate(params, F.FieldShape(args.preset, big, big, (2, 2), big))
-    shape = F.fit_shape(params, args.preset)
-    F.validate(params, shape)
-    row_len = float(params.row_length[0] * params.scale[0])
-    if args.path_length > row_len:
-        raise ValueError(f"--path-length: {args.path_length} m is longer than the rows "
-                         f"({row_len:g} m)")
-    cfg = EpisodeConfig(crop=args.preset, n_steps=args.steps, goal_radius=args.goal_radius,
-                        sim=sim.SimConfig(path_length=args.path_length))
-    policy, pparams, axes = make_policy(args.controller, shape, args)
-    seeds = args.seed + np.arange(args.n)
-    keys = jax.vmap(lambda s: jax.random.split(jax.random.key(s)))(jnp.asarray(seeds))
-    show = not args.no_progress
-    with _ticker(f"fields ({args.n} × {args.preset})", show):
-        gen = jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)
-        fields = jax.block_until_ready(gen(params, shape, keys[:, 0]))
-        _, mx = sim.make_model(shape, cfg.sim)
-    noise = sim.pose_noise(args.lateral_std, math.radians(args.heading_std_deg))
-    call_args = rollout_args(mx, fields, None, keys[:, 1], pparams, axes, noise)
-    fn = compiled(policy, cfg, axes)
-    t0 = time.perf_counter()
-    with _ticker("compiling", show):
-        exe = fn.lower(*call_args).compile()
-    t1 = time.perf_counter()
-    with _ticker(f"running {args.n} episodes × {cfg.n_steps} steps", show):
-        log = jax.block_until_ready(exe(*call_args))
-    t2 = time.perf_counter()
-    summary = jax.tree.map(np.asarray, summarise(log, cfg))
-    table = results_table(params, seeds, np.asarray(call_args[2]), summary)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    table.to_csv(out / "episodes.csv", index=False)
-    print(f"{args.controller} on {args.preset}: {args.n} episodes, compile {t1 - t0:.1f} s, "
-          f"run {t2 - t1:.1f} s ({args.n * cfg.n_steps / (t2 - t1):.0f} env-steps/s)")
-    print(M.format_table({k: summary[k] for k in CSV_METRICS}))
-    print(f"wrote {out / 'episodes.csv'}")
-    return table
-
-
-def main(argv: list[str] | None = None) -> None:
-    args = _parser().parse_args(argv)
-    try:
-        run_cli(args)
-    except ValueError as e:
-        print(f"error: {e}", file=sys.stderr)
-        sys.exit(2)
-
-
-if __name__ == "__main__":
-    main()

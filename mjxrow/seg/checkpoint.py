@@ -21,11 +21,10 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
-from mjxrow.field import CROPS
+from mjxrow import crops
 from mjxrow.seg.model import SegNet
 
 CHECKPOINT_DIR = Path(__file__).resolve().parents[1] / "checkpoints"
-SHIPPED = (*CROPS, "all")
 WEIGHT_DTYPES = ("float32", "float16", "bfloat16")
 
 
@@ -57,7 +56,7 @@ def resolve(crop_or_path: str | Path) -> Path:
     """Folder of a checkpoint: a crop name (shipped; falls back to the all-crop model `all/`)
     or a path. Raises ValueError naming the crop or path when there is no checkpoint."""
     name = str(crop_or_path)
-    if name in SHIPPED and not Path(name).exists():
+    if (name in crops.CROPS or name == "all") and not Path(name).exists():
         for cand in (CHECKPOINT_DIR / name, CHECKPOINT_DIR / "all"):
             if (cand / "config.json").is_file():
                 return cand

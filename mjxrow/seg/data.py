@@ -225,13 +225,14 @@ def onthefly(crop: str, size: int, batch: int, fovy: float | None = None):
     """Jittable `fn(key) -> (rgb uint8 [batch, size, size, 3], mask bool [batch, size, size])`
     rendered by `mjxrow.seg.synth.make_batch_fn`; crop "all" mixes every crop in equal parts.
     fovy: vertical field of view [deg], default the robot camera's."""
+    from mjxrow import crops as registry
     from mjxrow import render
-    from mjxrow.field import CROPS
     from mjxrow.seg import synth as dataset
 
-    crops = CROPS if crop == "all" else (crop,)
-    if crop != "all" and crop not in CROPS:
-        raise ValueError(f"crop: unknown crop {crop!r}; expected one of {CROPS} or 'all'")
+    crops = registry.names() if crop == "all" else (crop,)
+    if crop != "all" and crop not in registry.CROPS:
+        raise ValueError(f"crop: unknown crop {crop!r}; expected one of {registry.names()} or "
+                         "'all'")
     if batch % len(crops):
         raise ValueError(f"batch: {batch} must be a multiple of {len(crops)} with crop {crop!r}")
     if fovy is None:

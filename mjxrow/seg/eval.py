@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
-from mjxrow.field import CROPS
+from mjxrow import crops
 from mjxrow.seg import checkpoint as C
 from mjxrow.seg import data as D
 from mjxrow.seg.model import SegNet, apply
@@ -125,14 +125,15 @@ def evaluate_renders(module: SegNet, variables: dict, crop: str, n: int, size: i
     fn = D.onthefly(crop, size, batch)
     batches = D.fixed_set(fn, max(1, -(-n // batch)), 20_000 + seed)
     counts = count_batches(module, variables, batches, threshold)
-    per_batch = [crop] * batch if crop != "all" else list(np.repeat(CROPS, batch // len(CROPS)))
+    names = crops.names()
+    per_batch = [crop] * batch if crop != "all" else list(np.repeat(names, batch // len(names)))
     return counts.assign(crop=per_batch * len(batches), condition="mixed")
 
 
 def main(argv: list[str] | None = None) -> pd.DataFrame:
     p = argparse.ArgumentParser(prog="python -m mjxrow.seg.eval", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--crop", default="zucchini", choices=(*CROPS, "all"),
+    p.add_argument("--crop", default="zucchini", choices=(*crops.names(), "all"),
                    help="crop to evaluate on (and shipped model to load without --ckpt)")
     p.add_argument("--data", help="dataset folder written by python -m mjxrow.seg.synth")
     p.add_argument("--ckpt", help="checkpoint folder (default: the shipped model of --crop)")

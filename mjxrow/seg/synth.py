@@ -41,12 +41,11 @@ import pandas as pd
 from PIL import Image
 from tqdm.auto import tqdm
 
+from mjxrow import crops
 from mjxrow import field as F
 from mjxrow import render as RD
 from mjxrow.field import params as FP
 
-PAPER_N = {"zucchini": 19456, "lettuce": 4864, "chard": 4864, "pear": 4864, "vineyard": 4864}
-TEST_FRAC = {"zucchini": 0.30, "lettuce": 0.25, "chard": 0.25, "pear": 0.25, "vineyard": 0.25}
 COLUMNS = ("rgb", "mask", "crop", "condition", "x", "y", "z", "yaw", "pitch", "lateral", "split")
 
 # field variation around the preset: factor ranges, then absolute ranges
@@ -61,16 +60,14 @@ _MORE_WITH_LESS = ("d_rr", "d_RR", "d_pp")  # counts grow as these shrink
 
 def dataset_shape(crop: str) -> F.FieldShape:
     """Static shape that holds every field the sampler can draw for `crop`."""
-    if crop not in F.CROPS:
-        raise ValueError(f"crop: unknown crop {crop!r}; expected one of {F.CROPS}")
-    pre = F.PRESETS[crop]
+    pre = crops.get(crop).preset
     ext = {k: pre[k] * (lo if k in _MORE_WITH_LESS else hi) for k, (lo, hi) in _FACTORS.items()}
     return F.fit_shape(F.make_params(crop, **ext), crop)
 
 
 def random_params(crop: str, key: jax.Array) -> F.FieldParams:
     """The crop's preset with geometry, terrain and obstacle numbers drawn around it."""
-    pre = F.PRESETS[crop]
+    pre = crops.get(crop).preset
     ks = jax.random.split(key, len(_FACTORS) + len(_ABSOLUTE))
     vals = {}
     for kk, (name, (lo, hi)) in zip(ks, _FACTORS.items(), strict=False):
@@ -214,9 +211,10 @@ def _batches(indices: np.ndarray, batch: int):
 def write_dataset(crop: str, n: int, out: str | Path, seed: int = 0, size: int = 224,
                   test_frac: float | None = None, batch: int = 64, workers: int = 4,
                   cfg: RD.RenderConfig = RD.DEFAULT_CONFIG, progress: bool = True) -> Path:
-    """Render and write `n` samples of `crop` into `out` (resumable); returns the index path."""
+    """Render and write `n` samples of `crop` into `out` (resumable); returns the index path.
+    test_frac: share of each condition in the test split (None: the crop's `test_frac`)."""
     out = Path(out)
-    test_frac = TEST_FRAC[crop] if test_frac is None else test_frac
+    test_frac = crops.get(crop).test_frac if test_frac is None else test_frac
     for cond in RD.CONDITIONS:
         (out / cond / "rgb").mkdir(parents=True, exist_ok=True)
         (out / cond / "mask").mkdir(parents=True, exist_ok=True)
@@ -309,6 +307,14 @@ def contact_sheet(crop: str, path: str | Path, per_condition: int = 3, size: int
     return path
 
 
+def __getattr__(name: str):
+    """`PAPER_N` (crop → samples of the paper's dataset), read from the registry when asked;
+    kept for the modules that still use it (new code reads `crops.get(name).dataset_n`)."""
+    if name == "PAPER_N":
+        return {n: c.dataset_n for n, c in crops.CROPS.items()}
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 def _check_writable(out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     with tempfile.NamedTemporaryFile(dir=out, prefix=".probe_"):
@@ -318,13 +324,16 @@ def _check_writable(out: Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjxrow.seg.synth",
                                  description=__doc__.split("\n")[0])
-    ap.add_argument("--crop", required=True, choices=F.CROPS)
-    ap.add_argument("--n", type=int, help=f"number of samples (paper: {PAPER_N})")
+    known = [crops.get(c) for c in crops.names()]
+    ap.add_argument("--crop", required=True, choices=crops.names())
+    ap.add_argument("--n", type=int, help="number of samples (paper: " + ", ".join(
+        f"{c.name} {c.dataset_n}" for c in known) + ")")
     ap.add_argument("--out", help="output folder")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--size", type=int, default=224, help="image side [px]")
     ap.add_argument("--test-frac", type=float, default=None,
-                    help="test fraction per condition (default 0.30 zucchini, 0.25 others)")
+                    help="test fraction per condition (default: the crop's, " + ", ".join(
+                        f"{c.name} {c.test_frac:g}" for c in known) + ")")
     ap.add_argument("--batch", type=int, default=64, help="images rendered per call")
     ap.add_argument("--workers", type=int, default=4, help="PNG-encoding threads")
     ap.add_argument("--contact-sheet", metavar="PNG",

@@ -334,12 +334,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     import shutil
     import sys
 
-    from mjxrow.field import CROPS
+    from mjxrow import crops
     from mjxrow.seg.model import ARCHS, create
 
     p = argparse.ArgumentParser(prog="python -m mjxrow.seg.train", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--crop", default="zucchini", choices=(*CROPS, "all"))
+    p.add_argument("--crop", default="zucchini", choices=(*crops.names(), "all"))
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--data", help="dataset folder written by python -m mjxrow.seg.synth")
     src.add_argument("--on-the-fly", action="store_true", help="render batches on the device")

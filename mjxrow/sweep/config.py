@@ -1,14 +1,18 @@
-"""Sweep configuration: YAML → validated frozen dataclasses → grid of cells.
+"""Sweep configuration: YAML → validated grid of cells, each cell a `RunConfig` of domain configs.
 
-One source of truth: every key, its type, default, unit, meaning and whether it is static (fixes
-an array shape or a Python branch, so a different value compiles again) lives in the section
-dataclasses below; the docs table (`reference_rows`) is generated from them.
+The sections are the domain configs themselves under their own field names (`schema`): `field`
+(FieldParams overrides), `sim`, `robot`, `camera` (Intrinsics), `render`, `episode`, `controller`
+(`name` + the registered controller's config), `perception`. Top-level keys: `name`, `preset`,
+`seeds`, `seed`, `batch_size`, `out`.
 
 A value is a scalar, a list of scalars, or a range `{start, stop, num}` (inclusive, evenly
 spaced). A list or a range is a grid axis; the grid is the cartesian product of all axes, in the
 order the axes appear in the YAML (command-line `--set` axes come last). Every cell runs `seeds`
 episodes; episode `i` of every cell uses the key `fold_in(key(seed), i)` (common random numbers
-across cells, so surfaces compare cells on the same random draws).
+across cells, so surfaces compare cells on the same random draws; `rollout.build.episode_keys`).
+
+The same grammar serves every command: `--set KEY=VALUE` with a dotted key and a YAML value
+(`apply_sets`).
 """
 
 from __future__ import annotations
@@ -26,144 +30,60 @@ from typing import Any
 import numpy as np
 import yaml
 
+from mjxrow import control, crops
 from mjxrow import field as F
-
-CONTROLLERS = ("segzeros", "segmin", "oracle")
-VARIANTS = ("paper", "public")
-ON_END = ("straight", "lane", "stop", "hold")
-SOURCES = ("learned", "ground_truth")
-CONDITIONS = ("sunny", "cloudy", "crepuscular", "long_shadows")
-
-
-class ConfigError(ValueError):
-    """A one-line configuration error naming the offending dotted key."""
-
-
-def _k(default, doc, unit="", check=None, static=False, choices=None, kind=float):
-    """Field spec: `check` is None, 'positive', 'nonneg', 'unit' ([0, 1]), 'prob' ([0, 1)),
-    'pitch' ((-90, 90)) or 'fov' ((0, 180));
-    `kind` the scalar type (float, int, str; None means 'float or null')."""
-    meta = dict(doc=doc, unit=unit, check=check, static=static, choices=choices, kind=kind)
-    return dataclasses.field(default=default, metadata=meta)
+from mjxrow.rollout import config as schema
+from mjxrow.rollout.config import (
+    ConfigError,
+    ControllerChoice,
+    RunConfig,
+    Section,
+    apply_sets,
+    build_run,
+)
 
 
-@dataclasses.dataclass(frozen=True)
-class EpisodeSection:
-    path_length: float = _k(20.0, "path driven inside the row; the goal is the row's end "
-                            "point this far from the start", "m", "positive", static=True)
-    max_time: float = _k(60.0, "timeout; the episode has ceil(max_time·control_hz) control "
-                         "steps", "s", "positive", static=True)
-    control_hz: float = _k(15.0, "control (and camera) rate", "Hz", "positive", static=True)
-    v_max: float = _k(0.5, "clip on the forward speed command", "m/s", "positive",
-                      static=True)
-    omega_max: float = _k(1.0, "clip on the yaw-rate command", "rad/s", "positive",
-                          static=True)
-    goal_tolerance: float = _k(0.40, "goal reached within this distance", "m", "positive",
-                               static=True)
-    start_offset_std: float = _k(0.0, "std of the start's lateral offset from the lane "
-                                 "centre", "m", "nonneg")
-    start_yaw_std: float = _k(0.0, "std of the start heading about the row direction", "deg",
-                              "nonneg")
-
-
-@dataclasses.dataclass(frozen=True)
-class ControllerSection:
-    name: str = _k("segzeros", "controller: segzeros, segmin (mask based) or oracle (pure "
-                   "pursuit on the true lane centre line)", static=True, choices=CONTROLLERS,
-                   kind=str)
-    variant: str = _k("paper", "SegZeros/SegMin law: the paper's (linear ω) or the authors' "
-                      "public code's (quadratic ω, EMA 0.5, 3-frame mask OR, 5 m depth cut)",
-                      static=True, choices=VARIANTS, kind=str)
-    omega_gain: float = _k(3.0, "ω = −omega_gain·d, d = offset of the free run's centre from "
-                           "the image centre, normalised by w/2", "rad/s", "nonneg")
-    v_gain: float = _k(1.0, "v = v_gain·(1 − d²) before the episode.v_max clip", "m/s",
-                       "nonneg")
-    min_run: int = _k(3, "free-column runs of at most this many columns are dropped", "px",
-                      "nonneg", kind=int)
-    end_fraction: float = _k(0.8, "a free run wider than this fraction of the image width "
-                             "means end of row", "-", "unit")
-    ema: float = _k(None, "EMA factor α on the commands (1 = off); default: the variant's "
-                    "(paper 1, public 0.5)", "-", "unit")
-    depth_cut: float = _k(None, "mask pixels farther than this are ignored; default: the "
-                          "variant's (paper none, public 5 m)", "m", "positive")
-    n_frames: int = _k(None, "masks OR'd over the last n frames; default: the variant's "
-                       "(paper 1, public 3)", "count", "positive", static=True, kind=int)
-    smooth: int = _k(11, "segmin: moving-average width of the column histogram (odd)", "px",
-                     "positive", static=True, kind=int)
-    on_end: str = _k("straight", "at the end of a row: drive on holding the in-row heading "
-                     "(straight), drive on following the in-row line, heading and lateral "
-                     "position from odometry (lane), stop, or hold the last command",
-                     static=True, choices=ON_END, kind=str)
-    heading_alpha: float = _k(0.005, "on_end straight: EMA factor per control step of the "
-                              "in-row heading it holds (0.005 at 15 Hz: about 13 s)", "-",
-                              "rate")
-    lookahead: float = _k(1.0, "oracle: pure-pursuit look-ahead distance", "m", "positive")
-
-
-@dataclasses.dataclass(frozen=True)
-class PerceptionSection:
-    source: str = _k("learned", "mask from the learned segmenter or the renderer's ground "
-                     "truth", static=True, choices=SOURCES, kind=str)
-    checkpoint: str = _k("shipped", "'shipped' (mjxrow/checkpoints/<crop>/) or a checkpoint "
-                         "directory (relative to the working directory or the YAML file); one "
-                         "group per checkpoint, but the weights are traced, so checkpoints of "
-                         "one architecture share one compile", static=True, kind=str)
-    threshold: float = _k(0.7, "segmenter output threshold", "-", "unit")
-    condition: str = _k("sunny", "sky / lighting condition of the renderer", static=False,
-                        choices=CONDITIONS, kind=str)
-
-
-@dataclasses.dataclass(frozen=True)
-class CameraSection:
-    mount_height: float = _k(0.40, "camera height above the ground", "m", "positive",
-                             static=True)
-    mount_forward: float = _k(0.20, "camera offset ahead of the robot centre", "m", None,
-                              static=True)
-    pitch: float = _k(-10.0, "camera pitch, negative looks down", "deg", "pitch", static=True)
-    fovy: float = _k(42.0, "vertical field of view", "deg", "fov", static=True)
-    width: int = _k(64, "image width", "px", "positive", static=True, kind=int)
-    height: int = _k(64, "image height", "px", "positive", static=True, kind=int)
-
-
-FieldSection = dataclasses.make_dataclass(
-    "FieldSection",
-    [(n, Any, dataclasses.field(default=None, metadata=dict(
-        doc="field parameter (null: the preset's value)", unit="", check=None, static=False,
-        choices=None, kind=None))) for n in F.PARAM_NAMES],
-    frozen=True)
-FieldSection.__doc__ = "Overrides of the preset's FieldParams (None keeps the preset's value)."
-
-SECTIONS = {"field": FieldSection, "episode": EpisodeSection, "controller": ControllerSection,
-            "perception": PerceptionSection, "camera": CameraSection}
+def _k(default, doc, unit="", check=None, choices=None, kind=int):
+    return dataclasses.field(default=default, metadata=dict(doc=doc, unit=unit, check=check,
+                                                            choices=choices, kind=kind))
 
 
 @dataclasses.dataclass(frozen=True)
 class SweepConfig:
+    """A validated sweep: the top-level keys, and `values`, the given section keys (dotted
+    name → scalar, or tuple of values for a grid axis). Sections read as attributes with
+    their defaults filled in: `cfg.field.d_rr`, `cfg.controller.name`, `cfg.sim.dt`."""
+
     name: str = _k("sweep", "sweep name, used in titles", kind=str)
-    preset: str = _k("zucchini", "base crop preset (FieldParams defaults, plant model, shipped "
-                     "checkpoint)", static=True, choices=F.CROPS, kind=str)
-    seeds: int = _k(8, "episodes per cell", "count", "positive", static=True, kind=int)
-    seed: int = _k(0, "base random seed", "", "nonneg", static=True, kind=int)
+    seeds: int = _k(8, "episodes per cell", "count", "positive")
+    seed: int = _k(0, "base random seed", "", "nonneg")
     batch_size: int = _k(256, "episodes per jitted call (padded to a multiple of the device "
-                         "count)", "count", "positive", static=True, kind=int)
+                         "count)", "count", "positive")
     out: str = _k("runs/sweep", "output directory (the CLI's --out wins)", kind=str)
-    field: Any = dataclasses.field(default_factory=FieldSection)
-    episode: EpisodeSection = dataclasses.field(default_factory=EpisodeSection)
-    controller: ControllerSection = dataclasses.field(default_factory=ControllerSection)
-    perception: PerceptionSection = dataclasses.field(default_factory=PerceptionSection)
-    camera: CameraSection = dataclasses.field(default_factory=CameraSection)
-    axis_order: tuple[str, ...] = dataclasses.field(default=(), metadata=dict(internal=True))
-    base_dir: str = dataclasses.field(default=".", metadata=dict(internal=True))
+    values: tuple[tuple[str, Any], ...] = ()
+    axis_order: tuple[str, ...] = ()
+    base_dir: str = "."
+
+    @property
+    def preset(self):
+        return dict(self.values).get("preset", "zucchini")
+
+    def __getattr__(self, section: str):
+        if section in schema.ORDER:
+            vals = dict(self.values)
+            keys = schema.section_keys(section)
+            return Section(section, {k.split(".", 1)[1]: vals.get(k, key.default)
+                                     for k, key in keys.items()})
+        raise AttributeError(section)
 
 
-TOP_KEYS = tuple(f.name for f in dataclasses.fields(SweepConfig)
-                 if f.name not in SECTIONS and not f.metadata.get("internal"))
-# Keys that cannot be grid axes (they name the sweep as a whole).
+TOP_KEYS = ("name", "preset", "seeds", "seed", "batch_size", "out")
 NOT_AXES = {"name", "seeds", "seed", "batch_size", "out"}
+PRESET_DOC = "base crop preset (FieldParams defaults, plant model, shipped checkpoint)"
 
 # --smoke: a quick check of the whole pipeline on tiny problems.
 SMOKE: dict[str, Any] = {"seeds": 2, "batch_size": 8, "episode.max_time": 4.0,
-                         "episode.path_length": 1.5, "camera.width": 16, "camera.height": 16,
+                         "sim.path_length": 1.5, "camera.width": 16, "camera.height": 16,
                          "field.row_length": 6.0, "field.terrain_length": 10.0}
 
 
@@ -177,18 +97,40 @@ def _unknown(path: str, key: str, known) -> ConfigError:
     return ConfigError(f"{path}: unknown key{hint}")
 
 
-def _scalar(path: str, v: Any, meta: dict) -> Any:
-    kind, choices, check = meta["kind"], meta["choices"], meta["check"]
-    if isinstance(v, bool) or v is None or isinstance(v, (dict, list)):
-        raise ConfigError(f"{path}: expected {getattr(kind, '__name__', 'a number')}, got "
-                          f"{type(v).__name__} {v!r}")
-    if kind is str:
+def _unknown_key(path: str, key: str, known) -> ConfigError:
+    """Unknown key in a section: the nearest key of the section, else the nearest key of
+    another section (a key that moved: `episode.path_length` → `sim.path_length`)."""
+    if difflib.get_close_matches(str(key), list(known), n=1):
+        return _unknown(path, key, known)
+    others = {k.split(".", 1)[1]: k for k in schema.all_keys()}
+    near = difflib.get_close_matches(str(key), list(others), n=1, cutoff=0.8)
+    if near:
+        return ConfigError(f"{path}: unknown key; did you mean {others[near[0]]}?")
+    return _unknown(path, key, known)
+
+
+_NEED = {"positive": "> 0", "nonneg": ">= 0"}
+
+
+def _scalar(path: str, v: Any, kind: str, optional: bool = False, choices=None,
+            check: str | None = None) -> Any:
+    """One scalar of `kind` ('float', 'int', 'bool', 'str'), checked."""
+    if v is None and optional:
+        return None
+    names = {"float": "a number", "int": "an integer", "bool": "true or false", "str": "a string"}
+    if v is None or isinstance(v, (dict, list)) or (isinstance(v, bool) and kind != "bool"):
+        raise ConfigError(f"{path}: expected {names[kind]}, got {type(v).__name__} {v!r}")
+    if kind == "bool":
+        if not isinstance(v, bool):
+            raise ConfigError(f"{path}: expected true or false, got {type(v).__name__} {v!r}")
+        return v
+    if kind == "str":
         if not isinstance(v, str):
             raise ConfigError(f"{path}: expected a string, got {type(v).__name__} {v!r}")
         if choices and v not in choices:
             raise ConfigError(f"{path}: {v!r} is not one of {', '.join(choices)}")
         return v
-    if kind is int:
+    if kind == "int":
         if isinstance(v, float) and v.is_integer():
             v = int(v)
         if not isinstance(v, int):
@@ -199,24 +141,19 @@ def _scalar(path: str, v: Any, meta: dict) -> Any:
         v = float(v)
         if not math.isfinite(v):
             raise ConfigError(f"{path}: must be finite, got {v}")
-    ok = {None: True, "positive": v > 0, "nonneg": v >= 0, "unit": 0 <= v <= 1,
-          "rate": 0 < v <= 1, "prob": 0 <= v < 1, "pitch": -90 < v < 90, "fov": 0 < v < 180}[check]
-    if not ok:
-        need = {"positive": "> 0", "nonneg": ">= 0", "unit": "in [0, 1]", "rate": "in (0, 1]",
-                "prob": "in [0, 1)",
-                "pitch": "in (-90, 90)", "fov": "in (0, 180)"}
-        raise ConfigError(f"{path}: must be {need[check]}, got {v}")
+    if check and not {"positive": v > 0, "nonneg": v >= 0}[check]:
+        raise ConfigError(f"{path}: must be {_NEED[check]}, got {v}")
     return v
 
 
-def _value(path: str, v: Any, meta: dict, axis_ok: bool) -> Any:
-    """A scalar, or a tuple of scalars for a grid axis."""
+def _value(path: str, v: Any, parse, axis_ok: bool) -> Any:
+    """A scalar (parse(path, v)), or a tuple of scalars for a grid axis."""
     if isinstance(v, (list, dict)) and not axis_ok:
         raise ConfigError(f"{path}: cannot be a grid axis; give one value")
     if isinstance(v, list):
         if not v:
             raise ConfigError(f"{path}: an axis needs at least one value")
-        vals = tuple(_scalar(f"{path}[{i}]", x, meta) for i, x in enumerate(v))
+        vals = tuple(parse(f"{path}[{i}]", x) for i, x in enumerate(v))
         if len(set(vals)) != len(vals):
             raise ConfigError(f"{path}: repeated values in the axis {list(vals)}")
         return vals
@@ -226,46 +163,18 @@ def _value(path: str, v: Any, meta: dict, axis_ok: bool) -> Any:
             raise _unknown(f"{path}.{sorted(extra)[0]}", sorted(extra)[0], ("start", "stop", "num"))
         if set(v) != {"start", "stop", "num"}:
             raise ConfigError(f"{path}: a range needs start, stop and num")
-        if meta["kind"] is str:
-            raise ConfigError(f"{path}: a range needs a numeric key")
-        num = _scalar(f"{path}.num", v["num"], dict(meta, kind=int, check="positive"))
-        a = _scalar(f"{path}.start", v["start"], dict(meta, kind=float, check=None))
-        b = _scalar(f"{path}.stop", v["stop"], dict(meta, kind=float, check=None))
-        vals = [round(float(x), 10) for x in np.linspace(a, b, num)]
-        if meta["kind"] is int:
-            if not all(float(x).is_integer() for x in vals):
-                raise ConfigError(f"{path}: range gives non-integer values {vals}")
-            vals = [int(x) for x in vals]
-        return _value(path, vals, meta, True)
-    return _scalar(path, v, meta)
+        num = _scalar(f"{path}.num", v["num"], "int", check="positive")
+        a = _scalar(f"{path}.start", v["start"], "float")
+        b = _scalar(f"{path}.stop", v["stop"], "float")
+        return _value(path, [round(float(x), 10) for x in np.linspace(a, b, num)], parse, True)
+    return parse(path, v)
 
 
-def _set_dotted(raw: dict, dotted: str, value: Any) -> None:
-    parts = dotted.split(".")
-    d = raw
-    for p in parts[:-1]:
-        nxt = d.setdefault(p, {})
-        if not isinstance(nxt, dict):
-            raise ConfigError(f"{dotted}: {p} is not a section")
-        d = nxt
-    d.pop(parts[-1], None)  # re-insert so that an override axis comes last in axis order
-    d[parts[-1]] = value
-
-
-def apply_sets(raw: dict, sets: list[str] | tuple[str, ...] = ()) -> dict:
-    """Apply `key.sub=value` overrides (value parsed as YAML: `[1.2, 1.8]`, `{start: ...}`)."""
-    raw = json.loads(json.dumps(raw))
-    for item in sets:
-        key, sep, text = item.partition("=")
-        if not sep or not key.strip():
-            raise ConfigError(f"--set {item!r}: expected key=value")
-        try:
-            value = yaml.safe_load(text)
-        except yaml.YAMLError as e:
-            raise ConfigError(f"--set {key}: value {text!r} is not valid YAML ({e.problem})") \
-                from None
-        _set_dotted(raw, key.strip(), value)
-    return raw
+def _controllers_named(raw: dict) -> tuple[str, ...]:
+    sec = raw.get("controller") or {}
+    name = sec.get("name", "segzeros") if isinstance(sec, dict) else "segzeros"
+    names = name if isinstance(name, list) else [name]
+    return tuple(n for n in names if n in control.CONTROLLERS) or ("segzeros",)
 
 
 def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False) -> SweepConfig:
@@ -275,31 +184,44 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
     if not isinstance(raw, dict):
         raise ConfigError(f"<top>: expected a mapping of keys, got {type(raw).__name__}")
     raw = apply_sets(raw, sets)
-    kw: dict[str, Any] = {}
+    top: dict[str, Any] = {}
+    values: dict[str, Any] = {}
     axes: list[str] = []
-    meta_of = {f.name: f.metadata for f in dataclasses.fields(SweepConfig)}
+    meta = {f.name: f.metadata for f in dataclasses.fields(SweepConfig) if f.metadata}
     for key, v in raw.items():
-        if key in SECTIONS:
+        if key in schema.ORDER:
             if not isinstance(v, dict):
                 raise ConfigError(f"{key}: expected a mapping of keys, got {type(v).__name__}")
-            cls = SECTIONS[key]
-            fields = {f.name: f.metadata for f in dataclasses.fields(cls)}
-            sub = {}
+            known = schema.section_keys(key, _controllers_named(raw) if key == "controller"
+                                        else None)
+            everything = schema.section_keys(key) if key == "controller" else known
             for k2, v2 in v.items():
                 path = f"{key}.{k2}"
-                if k2 not in fields:
-                    raise _unknown(path, k2, fields)
-                sub[k2] = _value(path, v2, fields[k2], True)
-                if isinstance(sub[k2], tuple):
-                    axes.append(path)
-            kw[key] = cls(**sub)
+                if path in schema.REJECTED:
+                    raise ConfigError(f"{path}: cannot be set here: {schema.REJECTED[path]}")
+                if path not in everything:
+                    raise _unknown_key(path, k2, [k.split(".", 1)[1] for k in known])
+                spec = everything[path]  # another controller's key: that controller's only
+
+                def parse(p, x, spec=spec):
+                    return _scalar(p, x, spec.kind, spec.optional, spec.choices)
+
+                values[path] = _value(path, v2, parse, True)
+        elif key == "preset":
+            values["preset"] = _value(key, v, lambda p, x: _scalar(p, x, "str",
+                                                                  choices=crops.names()), True)
         elif key in TOP_KEYS:
-            kw[key] = _value(key, v, meta_of[key], key not in NOT_AXES)
-            if isinstance(kw[key], tuple):
-                axes.append(key)
+            m = meta[key]
+            kind = "str" if m["kind"] is str else "int"
+            top[key] = _value(key, v, lambda p, x, m=m, kind=kind: _scalar(
+                p, x, kind, choices=m["choices"], check=m["check"]), False)
         else:
-            raise _unknown(key, key, TOP_KEYS + tuple(SECTIONS))
-    cfg = SweepConfig(**kw, axis_order=tuple(axes), base_dir=str(base_dir))
+            raise _unknown(key, key, TOP_KEYS + schema.ORDER)
+        for k, val in list(values.items()):
+            if isinstance(val, tuple) and k not in axes:
+                axes.append(k)
+    cfg = SweepConfig(**top, values=tuple(values.items()), axis_order=tuple(axes),
+                      base_dir=str(base_dir))
     if smoke:
         cfg = shrink(cfg)
     check(cfg)
@@ -324,51 +246,55 @@ def load(path: str | Path, sets=(), smoke: bool = False) -> SweepConfig:
 # Access by dotted key
 
 
-def get(cfg: SweepConfig, dotted: str) -> Any:
-    obj = cfg
-    for p in dotted.split("."):
-        obj = getattr(obj, p)
-    return obj
+def get(cfg: SweepConfig | RunConfig, dotted: str) -> Any:
+    """A key's value: `preset`, a top-level key, or `section.key`."""
+    if isinstance(cfg, RunConfig):
+        return cfg.get(dotted)
+    if dotted in NOT_AXES:
+        return getattr(cfg, dotted)
+    if dotted == "preset":
+        return cfg.preset
+    section, _, key = dotted.partition(".")
+    return getattr(getattr(cfg, section), key)
 
 
-def replace(cfg: SweepConfig, dotted: str, value: Any) -> SweepConfig:
-    head, _, rest = dotted.partition(".")
-    if not rest:
-        return dataclasses.replace(cfg, **{head: value})
-    return dataclasses.replace(cfg, **{head: dataclasses.replace(getattr(cfg, head),
-                                                                 **{rest: value})})
+def with_values(cfg: SweepConfig, **updates: Any) -> SweepConfig:
+    """`cfg` with dotted keys set (keyword names use '__' for '.')."""
+    vals = dict(cfg.values)
+    vals.update({k.replace("__", "."): v for k, v in updates.items()})
+    return dataclasses.replace(cfg, values=tuple(vals.items()))
 
 
-def leaf_keys() -> list[tuple[str, dict]]:
-    """Every dotted key with its metadata, top-level keys first."""
-    out = [(f.name, f.metadata) for f in dataclasses.fields(SweepConfig)
-           if f.name in TOP_KEYS]
-    for sec, cls in SECTIONS.items():
-        out += [(f"{sec}.{f.name}", f.metadata) for f in dataclasses.fields(cls)]
-    return out
+def leaf_keys() -> list[tuple[str, schema.Key | dict]]:
+    """Every dotted key with its spec, top-level keys first."""
+    out: list[tuple[str, Any]] = [(k, {}) for k in TOP_KEYS]
+    return out + list(schema.all_keys().items())
 
 
 def is_static(dotted: str) -> bool:
-    return bool(dict(leaf_keys())[dotted]["static"])
+    return schema.is_static(dotted)
 
 
 def shrink(cfg: SweepConfig) -> SweepConfig:
     """--smoke: the first and last value of the first two axes, the first of any other axis,
     and the SMOKE settings for every key that is not an axis."""
+    vals = dict(cfg.values)
     axes = []
     for i, key in enumerate(cfg.axis_order):
-        vals = get(cfg, key)
-        keep = (vals[0], vals[-1]) if i < 2 and len(vals) > 1 else vals[:1]
-        cfg = replace(cfg, key, keep if len(keep) > 1 else keep[0])
+        v = vals[key]
+        keep = (v[0], v[-1]) if i < 2 and len(v) > 1 else v[:1]
+        vals[key] = keep if len(keep) > 1 else keep[0]
         if len(keep) > 1:
             axes.append(key)
     free_x = not {"field.row_length", "field.terrain_length"} & set(cfg.axis_order)
+    top = {}
     for key, v in SMOKE.items():
-        if key not in cfg.axis_order and (free_x or not key.startswith("field.")):
-            cur = get(cfg, key)
-            cfg = replace(cfg, key, v if cur is None or key in ("seeds", "batch_size") or
-                          key.startswith(("camera.", "episode.")) else min(cur, v))
-    return dataclasses.replace(cfg, axis_order=tuple(axes))
+        if key in ("seeds", "batch_size"):
+            top[key] = v
+        elif key not in cfg.axis_order and (free_x or not key.startswith("field.")):
+            cur = vals.get(key)
+            vals[key] = v if cur is None or not key.startswith("field.") else min(cur, v)
+    return dataclasses.replace(cfg, **top, values=tuple(vals.items()), axis_order=tuple(axes))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -377,86 +303,94 @@ def shrink(cfg: SweepConfig) -> SweepConfig:
 
 @dataclasses.dataclass(frozen=True)
 class Cell:
-    """One grid point: `point` holds the axis values, `cfg` the config with every axis resolved
-    to this cell's scalar."""
+    """One grid point: `point` holds the axis values, `cfg` the cell's RunConfig (every
+    section a validated domain config)."""
 
     index: int
     point: tuple[tuple[str, Any], ...]
-    cfg: SweepConfig
+    cfg: RunConfig
+
+
+def _where(point) -> str:
+    return "" if not point else " (cell " + ", ".join(f"{k}={v}" for k, v in point) + ")"
+
+
+def cell_values(cfg: SweepConfig, point) -> dict[str, Any]:
+    vals = dict(cfg.values)
+    vals.update(dict(point))
+    return vals
+
+
+@functools.lru_cache(maxsize=8)
+def _expand(cfg: SweepConfig) -> tuple[Cell, ...]:
+    axes = [dict(cfg.values)[k] for k in cfg.axis_order]
+    cells = []
+    for i, combo in enumerate(itertools.product(*axes)):
+        point = tuple(zip(cfg.axis_order, combo, strict=True))
+        try:
+            run = build_run(cell_values(cfg, point), cfg.seed, cfg.base_dir)
+        except ValueError as e:
+            raise ConfigError(f"{e}{_where(point)}") from None
+        cells.append(Cell(i, point, run))
+    return tuple(cells)
 
 
 def expand(cfg: SweepConfig) -> list[Cell]:
     """Cartesian product of the axes (first axis slowest) → cells."""
-    values = [get(cfg, k) for k in cfg.axis_order]
-    cells = []
-    for i, combo in enumerate(itertools.product(*values)):
-        c = cfg
-        for k, v in zip(cfg.axis_order, combo, strict=True):
-            c = replace(c, k, v)
-        cells.append(Cell(i, tuple(zip(cfg.axis_order, combo, strict=True)), c))
-    return cells
+    return list(_expand(cfg))
 
 
-def field_values(cfg: SweepConfig) -> dict[str, float]:
+def field_values(cfg: SweepConfig | RunConfig) -> dict[str, float]:
     """Resolved FieldParams of a cell config: the preset's values with the overrides."""
-    return {**F.PRESETS[cfg.preset],
-            **{k: v for k in F.PARAM_NAMES if (v := getattr(cfg.field, k)) is not None}}
+    if isinstance(cfg, SweepConfig):
+        cfg = expand(cfg)[0].cfg
+    return cfg.field_values()
 
 
-def resolved(cfg: SweepConfig) -> dict[str, Any]:
-    """Flat dotted dict of every key of a cell config (field keys resolved from the preset)."""
-    out = {k: get(cfg, k) for k, _ in leaf_keys() if not k.startswith("field.")}
-    out.update({f"field.{k}": float(v) for k, v in field_values(cfg).items()})
+def resolved(cfg: RunConfig) -> dict[str, Any]:
+    """Flat dotted dict of every key of a cell config (field keys resolved from the preset),
+    plus the checkpoint's path and content id."""
+    out = cfg.flat()
     out["perception.checkpoint"] = checkpoint_path(cfg)
     out["perception.checkpoint_id"] = checkpoint_id(out["perception.checkpoint"])
     return out
 
 
 def to_dict(cfg: SweepConfig) -> dict[str, Any]:
-    """Nested plain dict (axes as lists) for YAML dumps; None field overrides left out."""
-    out: dict[str, Any] = {k: get(cfg, k) for k in TOP_KEYS}
-    for sec, cls in SECTIONS.items():
-        sub = {f.name: getattr(getattr(cfg, sec), f.name) for f in dataclasses.fields(cls)}
-        out[sec] = {k: list(v) if isinstance(v, tuple) else v for k, v in sub.items()
-                    if v is not None}
-    return {k: list(v) if isinstance(v, tuple) else v for k, v in out.items()}
+    """Nested plain dict (axes as lists) for YAML dumps: the keys given, no defaults."""
+    out: dict[str, Any] = {k: getattr(cfg, k) for k in TOP_KEYS if k != "preset"}
+    out["preset"] = cfg.preset if not isinstance(cfg.preset, tuple) else list(cfg.preset)
+    for k, v in cfg.values:
+        if k == "preset":
+            continue
+        sec, _, key = k.partition(".")
+        out.setdefault(sec, {})[key] = list(v) if isinstance(v, tuple) else v
+    return out
 
 
 def cell_hash(cell: Cell, extra: Any = None) -> str:
-    """Identity of a cell's results: its resolved parameters (not name, out or batch size;
-    the checkpoint by its content, not its path) and `extra` (e.g. the static field shape of
-    its group). 16 hex digits."""
-    skip = ("name", "out", "batch_size", "perception.checkpoint")
-    r = {k: v for k, v in resolved(cell.cfg).items() if k not in skip}
+    """Identity of a cell's results: its resolved parameters (the checkpoint by its content,
+    not its path) and `extra` (e.g. the static field shape of its group). 16 hex digits."""
+    r = {k: v for k, v in resolved(cell.cfg).items() if k != "perception.checkpoint"}
     text = json.dumps([r, repr(extra)], sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def static_key(cfg: SweepConfig) -> tuple:
+def static_key(cfg: RunConfig) -> tuple:
     """The static (compile-relevant) values of a cell config, except the field shape."""
-    return tuple((k, get(cfg, k)) for k, m in leaf_keys() if m["static"] and k != "seed")
+    return cfg.static_key()
 
 
 # ---------------------------------------------------------------------------------------------
 # Checks
 
 
-def checkpoint_path(cfg: SweepConfig) -> str:
+def checkpoint_path(cfg: RunConfig) -> str:
     """Checkpoint folder of a cell config ('' when no segmenter is used): the crop's shipped
     one (seg.checkpoint.resolve, which falls back to the all-crop model), or the given path
     (relative to the working directory, else to the YAML's folder). ConfigError if missing."""
-    if cfg.perception.source != "learned" or cfg.controller.name == "oracle":
-        return ""
-    from mjxrow.seg import checkpoint as ckpt
-
-    ck = cfg.perception.checkpoint
-    if ck == "shipped":
-        ck = cfg.preset
-    else:
-        p = Path(ck).expanduser()
-        ck = str(p if p.is_absolute() or p.exists() else Path(cfg.base_dir) / p)
     try:
-        return str(ckpt.resolve(ck))
+        return cfg.checkpoint_path()
     except ValueError as e:
         raise ConfigError(f"perception.checkpoint: {e}") from None
 
@@ -476,40 +410,37 @@ def checkpoint_id(path: str) -> str:
 
 
 def check(cfg: SweepConfig) -> None:
-    """Checks across keys and on every cell: impossible fields (field.validate), missing
-    checkpoints. Raises ConfigError naming the dotted key and the cell."""
+    """Checks across keys and on every cell: each section's own checks (building the cell's
+    domain configs), impossible fields (field.checks), missing checkpoints, the controller's
+    params. Raises ConfigError naming the dotted key and the cell."""
     cells = expand(cfg)
-    params = F.stack_params([F.make_params(cell.cfg.preset, **field_values(cell.cfg))
-                             for cell in cells])
-    shape_keys = ("max_rows", "max_plants_per_row", "obstacle_slots")
+    params = F.stack_params([F.make_params(c.cfg.preset, **c.cfg.field_values()) for c in cells])
     roomy = F.FieldShape(crop="zucchini", max_rows=10**9, max_plants_per_row=10**9,
                          obstacle_slots=10**9)
     for name, (ok, reason) in F.checks(params, roomy).items():
-        if name in shape_keys:
+        if name in ("max_rows", "max_plants_per_row", "obstacle_slots"):
             continue
         ok = np.asarray(ok).reshape(-1)
         if not ok.all():
             cell = cells[int(np.argmin(ok))]
-            where = "" if not cell.point else " (cell " + ", ".join(
-                f"{k}={v}" for k, v in cell.point) + ")"
             key = f"field.{name}" if name in F.PARAM_NAMES else name
-            raise ConfigError(f"{key}: {reason}{where}")
+            raise ConfigError(f"{key}: {reason}{_where(cell.point)}")
     for cell in cells:
         c = cell.cfg
-        where = "" if not cell.point else " (cell " + ", ".join(
-            f"{k}={v}" for k, v in cell.point) + ")"
+        where = _where(cell.point)
         try:
             checkpoint_path(c)
+            c.controller_params()
         except ConfigError as e:
             raise ConfigError(f"{e}{where}") from None
-        if c.controller.name == "segmin" and c.controller.smooth % 2 == 0:
-            raise ConfigError(f"controller.smooth: must be odd, got {c.controller.smooth}")
+        except ValueError as e:
+            raise ConfigError(f"{e}{where}") from None
         if c.controller.name == "segmin" and c.camera.width < c.controller.smooth + 4:
             raise ConfigError(f"camera.width: segmin needs at least controller.smooth + 4 = "
                               f"{c.controller.smooth + 4} columns, got {c.camera.width}{where}")
-        fv = field_values(c)
-        if fv["row_length"] * fv["scale"] < c.episode.path_length:
-            raise ConfigError(f"episode.path_length: {c.episode.path_length} m is longer than "
+        fv = c.field_values()
+        if fv["row_length"] * fv["scale"] < c.sim.path_length:
+            raise ConfigError(f"sim.path_length: {c.sim.path_length} m is longer than "
                               f"the rows ({fv['row_length'] * fv['scale']:.3g} m){where}")
 
 
@@ -517,33 +448,43 @@ def check(cfg: SweepConfig) -> None:
 # Reference (docs/sweep.md is generated from this)
 
 
-def _field_docs() -> dict[str, str]:
-    import inspect
-    import re
-
-    src = inspect.getsource(F.FieldParams)
-    return {m[1]: m[2].strip() for m in re.finditer(r"^\s+(\w+): jax\.Array\s+#\s*(.*)$", src,
-                                                    re.M)}
+def _fmt_default(key: schema.Key) -> str:
+    if key.name.startswith("field."):
+        return "preset's"
+    if key.default is None:
+        return "variant's" if key.name.startswith("controller.") else "`null`"
+    return f"`{key.default}`"
 
 
 def reference_markdown() -> str:
     """The config reference as a markdown table: key, type, default, static, meaning."""
-    docs = _field_docs()
     lines = ["| key | type | default | static | meaning |", "|---|---|---|---|---|"]
-    for key, m in leaf_keys():
-        if key.startswith("field."):
-            name = key.split(".", 1)[1]
-            doc = docs.get(name, "").replace("|", "\\|")
-            lines.append(f"| `{key}` | number | preset's | no | {doc} |")
+    meta = {f.name: f.metadata for f in dataclasses.fields(SweepConfig) if f.metadata}
+    for k in TOP_KEYS:
+        if k == "preset":
+            kinds = " \\| ".join(f"`{c}`" for c in crops.names())
+            lines.append(f"| `preset` | {kinds} | `zucchini` | yes | {PRESET_DOC} |")
             continue
-        d = get(SweepConfig(), key)
-        kind = m["kind"].__name__ if m["kind"] else "number"
-        kind = {"float": "number", "int": "integer", "str": "string"}[kind]
-        if m["choices"]:
-            kind = " \\| ".join(f"`{c}`" for c in m["choices"])
-        unit = f" [{m['unit']}]" if m["unit"] not in ("", "-") else ""
-        axis = " (not an axis)" if key in NOT_AXES else ""
-        default = "variant's" if d is None else f"`{d}`"
-        lines.append(f"| `{key}` | {kind} | {default} | {'yes' if m['static'] else 'no'} | "
-                     f"{m['doc']}{unit}{axis} |")
+        m = meta[k]
+        kind = {int: "integer", str: "string"}[m["kind"]]
+        unit = f" [{m['unit']}]" if m["unit"] else ""
+        d = dataclasses.fields(SweepConfig)[[f.name for f in dataclasses.fields(
+            SweepConfig)].index(k)].default
+        lines.append(f"| `{k}` | {kind} | `{d}` | — | {m['doc']}{unit} (not an axis) |")
+    for name, key in schema.all_keys().items():
+        kind = {"float": "number", "int": "integer", "str": "string", "bool": "boolean"}[key.kind]
+        if key.choices:
+            kind = " \\| ".join(f"`{c}`" for c in key.choices)
+        if key.optional and not name.startswith("field."):
+            kind += " or null"
+        who = f" ({', '.join(key.controllers)})" if key.controllers else ""
+        doc = key.doc.replace("|", "\\|")
+        lines.append(f"| `{name}` | {kind} | {_fmt_default(key)} | "
+                     f"{'yes' if key.static else 'no'} | {doc}{who} |")
     return "\n".join(lines)
+
+
+__all__ = ["Cell", "ConfigError", "ControllerChoice", "RunConfig", "Section", "SweepConfig",
+           "apply_sets", "cell_hash", "check", "checkpoint_id", "checkpoint_path", "expand",
+           "field_values", "from_dict", "get", "is_static", "leaf_keys", "load",
+           "reference_markdown", "resolved", "shrink", "static_key", "to_dict", "with_values"]

@@ -21,8 +21,6 @@ import argparse
 import contextlib
 import dataclasses
 import datetime
-import functools
-import math
 import os
 import signal
 import sys
@@ -32,21 +30,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-if "jax" not in sys.modules and "xla_force_host_platform_device_count" not in os.environ.get(
-        "XLA_FLAGS", ""):
-    # one XLA CPU device per core: on a CPU-only machine the batch is sharded over the cores
-    # (XLA runs most of one device's program on one thread); accelerators are unaffected
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") +
-                               f" --xla_force_host_platform_device_count={os.cpu_count() or 1}"
-                               ).strip()
-
-import jax  # noqa: E402
-import jax.numpy as jnp
+import jax
 import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
 from mjxrow import field as F
+from mjxrow.rollout import build as B
+from mjxrow.rollout import metrics as M
 from mjxrow.sweep import config as C
 from mjxrow.sweep import report as plots
 
@@ -76,9 +67,7 @@ class Group:
 
 def group_shape(cells: list[C.Cell]) -> F.FieldShape:
     """The static FieldShape that holds every cell's field (rounded up by field.fit_shape)."""
-    params = F.stack_params([F.make_params(c.cfg.preset, **C.field_values(c.cfg))
-                             for c in cells])
-    return F.fit_shape(params, cells[0].cfg.preset)
+    return B.fit_shape([c.cfg for c in cells])
 
 
 def plan(cfg: C.SweepConfig, done: set[str] = frozenset()) -> list[Group]:
@@ -95,13 +84,6 @@ def plan(cfg: C.SweepConfig, done: set[str] = frozenset()) -> list[Group]:
                     for e in range(cfg.seeds))
         groups.append(Group(gi, shape, tuple(cells), hashes, eps))
     return groups
-
-
-def episode_keys(seed: int, episodes) -> jax.Array:
-    """PRNG keys [N] of episodes `episodes` (indices within a cell): fold_in(key(seed), i).
-    The same for every cell (common random numbers) and independent of the batching."""
-    base = jax.random.key(seed)
-    return jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.asarray(episodes, jnp.uint32))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -162,147 +144,22 @@ def write_outputs(cfg: C.SweepConfig, groups: list[Group], out: Path, info: dict
 # Evaluation of one group: fields → rollout → metrics
 
 
-@functools.lru_cache(maxsize=8)
-def _generate_fn():
-    return jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)
-
-
-def static_configs(cfg: C.SweepConfig, shape: F.FieldShape):
-    """(RobotConfig, EpisodeConfig, Intrinsics) of a group's static values."""
-    from mjxrow import render
-    from mjxrow.physics import robot as R
-    from mjxrow.physics import sim
-    from mjxrow.rollout import episode as E
-
-    ep, cam = cfg.episode, cfg.camera
-    robot_cfg = R.RobotConfig(v_max=ep.v_max, omega_max=ep.omega_max,
-                              cam_height=cam.mount_height, cam_forward=cam.mount_forward,
-                              cam_pitch_deg=cam.pitch, cam_fovy=cam.fovy)
-    sim_cfg = sim.SimConfig(control_hz=ep.control_hz, path_length=ep.path_length)
-    ep_cfg = E.EpisodeConfig(crop=shape.crop, n_steps=math.ceil(ep.max_time * ep.control_hz - 1e-9),
-                             goal_radius=ep.goal_tolerance, sim=sim_cfg)
-    intr = render.Intrinsics(width=cam.width, height=cam.height, fovy=cam.fovy)
-    return robot_cfg, ep_cfg, intr
-
-
-def start_noise(cfg: C.SweepConfig):
-    """The start-pose noise of one cell (sim.PoseNoise of jax scalars: traced, per episode)."""
-    from mjxrow.physics import sim
-
-    ep = cfg.episode
-    return sim.pose_noise(ep.start_offset_std, math.radians(ep.start_yaw_std))
-
-
-def controller_params(cfg: C.SweepConfig):
-    """The controller's params of one cell (jax scalars: traced, batched over episodes)."""
-    from mjxrow import control as K
-
-    c, ep = cfg.controller, cfg.episode
-    if c.name == "oracle":
-        return K.oracle_params(lookahead=c.lookahead, v_max=ep.v_max, omega_max=ep.omega_max)
-    return K.seg_params("zeros" if c.name == "segzeros" else "min", c.variant,
-                        v_max=c.v_gain, omega_gain=c.omega_gain, v_limit=ep.v_max,
-                        omega_limit=ep.omega_max, min_run=c.min_run, end_frac=c.end_fraction,
-                        ema_alpha=c.ema, depth_max=c.depth_cut, n_frames=c.n_frames,
-                        smooth=c.smooth, on_end=c.on_end, heading_alpha=c.heading_alpha,
-                        image_hw=(cfg.camera.height, cfg.camera.width))
-
-
-def make_policy(cfg: C.SweepConfig, shape: F.FieldShape, intr):
-    """(policy, params_of(cell_cfg)) for a group. The oracle's params are its gains; a mask
-    controller runs in the perception loop of `closed_loop` (render → ground-truth mask, or
-    the learned segmenter of `perception.checkpoint`), its params are
-    `(PerceptionParams(condition, threshold, segmenter weights), controller gains)`: the
-    weights are loaded once and the same object for every cell (shared by a batch, see
-    `params_axes`), everything else per cell and traced."""
-    from mjxrow import control as K
-    from mjxrow.control import perception as closed_loop
-
-    name = cfg.controller.name
-    if name == "oracle":
-        return K.as_policy("oracle"), controller_params
-    policy, base = closed_loop.make(name, shape, intr, cfg.perception.source,
-                                    C.checkpoint_path(cfg))
-
-    def params_of(c: C.SweepConfig):
-        return (closed_loop.perception_params(c.perception.condition, c.perception.threshold,
-                                              base.variables), controller_params(c))
-
-    return policy, params_of
-
-
-def params_axes(cfg: C.SweepConfig):
-    """vmap axes of a group's policy params (episode.rollout's params_axes): the oracle's all
-    per episode; a mask controller's segmenter weights shared, the rest per episode."""
-    from mjxrow.control import perception as closed_loop
-
-    return 0 if cfg.controller.name == "oracle" else closed_loop.PARAMS_AXES
-
-
-def _stack(trees):
-    return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *trees)
-
-
-def _put_params(params, axes, batched, replicated, placed: dict):
-    """device_put of policy params: per-episode parts sharded on the batch, shared parts
-    replicated, each shared object once (`placed`: id → its placed copy, kept by the caller)."""
-    from mjxrow.rollout import episode as E
-
-    treedef, leaves = E.canonical_axes(axes)
-    out = []
-    for a, x in zip(leaves, treedef.flatten_up_to(params), strict=True):
-        if a is not None:
-            out.append(jax.device_put(x, batched))
-            continue
-        if id(x) not in placed:
-            placed[id(x)] = (x, jax.device_put(x, replicated))
-        out.append(placed[id(x)][1])
-    return treedef.unflatten(out)
-
-
 def evaluate_group(group: Group, cfg: C.SweepConfig,
                    on_batch_done: Callable[[pd.DataFrame], None]) -> pd.DataFrame:
     """Run `group.episodes` in batches of `cfg.batch_size` (the last one padded, so one compile
-    per group), sharded over all local devices, calling `on_batch_done(rows)` after each batch.
-    Rows: cell, episode, lane and every metric of `metrics.summarise` (reason as its name)."""
-    from mjxrow.physics import sim
-    from mjxrow.rollout import episode as E
-    from mjxrow.rollout import metrics as M
-
-    shape, gcfg = group.shape, group.cfg
-    robot_cfg, ep_cfg, intr = static_configs(gcfg, shape)
-    _, mx = sim.make_model(shape, ep_cfg.sim, robot_cfg)
-    policy, params_of = make_policy(gcfg, shape, intr)
-    axes = params_axes(gcfg)
-    devices = jax.devices()
-    mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
-    batched = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
-    replicated = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
-    mx = jax.device_put(mx, replicated)
-    n = len(devices)
-    B = -(-min(cfg.batch_size, len(group.episodes)) // n) * n
+    per group), sharded over all local devices (rollout.build), calling `on_batch_done(rows)`
+    after each batch. Rows: cell, episode, lane and every metric of `metrics.summarise`
+    (reason as its name)."""
     by_cell = {c.index: c.cfg for c in group.cells}
-    fparams = {i: F.make_params(c.preset, **C.field_values(c)) for i, c in by_cell.items()}
-    pparams = {i: params_of(c) for i, c in by_cell.items()}
-    noise = {i: start_noise(c) for i, c in by_cell.items()}
-    placed: dict[int, Any] = {}
+    built = B.build(list(by_cell.values()), group.shape)
+    size = built.padded(min(cfg.batch_size, len(group.episodes)))
     out = []
-    for start in range(0, len(group.episodes), B):
-        real = list(group.episodes[start:start + B])
-        eps = real + [real[-1]] * (B - len(real))
-        keys = jax.vmap(jax.random.split)(episode_keys(cfg.seed, [e for _, e in eps]))
-        put = functools.partial(jax.device_put, device=batched)
-        params = put(_stack([fparams[c] for c, _ in eps]))
-        fields = _generate_fn()(params, shape, put(keys[:, 0]))
-        lanes = jax.vmap(F.robot_lane)(fields)
-        pol = _put_params(E.stack_params([pparams[c] for c, _ in eps], axes), axes, batched,
-                          replicated, placed)
-        log = E.rollout(mx, fields, lanes, put(keys[:, 1]), policy, pol, ep_cfg,
-                        params_axes=axes, noise=put(_stack([noise[c] for c, _ in eps])))
-        k = len(real)
-        met = {name: np.asarray(v)[:k] for name, v in E.summarise(log, ep_cfg).items()}
+    for start in range(0, len(group.episodes), size):
+        real = list(group.episodes[start:start + size])
+        batch = built.batch([(by_cell[c], e) for c, e in real], size)
+        met = built.summarise(built.rollout(batch), len(real))
         rows = pd.DataFrame({"cell": [c for c, _ in real], "episode": [e for _, e in real],
-                             "lane": np.asarray(lanes)[:k],
+                             "lane": np.asarray(batch.lanes)[:len(real)],
                              **{k: (np.asarray(M.REASONS)[v] if k == "reason" else v)
                                 for k, v in met.items() if np.ndim(v) == 1}})
         on_batch_done(rows)
@@ -437,6 +294,16 @@ def _device() -> str:
 # CLI
 
 
+def cpu_devices() -> None:
+    """On a CPU-only machine, one XLA CPU device per core, so that the batch is sharded over
+    the cores (XLA runs most of one device's program on one thread). Call before the first
+    computation; accelerators are unaffected; an explicit XLA_FLAGS setting wins."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_force_host_platform_device_count" not in flags:
+        os.environ["XLA_FLAGS"] = (flags + " --xla_force_host_platform_device_count="
+                                   f"{os.cpu_count() or 1}").strip()
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m mjxrow.sweep", description=__doc__.split("\n")[2],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -448,6 +315,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="override a dotted key, e.g. --set field.d_rr=[1.2,1.8] (repeatable)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
+    cpu_devices()
     try:
         cfg = C.load(args.config, args.set, args.smoke)
     except C.ConfigError as e:

@@ -1,0 +1,83 @@
+"""The oracle: pure pursuit on the ground-truth lane centre line (an upper bound for the
+perception controllers; it sees the true lane, not the camera)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import ClassVar
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from mjxrow.control.base import Controller, Obs, register
+
+
+@struct.dataclass
+class OracleParams:
+    lookahead: jax.Array  # pure-pursuit lookahead distance [m]
+    v_max: jax.Array  # forward speed [m/s]
+    omega_max: jax.Array  # |ω| limit [rad/s]
+
+
+def oracle_params(lookahead: float = 1.0, v_max: float = 0.5, omega_max: float = 1.0
+                  ) -> OracleParams:
+    if lookahead <= 0:
+        raise ValueError(f"lookahead: must be positive, got {lookahead}")
+    f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    return OracleParams(lookahead=f(lookahead), v_max=f(v_max), omega_max=f(omega_max))
+
+
+def oracle_init(params: OracleParams) -> tuple:
+    return ()
+
+
+def pursuit_command(params: OracleParams, pose: jax.Array, lane_y: jax.Array) -> jax.Array:
+    """(v, ω) [2] of pure pursuit on the line y = lane_y driven towards +x.
+
+    The target is the point of the line at `lookahead` from the robot (or, when the robot is
+    farther than that from the line, a point 0.1·lookahead ahead of its projection);
+    curvature κ = 2·y_r / (x_r² + y_r²) with the target at (x_r, y_r) in the robot frame;
+    ω = v_max·κ clipped to ±omega_max, v = v_max."""
+    y, yaw = pose[1], pose[2]
+    e = y - lane_y
+    L = params.lookahead
+    ahead = jnp.sqrt(jnp.maximum(L * L - e * e, (0.1 * L) ** 2))
+    dx, dy = ahead, lane_y - y
+    c, s = jnp.cos(yaw), jnp.sin(yaw)
+    xr, yr = c * dx + s * dy, -s * dx + c * dy
+    kappa = 2.0 * yr / jnp.maximum(xr * xr + yr * yr, 1e-9)
+    omega = jnp.clip(params.v_max * kappa, -params.omega_max, params.omega_max)
+    return jnp.stack([params.v_max, omega]).astype(jnp.float32)
+
+
+def oracle_act(params: OracleParams, state: tuple, obs: Obs) -> tuple[tuple, jax.Array]:
+    return state, pursuit_command(params, obs.pose, obs.lane_y)
+
+
+
+@dataclasses.dataclass(frozen=True)
+class OracleConfig:
+    """The oracle's settings (YAML section `controller` with `name: oracle`); every number is
+    traced (sweepable without recompiling)."""
+
+    lookahead: float = 1.0  # m, pure-pursuit look-ahead distance
+    v_max: float = 0.5  # m/s, forward speed
+    omega_max: float = 1.0  # rad/s, |ω| limit
+
+    TRACED: ClassVar[tuple[str, ...]] = ("lookahead", "v_max", "omega_max")
+
+    def __post_init__(self):
+        for name in ("lookahead", "v_max", "omega_max"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"controller.{name}: must be positive, got {getattr(self, name)}")
+
+
+def make_oracle_params(cfg: OracleConfig, image_hw: tuple[int, int] | None = None
+                       ) -> OracleParams:
+    """Traced params of an OracleConfig (the image size is not used)."""
+    return oracle_params(cfg.lookahead, cfg.v_max, cfg.omega_max)
+
+
+ORACLE = register(Controller("oracle", OracleConfig, make_oracle_params, oracle_init, oracle_act,
+                             needs_mask=False))

@@ -1,0 +1,198 @@
+"""The one assembly: run configs → everything a batch of episodes needs.
+
+    built = build(runs)                 # RunConfigs sharing their static values (one compile)
+    batch = built.batch([(run, episode_index), ...])
+    log = built.rollout(batch)          # jit(vmap(scan)), sharded over the local devices
+    metrics = built.summarise(log)
+
+`build` fits the static field shape, makes the MJX model, the policy (a controller from the
+registry, behind the perception loop when it reads masks; segmenter weights loaded once) and the
+vmap axes of its params, and the shardings; `Built.batch` generates the fields of the episodes
+(one jitted `vmap(field.generate)`), draws their keys, picks their lanes, stacks their policy
+params and start-pose noise, and places everything on the devices. The sweep, the episode CLI,
+the benchmarks, the experiments and the tests all go through here.
+
+Random numbers: episode `i` of a run with seed `s` uses `fold_in(key(s), i)`, split into the
+field's key and the rollout's key (`episode_keys`, `split_keys`): the same seed and cell give
+the same episode from every command, whatever the batching.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjxrow import control
+from mjxrow import field as F
+from mjxrow.control import perception
+from mjxrow.physics import sim
+from mjxrow.rollout import episode as E
+from mjxrow.rollout.config import RunConfig
+from mjxrow.rollout.metrics import Log
+
+
+def episode_keys(seed: int, episodes: Sequence[int] | np.ndarray) -> jax.Array:
+    """PRNG keys [N] of episodes `episodes` (indices within a run): fold_in(key(seed), i).
+    The same for every cell of a sweep (common random numbers) and independent of batching."""
+    base = jax.random.key(seed)
+    return jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.asarray(episodes, jnp.uint32))
+
+
+def split_keys(keys: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Episode keys [N] → (field keys [N], rollout keys [N])."""
+    k = jax.vmap(jax.random.split)(keys)
+    return k[:, 0], k[:, 1]
+
+
+@functools.lru_cache(maxsize=1)
+def generate_fn():
+    """jit(vmap(field.generate)) over (params [B], keys [B]) for a static shape: the one."""
+    return jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)
+
+
+def stack(trees: Sequence[Any]) -> Any:
+    """Pytrees → one pytree with a leading [N] axis (leaves as jnp arrays)."""
+    return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *trees)
+
+
+def fit_shape(runs: Sequence[RunConfig]) -> F.FieldShape:
+    """The static FieldShape that holds every run's field (rounded up by field.fit_shape)."""
+    params = F.stack_params([r.field_params() for r in runs])
+    return F.fit_shape(params, runs[0].preset)
+
+
+@dataclasses.dataclass(frozen=True)
+class Batch:
+    """The arguments of one compiled call, placed on the devices: B episodes (padded), of
+    which the first `n` are real."""
+
+    fields: F.Field  # [B]
+    lanes: jax.Array  # int32 [B]
+    keys: jax.Array  # rollout keys [B]
+    noise: sim.PoseNoise  # [B]
+    params: Any  # policy params (per-episode leaves [B], shared leaves as they are)
+    n: int
+
+    def args(self, mx) -> tuple:
+        return (mx, self.fields, self.lanes, self.keys, self.noise, self.params)
+
+
+@dataclasses.dataclass
+class Built:
+    """Everything a group of runs sharing static values needs (see `build`)."""
+
+    run: RunConfig  # the group's first run: its static values are everyone's
+    shape: F.FieldShape
+    episode: E.EpisodeConfig  # static part (no start noise)
+    mj: Any  # mujoco.MjModel
+    mx: Any  # mjx.Model, replicated over the devices
+    policy: control.Policy
+    axes: Any  # vmap axes of the policy params (episode.rollout's params_axes)
+    base: Any  # what the policy params of every run share (perception params with weights)
+    mesh: jax.sharding.Mesh
+    placed: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def devices(self) -> int:
+        return int(self.mesh.devices.size)
+
+    def sharding(self, batched: bool) -> jax.sharding.NamedSharding:
+        spec = jax.sharding.PartitionSpec("batch" if batched else None)
+        return jax.sharding.NamedSharding(self.mesh, spec)
+
+    def padded(self, n: int) -> int:
+        """n rounded up to a multiple of the device count."""
+        return -(-n // self.devices) * self.devices
+
+    def policy_params(self, run: RunConfig) -> Any:
+        """One run's policy params (one episode: no batch axis)."""
+        cparams = run.controller_params()
+        if self.base is None:
+            return cparams
+        p = run.perception
+        return (perception.perception_params(p.condition, p.threshold, self.base.variables),
+                cparams)
+
+    def _put_params(self, params: Any) -> Any:
+        """Per-episode parts sharded on the batch, shared parts replicated once (cached by
+        object identity in `placed`)."""
+        treedef, leaves = E.canonical_axes(self.axes)
+        out = []
+        for a, x in zip(leaves, treedef.flatten_up_to(params), strict=True):
+            if a is not None:
+                out.append(jax.device_put(x, self.sharding(True)))
+                continue
+            if id(x) not in self.placed:
+                self.placed[id(x)] = (x, jax.device_put(x, self.sharding(False)))
+            out.append(self.placed[id(x)][1])
+        return treedef.unflatten(out)
+
+    def batch(self, items: Sequence[tuple[RunConfig, int]], size: int | None = None) -> Batch:
+        """The batch of episodes `items` ((run, episode index) pairs), padded with copies of
+        the last one to `size` (default: the item count), rounded up to the device count."""
+        items = list(items)
+        if not items:
+            raise ValueError("batch: no episodes")
+        B = self.padded(max(size or len(items), len(items)))
+        full = items + [items[-1]] * (B - len(items))
+        put = functools.partial(jax.device_put, device=self.sharding(True))
+        by_run: dict[RunConfig, list[int]] = {}
+        for i, (run, _) in enumerate(full):
+            by_run.setdefault(run, []).append(i)
+        runs = list(by_run)
+        cache = {r: (r.field_params(), self.policy_params(r), r.episode.noise) for r in runs}
+        keys = jnp.concatenate([episode_keys(r.seed, [e]) for r, e in full]) \
+            if len(runs) > 1 else episode_keys(runs[0].seed, [e for _, e in full])
+        fkeys, rkeys = split_keys(keys)
+        fparams = put(stack([cache[r][0] for r, _ in full]))
+        fields = generate_fn()(fparams, self.shape, put(fkeys))
+        E.check_fields(fields)
+        lanes = jax.vmap(F.robot_lane)(fields)
+        pol = self._put_params(E.stack_params([cache[r][1] for r, _ in full], self.axes))
+        noise = put(E.batch_noise(stack([cache[r][2] for r, _ in full]), B))
+        return Batch(fields, lanes, put(rkeys), noise, pol, len(items))
+
+    def compiled(self):
+        """The jitted rollout of this group: `(mx, fields, lanes, keys, noise, params) -> Log`."""
+        return E.compiled(self.policy, self.episode, self.axes)
+
+    def rollout(self, batch: Batch) -> Log:
+        return self.compiled()(*batch.args(self.mx))
+
+    def summarise(self, log: Log, n: int | None = None) -> dict[str, np.ndarray]:
+        """Per-episode metrics on the host (the first `n` episodes)."""
+        out = jax.tree.map(np.asarray, E.summarise(log, self.episode))
+        return {k: v[:n] if np.ndim(v) else v for k, v in out.items()}
+
+
+def build(runs: RunConfig | Sequence[RunConfig], shape: F.FieldShape | None = None,
+          devices: Sequence[Any] | None = None) -> Built:
+    """Assemble a group of runs that share every static value (their `static_key`): the
+    field shape (fitted to all of them unless given), the MJX model, the policy and the axes
+    of its params, the device mesh (all local devices unless given)."""
+    runs = [runs] if isinstance(runs, RunConfig) else list(runs)
+    first = runs[0]
+    keys = {r.static_key() for r in runs}
+    if len(keys) > 1:
+        raise ValueError("build: the runs differ in static values; group them first "
+                         "(RunConfig.static_key)")
+    shape = shape or fit_shape(runs)
+    ep = first.episode.static()
+    mj, mx = sim.make_model(shape, ep.sim, first.robot_config())
+    c = control.get(first.controller.name)
+    base = None
+    if c.needs_mask:
+        policy, base = perception.make(c.name, shape, first.camera, first.perception.source,
+                                       first.checkpoint_path(), render_cfg=first.render)
+        axes = perception.PARAMS_AXES
+    else:
+        policy, axes = control.as_policy(c), 0
+    mesh = jax.sharding.Mesh(np.array(list(devices or jax.devices())), ("batch",))
+    mx = jax.device_put(mx, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))
+    return Built(first, shape, ep, mj, mx, policy, axes, base, mesh)

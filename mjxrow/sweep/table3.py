@@ -1,0 +1,390 @@
+"""The paper's Table 3 (row navigation in each crop at its default geometry) beside ours, for
+three controllers: oracle pure pursuit on the true lane centre line, SegZeros on the renderer's
+ground-truth plant mask, and SegZeros on the learned segmenter's mask (shipped checkpoint).
+
+    python experiments/table3_navigation.py [--episodes 100] [--presets zucchini ...]
+        [--controllers oracle segzeros_gt segzeros_learned] [--out runs/table3]
+        [--image 64] [--batch-size 256] [--smoke]
+
+Scenario (the paper's Table 3): every preset at its default geometry (Table 1 values; typical
+ones for the vineyard), a 20 m path inside the row with the goal at the row's end, control at
+15 Hz, v ≤ 0.5 m/s, ω ≤ 1.0 rad/s. The episode, controller and camera settings are read from
+`sweeps/presets.yaml` (`--base`), so this table and that sweep describe one scenario; the script
+replaces its preset axis by one preset at a time and sets the controller and perception source.
+
+Each (controller, preset) pair is one sweep (`mjxrow.sweep.run`) into
+`OUT/<controller>/<preset>/`: per-episode `results.csv`, `summary.csv`, `report.md`, and one
+file per finished cell, so an interrupted run resumes where it stopped and a finished one is
+only re-assembled. The markdown table goes to `OUT/table3.md` and, except with `--smoke`, to
+`docs/table3.md` (`--doc`), and is printed.
+
+Metrics (rollout.metrics, as the authors' public code computes them): CHA [rad], the mean over
+steps of the goal's signed bearing atan2(y_g, x_g) in the robot frame; MAE [m] and MSE [m²],
+mean |dev| and mean dev² of the lateral offset from the lane centre line; ω std [rad/s], the
+population std of the ω commands; success, the episode ended within 0.40 m of the goal. Each is
+given as the mean over episodes with its 95 % interval (Student t; Wilson for the success rate).
+
+SegZeros on the learned segmenter needs a checkpoint in `mjxrow/checkpoints/<crop>/` (or the
+all-crop `all/`); where none is shipped the script says so and leaves that block out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import yaml
+from tqdm.auto import tqdm
+
+from mjxrow import crops
+from mjxrow.rollout import metrics as M
+from mjxrow.sweep import config as C
+
+ROOT = Path(__file__).resolve().parents[2]  # the checkout: sweeps/, docs/
+
+BASE_YAML = ROOT / "sweeps" / "presets.yaml"
+
+# name → (label, config overrides)
+CONTROLLERS: dict[str, tuple[str, dict[str, Any]]] = {
+    "oracle": ("oracle pure pursuit", {"controller": {"name": "oracle"}}),
+    "segzeros_gt": ("SegZeros, ground-truth mask", {
+        "controller": {"name": "segzeros", "variant": "paper"},
+        "perception": {"source": "ground_truth"}}),
+    "segzeros_learned": ("SegZeros, learned segmenter", {
+        "controller": {"name": "segzeros", "variant": "paper"},
+        "perception": {"source": "learned", "checkpoint": "shipped"}}),
+}
+
+# (column, title, unit, format); every cell shows mean [95 % CI].
+COLUMNS: tuple[tuple[str, str, str, str], ...] = (
+    ("success", "success", "", "{:.2f}"),
+    ("cha", "CHA", "rad", "{:.4f}"),
+    ("mae", "MAE", "m", "{:.4f}"),
+    ("mse", "MSE", "m²", "{:.5f}"),
+    ("omega_std", "ω std", "rad/s", "{:.3f}"),
+    ("time", "time to goal", "s", "{:.1f}"),
+)
+PAPER_METRICS = ("cha", "mae", "mse", "omega_std")
+PAPER_CONTROLLERS = ("SegZeros",)  # the paper's Table 3 has one controller's row per crop
+# the paper's pear values, which cannot go together (NOTES)
+PEAR_MSE, PEAR_MAE = (crops.get("pear").paper["table3"][m] for m in ("mse", "mae"))
+
+
+# ---------------------------------------------------------------------------------------------
+# Configs
+
+
+def _merge(a: dict, b: dict) -> dict:
+    """Nested dict `a` updated by `b` (sections merged key by key)."""
+    out = dict(a)
+    for k, v in b.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def load_base(path: str | Path = BASE_YAML) -> dict:
+    """The scenario's YAML (yaml.safe_load) as a plain dict."""
+    path = Path(path)
+    try:
+        raw = yaml.safe_load(path.read_text()) or {}
+    except OSError as e:
+        raise C.ConfigError(f"{path}: cannot read ({e.strerror})") from None
+    if not isinstance(raw, dict):
+        raise C.ConfigError(f"{path}: expected a mapping of keys")
+    return raw
+
+
+def build_config(controller: str, preset: str, episodes: int, image: int | None = None,
+                 base: dict | None = None, batch_size: int = 256, seed: int = 0,
+                 smoke: bool = False) -> C.SweepConfig:
+    """The one-cell sweep of `controller` (a CONTROLLERS key) on `preset`: the base scenario
+    with `episodes` seeds, an `image` × `image` camera (None: the base's), the controller and
+    perception overrides. With `smoke`, config.SMOKE shrinks it (2 episodes, 16 × 16 images,
+    1.5 m paths). Raises ConfigError (e.g. a missing checkpoint) naming the dotted key."""
+    if controller not in CONTROLLERS:
+        raise ValueError(f"controller: unknown {controller!r}; expected one of "
+                         f"{', '.join(CONTROLLERS)}")
+    raw = _merge(base if base is not None else load_base(), CONTROLLERS[controller][1])
+    raw.update(name=f"table3 {controller} {preset}", preset=preset, seeds=int(episodes),
+               seed=int(seed), batch_size=int(max(1, min(batch_size, episodes))),
+               out=f"runs/table3/{controller}/{preset}")
+    if image is not None:
+        raw = _merge(raw, {"camera": {"width": int(image), "height": int(image)}})
+    cfg = C.from_dict(raw, BASE_YAML.parent, smoke=smoke)
+    if cfg.axis_order:
+        raise C.ConfigError(f"{', '.join(cfg.axis_order)}: the base scenario must not have "
+                            "grid axes besides preset")
+    return cfg
+
+
+def checkpoint_missing(preset: str) -> str | None:
+    """None if a segmenter checkpoint serves `preset`, else why not (one line)."""
+    from mjxrow.seg import checkpoint as ckpt
+
+    try:
+        ckpt.resolve(preset)
+    except ValueError:
+        d = Path(ckpt.CHECKPOINT_DIR)
+        d = d.relative_to(ROOT) if d.is_relative_to(ROOT) else d
+        return (f"none in {d / preset}/ or {d / 'all'}/; train one with `python -m "
+                f"mjxrow.seg.train --crop {preset} --export-to {d / preset}`")
+    return None
+
+
+# ---------------------------------------------------------------------------------------------
+# Statistics and the markdown table
+
+
+def block_stats(results: pd.DataFrame) -> dict[str, Any]:
+    """Per metric of COLUMNS its metrics.aggregate entry (mean, lo, hi, n), plus `episodes`
+    and `ends` (termination reason → count) of one block's per-episode results."""
+    table = {m: results[m].to_numpy() for m, *_ in COLUMNS if m in results}
+    stats: dict[str, Any] = dict(M.aggregate(table))
+    stats["episodes"] = len(results)
+    stats["ends"] = {str(k): int(v) for k, v in results["reason"].value_counts().items()}
+    return stats
+
+
+def _cell(agg: dict | None, fmt: str) -> str:
+    if agg is None or agg["n"] == 0 or not math.isfinite(agg["mean"]):
+        return "–"
+    s = fmt.format(agg["mean"])
+    if math.isfinite(agg["lo"]):
+        s += f" [{fmt.format(agg['lo'])}, {fmt.format(agg['hi'])}]"
+    return s
+
+
+def _ends(ends: dict[str, int]) -> str:
+    order = [r for r in M.REASONS[1:] if ends.get(r)]
+    return ", ".join(f"{r} {ends[r]}" for r in order) or "–"
+
+
+def _paper_value(v: float | None) -> str:
+    return "n/a" if v is None else f"{v:g}"
+
+
+def table_markdown(stats: dict[tuple[str, str], dict], presets: list[str],
+                   controllers: list[str]) -> str:
+    """One pipe table: per preset the paper's row (SegZeros) then ours (one per controller
+    with results); cells `mean [lo, hi]`. `stats`: (controller, preset) → block_stats."""
+    head = ["crop", "controller", "episodes"] + [
+        f"{t} [{u}]" if u else t for _, t, u, _ in COLUMNS] + ["how episodes ended"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for preset in presets:
+        for pc in PAPER_CONTROLLERS:
+            # Martini et al., Table 3 as printed (mjxrow.crops): one SegZeros row per crop
+            vals = crops.get(preset).paper.get("table3") if pc == "SegZeros" else None
+            if vals is None:
+                cells = ["not in the paper"] + ["–"] * (len(COLUMNS) - 1)
+            else:
+                cells = [_paper_value(vals.get(m)) if m in PAPER_METRICS else "n/a"
+                         for m, *_ in COLUMNS]
+            lines.append(f"| {preset} | paper: {pc} | – | " + " | ".join(cells) + " | – |")
+        for c in controllers:
+            s = stats.get((c, preset))
+            if s is None:
+                continue
+            cells = [_cell(s.get(m), fmt) for m, _, _, fmt in COLUMNS]
+            lines.append(f"| {preset} | ours: {CONTROLLERS[c][0]} | {s['episodes']} | " +
+                         " | ".join(cells) + f" | {_ends(s['ends'])} |")
+    return "\n".join(lines)
+
+
+def failures_markdown(stats: dict[tuple[str, str], dict], threshold: float = 0.95) -> str:
+    """The blocks whose success rate is below `threshold`, with how their episodes ended."""
+    bad = [(k, s) for k, s in stats.items() if s["success"]["mean"] < threshold]
+    if not bad:
+        return f"Every block succeeds in at least {threshold:.0%} of its episodes."
+    lines = [f"Blocks below {threshold:.0%} success:", ""]
+    for (c, p), s in bad:
+        lines.append(f"- {p}, {CONTROLLERS[c][0]}: success {s['success']['mean']:.2f} "
+                     f"({_ends(s['ends'])})")
+    return "\n".join(lines)
+
+
+NOTES = f"""\
+Units: CHA in radians (the mean over control steps of the goal's signed bearing atan2(y_g, x_g)
+in the robot frame, positive: goal to the left), MAE in metres, MSE in square metres (mean of
+the squared lateral offset from the lane centre line), ω std in rad/s (population std of the
+ω commands), time to goal in seconds (successful episodes only). Every value is the mean over
+episodes with its 95 % interval: Student t for the metrics, Wilson score for the success rate.
+
+The paper's rows are Martini et al.'s Table 3 as printed (`mjxrow.crops`): one row per crop,
+the vineyard's included, for SegZeros on their learned segmenter in Gazebo; CHA in rad as its
+header says (the authors' metric code computes the bearing with atan2). It gives no success
+rate or time to goal ("n/a").
+
+The paper's pear row (MSE {PEAR_MSE} with MAE {PEAR_MAE}) cannot be one set of lateral
+errors in metres: for any offsets, mean dev² ≤ max|dev| · mean|dev|, so an MSE of {PEAR_MSE} m²
+with an MAE of {PEAR_MAE} m would need an offset of at least {PEAR_MSE / PEAR_MAE:.0f} m inside
+a 5 m wide lane. One of the two is in other units (an MSE
+in cm² would be {PEAR_MSE * 1e-4:.2e} m², consistent with the MAE since MSE ≥ MAE² =
+{PEAR_MAE ** 2:.2e} m²) or misprinted. Ours is MSE = mean dev² in m².
+"""
+
+
+def document(stats: dict[tuple[str, str], dict], presets: list[str], controllers: list[str],
+             info: dict[str, Any], left_out: list[str], timings: list[str]) -> str:
+    """The whole markdown page: run facts, table, failures, notes, blocks left out, timings."""
+    parts = ["# Table 3: navigation at each preset's default geometry", "",
+             "The paper's Table 3 scenario (20 m path inside the row, goal at the row's end, "
+             "15 Hz control, v ≤ 0.5 m/s, ω ≤ 1.0 rad/s) for every preset at its default "
+             "geometry, beside the paper's values. Generated by "
+             "`experiments/table3_navigation.py`.", ""]
+    parts += [f"- **{k}**: {v}" for k, v in info.items()]
+    parts += ["", table_markdown(stats, presets, controllers), "",
+              "## Where it fails", "", failures_markdown(stats), "", "## Notes", "", NOTES]
+    if left_out:
+        parts += ["## Blocks left out", ""] + [f"- {x}" for x in left_out] + [""]
+    if timings:
+        parts += ["## Run time per block (wall clock, compilation included)", ""]
+        parts += [f"- {t}" for t in timings] + [""]
+    return "\n".join(parts)
+
+
+# ---------------------------------------------------------------------------------------------
+# Driver
+
+
+def block_timing(folder: Path, cell_hash: str, ran: int, wall: float, device: str) -> str:
+    """One line on a block's run time. A run that ran episodes records it in
+    `folder/timing_<cell_hash>.json`; a resumed run (nothing left to run) reports that record,
+    so the page keeps the time of the run that produced its numbers."""
+    path = folder / f"timing_{cell_hash}.json"
+    if ran:
+        rec = {"episodes": ran, "wall_s": round(wall, 1), "device": device,
+               "date": datetime.datetime.now().isoformat(timespec="seconds")}
+        path.write_text(json.dumps(rec) + "\n")
+        return f"{ran} episodes in {wall:.1f} s on {device}"
+    if path.is_file():
+        rec = json.loads(path.read_text())
+        return (f"{rec['episodes']} episodes in {rec['wall_s']:.1f} s on {rec['device']} "
+                f"({rec['date']}; reused now)")
+    return "finished cells reused (no timing recorded)"
+
+
+def run_table(presets: list[str], controllers: list[str], episodes: int, out: str | Path,
+              image: int | None = None, batch_size: int = 256, seed: int = 0,
+              smoke: bool = False, base: dict | None = None, evaluate=None,
+              progress: bool = True, command: str = "") -> tuple[str, dict]:
+    """Run (or resume) every (controller, preset) block into OUT/<controller>/<preset>/ and
+    assemble the markdown page. `evaluate`: sweep.run's evaluator (None: the real one; tests
+    inject a fake). Returns (markdown, stats by (controller, preset))."""
+    import jax
+
+    from mjxrow.sweep import run as S
+
+    out = Path(out)
+    base = base if base is not None else load_base()
+    devs = jax.devices()
+    device = f"{len(devs)} × {devs[0].device_kind}"
+    stats: dict[tuple[str, str], dict] = {}
+    left_out, timings = [], []
+    blocks = [(c, p) for c in controllers for p in presets]
+    bar = tqdm(blocks, desc="table3 blocks", unit="block", disable=not progress, position=0)
+    cfg = None
+    for c, p in bar:
+        bar.set_postfix_str(f"{c} / {p}")
+        if c == "segzeros_learned" and (why := checkpoint_missing(p)) is not None:
+            msg = f"{CONTROLLERS[c][0]} on {p}: no segmenter checkpoint: {why}"
+            left_out.append(msg)
+            tqdm.write(f"skipped: {msg}", file=sys.stderr)
+            continue
+        cfg = build_config(c, p, episodes, image, base, batch_size, seed, smoke)
+        t0 = time.perf_counter()
+        res = S.run(cfg, out / c / p, evaluate=evaluate, progress=progress, command=command)
+        wall = time.perf_counter() - t0
+        results = pd.read_csv(res["files"]["results"])
+        stats[(c, p)] = block_stats(results)
+        timings.append(f"{p}, {CONTROLLERS[c][0]}: " + block_timing(
+            out / c / p, res["groups"][0].hashes[0], res["ran"], wall, device))
+    bar.close()
+    for c in CONTROLLERS:
+        if c not in controllers:
+            missing = [p for p in presets if c == "segzeros_learned" and checkpoint_missing(p)]
+            left_out.append(f"{CONTROLLERS[c][0]}: not run (not in --controllers)" + (
+                f"; no segmenter checkpoint is shipped for {', '.join(missing)}" if missing
+                else ""))
+    ref = cfg or build_config(controllers[0], presets[0], episodes, image, base, batch_size,
+                              seed, smoke)
+    info = {"date": datetime.datetime.now().isoformat(timespec="seconds"),
+            "command": f"`{command}`" if command else "(API call)",
+            "device": device,
+            "episodes per block": ref.seeds,
+            "episode": f"{ref.sim.path_length:g} m path, timeout {ref.episode.max_time:g} s, "
+                       f"start offset std {ref.episode.start_offset_std:g} m, start heading std "
+                       f"{ref.episode.start_yaw_std:g}°",
+            "camera": f"{ref.camera.width} × {ref.camera.height} px, fovy "
+                      f"{ref.camera.fovy:g}°, pitch {ref.robot.cam_pitch_deg:g}°, height "
+                      f"{ref.robot.cam_height:g} m",
+            "SegZeros": f"{ref.controller.variant} law, ω gain {ref.controller.omega_gain:g}, "
+                        f"v max {ref.controller.v_max:g}; sky/lighting "
+                        f"{ref.perception.condition}",
+            "results": f"`{out}/<controller>/<preset>/results.csv`"}
+    if smoke:
+        info["smoke"] = "tiny check run (--smoke): not the paper's scenario"
+    elif ref.seeds < 100:
+        info["note"] = (f"{ref.seeds} episodes per block, fewer than the 100 of the full table "
+                        "(`python experiments/table3_navigation.py`): wide intervals")
+    md = document(stats, presets, controllers, info, left_out, timings)
+    return md, stats
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter,
+                                epilog=__doc__.split("\n\n", 1)[1])
+    p.add_argument("--episodes", type=int, default=100, help="episodes per block (default 100)")
+    p.add_argument("--presets", nargs="+", default=list(crops.names()), choices=crops.names())
+    p.add_argument("--controllers", nargs="+", default=list(CONTROLLERS), choices=CONTROLLERS)
+    p.add_argument("--out", default="runs/table3", help="run folder (with --smoke: OUT_smoke)")
+    p.add_argument("--image", type=int, default=None,
+                   help="camera side in pixels (default: the base YAML's, 64)")
+    p.add_argument("--batch-size", type=int, default=256, help="episodes per jitted call")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--base", default=str(BASE_YAML), help="scenario YAML (default %(default)s)")
+    p.add_argument("--doc", default=None, help="also write the page here (default: "
+                   "docs/table3.md; with --smoke: none)")
+    p.add_argument("--smoke", action="store_true",
+                   help="tiny check: 2 episodes, 16 × 16 images, 1.5 m paths in 6 m rows")
+    p.add_argument("--no-progress", action="store_true")
+    args = p.parse_args(argv)
+    if args.episodes < 1 or (args.image is not None and args.image < 8):
+        p.error("--episodes must be ≥ 1 and --image ≥ 8")
+    out = Path(args.out + "_smoke" if args.smoke else args.out)
+    command = "python experiments/table3_navigation.py " + " ".join(
+        argv if argv is not None else sys.argv[1:])
+    try:
+        base = load_base(args.base)
+        md, stats = run_table(args.presets, args.controllers, args.episodes, out, args.image,
+                              args.batch_size, args.seed, args.smoke, base,
+                              progress=not args.no_progress, command=command.strip())
+    except C.ConfigError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"interrupted: finished cells are kept in {out}; run the same command again to "
+              "resume", file=sys.stderr)
+        return 130
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "table3.md").write_text(md)
+    (out / "table3.json").write_text(json.dumps(
+        {f"{c}/{p}": s for (c, p), s in stats.items()}, indent=1, default=float) + "\n")
+    doc = args.doc or (None if args.smoke else str(ROOT / "docs" / "table3.md"))
+    if doc:
+        Path(doc).parent.mkdir(parents=True, exist_ok=True)
+        Path(doc).write_text(md)
+    print(md)
+    print(f"written: {out / 'table3.md'}" + (f", {doc}" if doc else ""), file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
