@@ -67,6 +67,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -97,6 +98,8 @@ _MAX_OBST = (0.1, 1.0)  # m, (radius, half length) bound compiled into the obsta
 class SimConfig:
     """Static simulation settings (hashable: one compile per distinct value)."""
 
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"lane": LANE_MODES}
+
     dt: float = 0.01  # s, largest physics step; shortened to fit the control period exactly
     control_hz: float = 15.0  # Hz, commands per second
     iterations: int = 4  # Newton solver iterations
@@ -112,7 +115,9 @@ class SimConfig:
     chassis_contacts: bool = False  # chassis box collides with terrain and obstacles
     max_speed: float = 20.0  # m/s or rad/s: any faster velocity counts as exploded (is_bad)
     max_tilt_deg: float = 75.0  # degrees: chassis tilt beyond this counts as flipped
-    lane: str = "auto"  # lane kind driven: auto (in-group if it fits), in_group, between_groups
+    lane: str = "auto"  # lane kind driven: auto (the in-group lane when the robot fits,
+    # else the lane between groups), in_group (between two rows of a group, d_rr), or
+    # between_groups (d_RR); a kind no field can give is rejected naming field.d_rr / d_RR
 
     def __post_init__(self):
         for name in ("dt", "control_hz", "path_length", "patch_width", "patch_cell", "patch_z",

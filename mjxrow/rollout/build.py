@@ -31,6 +31,7 @@ import numpy as np
 from mjxrow import control
 from mjxrow import field as F
 from mjxrow.control import perception
+from mjxrow.field.generate import PATH_LENGTH
 from mjxrow.physics import sim
 from mjxrow.rollout import episode as E
 from mjxrow.rollout.config import RunConfig
@@ -51,9 +52,16 @@ def split_keys(keys: jax.Array) -> tuple[jax.Array, jax.Array]:
 
 
 @functools.lru_cache(maxsize=1)
+@functools.cache
 def generate_fn():
-    """jit(vmap(field.generate)) over (params [B], keys [B]) for a static shape: the one."""
-    return jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)
+    """jit(vmap(field.generate)) over (params [B], keys [B]) for a static shape: the one.
+    Optional 4th argument: the episodes' `sim.path_length` (m; where the obstacle-free start
+    zone lies, field.generate), default field.generate's."""
+
+    def gen(params, shape, keys, path_length=PATH_LENGTH):
+        return jax.vmap(lambda p, k: F.generate(p, shape, k, path_length))(params, keys)
+
+    return jax.jit(gen, static_argnums=1)
 
 
 def stack(trees: Sequence[Any]) -> Any:
@@ -151,9 +159,10 @@ class Built:
             if len(runs) > 1 else episode_keys(runs[0].seed, [e for _, e in full])
         fkeys, rkeys = split_keys(keys)
         fparams = put(stack([cache[r][0] for r, _ in full]))
-        fields = generate_fn()(fparams, self.shape, put(fkeys))
+        sim_cfg = self.episode.sim
+        fields = generate_fn()(fparams, self.shape, put(fkeys), sim_cfg.path_length)
         E.check_fields(fields)
-        lanes = jax.vmap(F.robot_lane)(fields)
+        lanes = jax.vmap(lambda f: sim.lane_of(f, sim_cfg))(fields)
         pol = self._put_params(E.stack_params([cache[r][1] for r, _ in full], self.axes))
         noise = put(E.batch_noise(stack([cache[r][2] for r, _ in full]), B))
         return Batch(fields, lanes, put(rkeys), noise, pol, len(items))
