@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mjxrow import field as F
+from mjxrow.field import params as FP
 
 if TYPE_CHECKING:
     from mjxrow.physics.sim import SimConfig
@@ -102,6 +103,13 @@ def check_lane(params: F.FieldParams, sim_cfg: SimConfig,
                              f"rows_per_group=1{where}; use sim.lane='between_groups' or 'auto'")
         free, key = free_in, "d_rr"
     else:
+        lay = FP._layout(FP._scaled(params))
+        one = (np.atleast_1d(np.asarray(lay["n_groups"])) < 2) & (p["rows_per_group"] > 1)
+        if one.any():
+            i, where = _where(one)
+            raise ValueError(f"sim.lane: between_groups needs two row groups, the field holds one "
+                             f"at field.terrain_width={p['terrain_width'][i]:g}{where}; widen "
+                             f"field.terrain_width or choose another sim.lane")
         free, key = free_between, "d_RR"
     bad = free < need
     if bad.any():

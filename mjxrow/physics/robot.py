@@ -154,12 +154,18 @@ def wheel_speeds(cmd: jax.Array, cfg: RobotConfig | dict) -> jax.Array:
     Returns float [..., 4] wheel speeds [rad/s] in WHEELS order (fl, fr, rl, rr); positive rolls
     the robot forward."""
     get = cfg.__getitem__ if isinstance(cfg, dict) else lambda k: getattr(cfg, k)
-    cmd = jnp.asarray(cmd)
-    v = jnp.clip(cmd[..., 0], -get("v_max"), get("v_max"))
-    w = jnp.clip(cmd[..., 1], -get("omega_max"), get("omega_max"))
+    xp = _xp(cmd)
+    cmd = xp.asarray(cmd)
+    v = xp.clip(cmd[..., 0], -get("v_max"), get("v_max"))
+    w = xp.clip(cmd[..., 1], -get("omega_max"), get("omega_max"))
     half = 0.5 * get("track") * get("turn_factor")
-    side = jnp.asarray(WHEEL_SIDE, cmd.dtype)
+    side = xp.asarray(WHEEL_SIDE, cmd.dtype)
     return (v[..., None] - side * half * w[..., None]) / get("wheel_radius")
+
+
+def _xp(*xs):
+    """numpy for host arrays (a MuJoCo C loop, tests), jax.numpy for jax arrays and tracers."""
+    return jnp if any(isinstance(x, jax.Array) for x in xs) else np
 
 
 def ramp(target: jax.Array, cmd: jax.Array, cfg: RobotConfig | dict, dt: float) -> jax.Array:
@@ -168,14 +174,15 @@ def ramp(target: jax.Array, cmd: jax.Array, cfg: RobotConfig | dict, dt: float) 
     target: float [..., 2] (v [m/s], ω [rad/s]) followed so far; cmd: float [..., 2] the
     controller's command (clipped to ±v_max, ±omega_max here); dt: s, the physics step.
     Returns target moved toward cmd by at most max_accel·dt and max_alpha·dt (a limit of 0
-    jumps at once)."""
+    jumps at once). numpy in, numpy out (`servo` too): the same code steps MuJoCo C."""
     get = cfg.__getitem__ if isinstance(cfg, dict) else lambda k: getattr(cfg, k)
-    cmd = jnp.asarray(cmd)
-    lim = jnp.asarray([get("v_max"), get("omega_max")], cmd.dtype)
-    cmd = jnp.clip(cmd, -lim, lim)
-    step = jnp.asarray([get("max_accel") or jnp.inf, get("max_alpha") or jnp.inf],
-                       cmd.dtype) * dt
-    return target + jnp.clip(cmd - target, -step, step)
+    xp = _xp(target, cmd)
+    cmd = xp.asarray(cmd)
+    lim = xp.asarray([get("v_max"), get("omega_max")], cmd.dtype)
+    cmd = xp.clip(cmd, -lim, lim)
+    step = xp.asarray([get("max_accel") or xp.inf, get("max_alpha") or xp.inf],
+                      cmd.dtype) * dt
+    return target + xp.clip(cmd - target, -step, step)
 
 
 def _f(*xs: float) -> str:
@@ -193,10 +200,11 @@ def servo(target: jax.Array, speed: jax.Array, cfg: RobotConfig | dict
     (module doc)."""
     get = cfg.__getitem__ if isinstance(cfg, dict) else lambda k: getattr(cfg, k)
     kv, lim = get("kv"), get("wheel_torque")
-    tau = kv * (jnp.asarray(target) - jnp.asarray(speed))
+    xp = _xp(target, speed)
+    tau = kv * (xp.asarray(target) - xp.asarray(speed))
     if not lim > 0:
-        return tau, jnp.full_like(tau, kv)
-    t = jnp.tanh(tau / lim)
+        return tau, xp.full_like(tau, kv)
+    t = xp.tanh(tau / lim)
     return lim * t, kv * (1.0 - t * t)
 
 
