@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 
 import jax
 import jax.numpy as jnp
@@ -119,20 +120,30 @@ def test_configured_friction_is_used(manoeuvres):
         assert hold["flipped"] == 0 and abs(hold["slide_cm"]) < 5.0, (k, hold)
 
 
+# fields of the obstacle and lane tests: one generate compile (same shape, same batch)
+LANES = dict(terrain_length=30.0, row_length=24.0, terrain_width=20.0, rows_per_group=3,
+             stone_density=0.0, branch_density=0.0)
+DENSE = {**LANES, "stone_density": 30.0, "branch_density": 16.0}
+N = 8
+
+
+def _fields(params: list, path_length: float = PATH_LENGTH) -> F.Field:
+    """N fields of `params` (repeated), keys 0..N-1, on the shape of LANES and DENSE."""
+    shape = F.fit_shape(F.stack_params([F.make_params("zucchini", **DENSE, d_rr=1.2)]),
+                        "zucchini")
+    batch = F.stack_params([params[i % len(params)] for i in range(N)])
+    return RB.generate_fn()(batch, shape, jax.random.split(jax.random.key(3), N), path_length)
+
+
 def test_no_obstacle_at_any_start():
-    """64 small fields dense with stones and branches: no obstacle (capsule: segment + radius)
-    comes within the robot's footprint + 0.2 m of the start, on any lane, at the default and at
-    a shorter path length."""
-    n = 64
-    params = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,)), F.make_params(
-        "zucchini", **{**MV.FIELD, "stone_density": 30.0, "branch_density": 16.0}))
-    shape = F.fit_shape(params, "zucchini")
-    keys = jax.random.split(jax.random.key(3), n)
+    """8 fields dense with stones and branches (about 170 each): no obstacle (capsule: segment +
+    radius) comes within the robot's footprint + 0.2 m of the start, on any lane, at the
+    default and at a shorter path length."""
     rc = R.RobotConfig()
     for path_length in (PATH_LENGTH, 11.0):
-        fields = RB.generate_fn()(params, shape, keys, path_length)
+        fields = _fields([F.make_params("zucchini", **DENSE)], path_length)
         act = np.asarray(fields.obst_active)
-        assert act.sum(1).min() >= 25  # dense: ~30 obstacles on the 24 m × 4 m of lanes
+        assert act.sum(1).min() >= 100  # dense
         x0 = np.asarray(fields.row_x[:, 1]) - path_length
         pos, size = np.asarray(fields.obst_pos), np.asarray(fields.obst_size)
         yaw = np.asarray(fields.obst_yaw)
@@ -168,19 +179,12 @@ def test_patch_z_is_checked_and_fitted(manoeuvres):
 
 
 def test_lane_choice_is_explicit():
-    base = dict(terrain_length=30.0, row_length=24.0, terrain_width=20.0, rows_per_group=3,
-                stone_density=0.0, branch_density=0.0)
-    params = F.stack_params([F.make_params("zucchini", **base, d_rr=d) for d in (1.8, 1.2)])
-
-    @jax.jit
-    def lanes_of(params):
-        fields = jax.vmap(lambda p: F.generate(p, shape, jax.random.key(0)))(params)
-        lanes = {m: jax.vmap(lambda f, m=m: F.robot_lane(f, mode=m))(fields) for m in LANE_MODES}
-        return fields.lane_width, lanes, jax.vmap(
-            lambda f: S.lane_of(f, S.SimConfig(lane="in_group")))(fields)
-
-    shape = F.fit_shape(params, "zucchini")
-    widths, all_lanes, via_sim = jax.device_get(lanes_of(params))
+    base = LANES
+    fields = _fields([F.make_params("zucchini", **base, d_rr=d) for d in (1.8, 1.2)])
+    widths = np.asarray(fields.lane_width)
+    all_lanes = {m: np.asarray(jax.vmap(lambda f, m=m: F.robot_lane(f, mode=m))(fields))
+                 for m in LANE_MODES}
+    via_sim = np.asarray(jax.vmap(lambda f: S.lane_of(f, S.SimConfig(lane="in_group")))(fields))
     for i, d_rr in enumerate((1.8, 1.2)):
         rpg = 3
         lanes = {m: int(v[i]) for m, v in all_lanes.items()}
@@ -203,3 +207,26 @@ def test_lane_choice_is_explicit():
                      S.SimConfig(lane="between_groups"))
     with pytest.raises(ValueError, match="sim.lane: must be one of"):
         S.SimConfig(lane="widest")
+
+
+@pytest.mark.parametrize("sets, message", [
+    (["field.d_rr=1.2", "sim.lane=in_group"], r"sim\.lane: the in_group lane is 0\.30 m wide"),
+    (["field.d_rr=[1.2, 1.8]"],
+     r"sim\.lane: 'auto' drives the between_groups lane \(cell field\.d_rr=1\.2\) but the "
+     r"in_group lane \(cell field\.d_rr=1\.8"),
+    (["field.slope_x=0.25"], r"sim\.patch_z: 4 m cannot hold .* field\.slope_x=0\.25"),
+])
+def test_impossible_physics_requests_exit_2(sets, message, tmp_path, capsys):
+    """The episode CLI and the sweep loader reject them before building anything: one line
+    naming the key, exit 2."""
+    from mjxrow import episode
+    from mjxrow.sweep import config as C
+
+    argv = ["--preset", "zucchini", "--out", str(tmp_path)]
+    if not any("[" in s for s in sets):  # one run: the episode CLI
+        assert episode.main(argv + [a for s in sets for a in ("--set", s)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and re.search(message, err), err
+    with pytest.raises(C.ConfigError, match=message):
+        C.from_dict({"preset": "zucchini", "controller": {"name": "oracle"}}, ".", sets)
+    assert (tmp_path / "episodes.csv").exists() is False

@@ -5,6 +5,7 @@ batch is compiled, with an error that names the keys to change.
 - `patch_relief(params, sim_cfg)`: the terrain height range a world's physics patch can span.
 - `fit_patch_z(params, sim_cfg)`: `sim_cfg` with a `patch_z` that holds that relief.
 - `check_patch_z(params, sim_cfg)`, `check_lane(params, sim_cfg)`, `check_params` (both).
+- `auto_lane_kind(params)`: the lane kind `sim.lane = "auto"` gives each field.
 
 `params` is a FieldParams of scalars or with a leading [B] axis (the message names the first
 failing batch index).
@@ -118,6 +119,13 @@ def check_lane(params: F.FieldParams, sim_cfg: SimConfig,
             f"sim.lane: the {mode} lane is {free[i]:.2f} m wide between plants at field.{key}="
             f"{p[key][i]:g} (field.plant_width={p['plant_width'][i]:g}){where}, the robot needs "
             f"{need:.2f} m; widen field.{key} or choose another sim.lane")
+
+
+def auto_lane_kind(params: F.FieldParams, robot_width: float = F.ROBOT_WIDTH) -> np.ndarray:
+    """str [B]: the lane kind "auto" drives on each field, "in_group" where an in-group lane
+    fits the robot (field.robot_lane's preference), else "between_groups"."""
+    free_in, _ = lane_free_width(params)
+    return np.where(free_in >= robot_width + F.LANE_CLEARANCE, "in_group", "between_groups")
 
 
 def check_params(params: F.FieldParams, sim_cfg: SimConfig) -> None:

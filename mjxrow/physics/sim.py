@@ -80,6 +80,7 @@ from mjxrow import field as F
 from mjxrow.field.generate import LANE_MODES
 from mjxrow.physics import robot as R
 from mjxrow.physics.checks import (  # noqa: F401  (re-exported: sim.check_lane, ...)
+    auto_lane_kind,
     check_lane,
     check_params,
     check_patch_z,

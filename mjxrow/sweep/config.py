@@ -428,6 +428,16 @@ def check(cfg: SweepConfig) -> None:
             cell = cells[int(np.argmin(ok))]
             key = f"field.{name}" if name in F.PARAM_NAMES else name
             raise ConfigError(f"{key}: {reason}{_where(cell.point)}")
+    kinds: dict[str, tuple[str, Any]] = {}  # preset → (lane kind "auto" gives, first cell)
+    for cell, kind in zip(cells, sim.auto_lane_kind(params), strict=True):
+        if cell.cfg.sim.lane != "auto":
+            continue
+        first = kinds.setdefault(cell.cfg.preset, (str(kind), cell))
+        if first[0] != kind:
+            raise ConfigError(
+                f"sim.lane: 'auto' drives the {first[0]} lane{_where(first[1].point)} but the "
+                f"{kind} lane{_where(cell.point)}; set sim.lane to in_group or between_groups "
+                "so that every cell drives the same kind of lane")
     for cell in cells:
         c = cell.cfg
         where = _where(cell.point)
