@@ -15,34 +15,19 @@ Drive. Each wheel has a velocity servo, torque = L·tanh(kv·(ω_target − ω)/
 small errors, saturating smoothly at the motor limit L = `wheel_torque`), applied through a
 `<motor>` and integrated linearly implicitly: sim.step adds dt·∂torque/∂(−ω) to the wheel's
 armature for each physics step, so the torque acts with the wheel speed at the END of the step
-(backward Euler) and the contact solver sees the servo's stiffness. MuJoCo's own `<velocity>`
-actuator under `implicitfast`, used before, applies that implicit term only after the contacts
-are solved: the solver counted on a servo torque the wheel never got (dt·kv·ω̇) and at the
-default step the robot pitched 12.6° when stopping from 0.5 m/s, hopped 10 cm under a turn
-command flipped every control period and flipped over on 25° and 30° slopes, none of which
-happened at a 5× finer step (experiments/physics_manoeuvres.py; MJX also keeps the implicit
-term of a clamped velocity actuator, which MuJoCo C drops). The armature of 0.05 kg·m² stands
-for the motor and gearbox's reflected inertia and keeps light wheels stable.
-
-Limits, after the platform (Clearpath's Jackal URDF: 16.5 kg chassis and 0.48 kg wheels of
-radius 0.098 m; its ROS controller, jackal_control/config/control.yaml in jackal/jackal and in
-PIC4SeRPlatforms/jackal, the paper authors' lab: 2.0 m/s, 4 rad/s, 20 m/s², 25 rad/s²):
-`max_accel` / `max_alpha` rate-limit the (v, ω) the wheels follow as that controller does
-(`ramp`, applied every physics step), `v_max` / `omega_max` are the paper's 0.5 m/s and
-1 rad/s. No motor torque is published; `wheel_torque` = 5 N·m per wheel is a little above the
-4.4 N·m that hold the robot with a 20 kg payload on a 30° slope and the 4.1 N·m that the
-tyres can pass to the ground at friction 1 with the bare robot, so traction, not the motor,
-limits a start on level ground.
+(backward Euler) and the contact solver sees the servo's stiffness. The armature of
+0.05 kg·m² stands for the motor and gearbox's reflected inertia and keeps light wheels stable.
+`max_accel` / `max_alpha` rate-limit the (v, ω) the wheels follow (`ramp`, every physics
+step), as the Jackal's ROS controller does. Why (MuJoCo's `<velocity>` actuator at the
+default step) and where the numbers come from: docs/physics.md.
 
 Skid steer: a commanded (v, ω) is clipped to the limits, then mapped to wheel speeds
 v_left/right = v ∓ ω·(track·turn_factor)/2, divided by the wheel radius. Skid-steer vehicles turn
 slower than the kinematic (differential-drive) rule predicts because the wheels scrub sideways;
 `turn_factor` (> 1) widens the effective track so that the yaw rate reached on flat ground
 matches the commanded ω (ROS's diff_drive "wheel_separation_multiplier" for Jackal is 1.5).
-With kv = 30 and turn_factor = 1.55 the yaw rate reached on flat ground is within 6 % of the
-command for 0.25 ≤ |ω| ≤ 1 rad/s and 0 ≤ v ≤ 0.5 m/s at the default step, within 9 % at a 5×
-finer one (measured; 1.5 gives −11 % to +3 %). A stiff servo matters here: a soft one lets the
-wheels lag while they scrub.
+turn_factor = 1.55 brings the yaw rate reached on flat ground within 6 % of the command
+(docs/physics.md).
 """
 
 from __future__ import annotations
