@@ -147,8 +147,8 @@ def test_axes_on_any_section_and_preset():
 
 def test_set_overrides():
     cfg = cfg_of({"field": {"terrain_dh": [0.1, 0.2]}},
-                 sets=["field.d_rr=[1.2, 1.8]", "seeds=3", "controller.variant=public"])
-    assert cfg.field.d_rr == (1.2, 1.8) and cfg.seeds == 3
+                 sets=["field.d_rr=[1.6, 1.8]", "seeds=3", "controller.variant=public"])
+    assert cfg.field.d_rr == (1.6, 1.8) and cfg.seeds == 3
     assert cfg.controller.variant == "public"
     assert cfg.axis_order == ("field.terrain_dh", "field.d_rr")  # --set axes come last
     assert len(C.expand(cfg)) == 4

@@ -192,19 +192,25 @@ def test_mjx_agrees_with_mujoco_c(setup):
     refresh = jax.jit(S.refresh_contacts)
     wheels = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"wheel_{n}") for n in R.WHEELS]
     rn = S.robot_numbers(mx)
+    dofs = S.wheel_dofs(m)
+    arm = m.dof_armature[dofs].copy()
     for i in range(len(WORLDS)):
         mw = setup["world"](_world(fields, i))
         mc = S.world_mjmodel(m, mw)
         d = mujoco.MjData(mc)
         d.qpos[:] = q0[i]
-        d.ctrl[:] = np.asarray(R.wheel_speeds(jnp.asarray(CMDS[i]), rn))
+        target = np.zeros(2)
         qc = []
         for _ in range(T):
             mujoco.mj_kinematics(mc, d)  # wheel centres at the current qpos, as sim.step has
             slots = refresh(mw, jnp.asarray(d.xpos[wheels, :2], jnp.float32))
             for name in ("geom_pos", "geom_quat", "geom_size"):
                 getattr(mc, name)[:] = np.asarray(getattr(slots, name))
-            for _ in range(CFG.substeps):
+            for _ in range(CFG.substeps):  # as sim.step: ramp, servo torque and armature
+                target = np.asarray(R.ramp(target, CMDS[i], rn, CFG.physics_dt), np.float64)
+                tau, stiff = R.servo(np.asarray(R.wheel_speeds(target, rn)), d.qvel[dofs], rn)
+                d.ctrl[:] = np.asarray(tau)
+                mc.dof_armature[dofs] = arm + CFG.physics_dt * np.asarray(stiff)
                 mujoco.mj_step(mc, d)
             qc.append(d.qpos.copy())
         qc = np.array(qc)

@@ -77,8 +77,33 @@ def _terrain(q, cells, key) -> tuple[jax.Array, jax.Array]:
 # Generation
 
 
-def generate(params: FieldParams, shape: FieldShape, key: jax.Array) -> Field:
-    """One field from scalar `params` (pure, jittable; vmap over params and key for a batch)."""
+START_CLEAR = 0.5  # m: no obstacle reaches within this of the episode start's x (any lane)
+PATH_LENGTH = 20.0  # m, default start → row end distance (sim.SimConfig.path_length)
+
+
+def _clear_start(ox: jax.Array, size: jax.Array, yaw: jax.Array, x_start: jax.Array,
+                 row_length: jax.Array, key: jax.Array) -> jax.Array:
+    """Obstacle centres x [S] (uniform over the row, [−row_length/2, row_length/2]) with those
+    whose x extent (radius + |half length · cos yaw|) comes within START_CLEAR of `x_start`
+    drawn again, uniformly over the rest of the row: the robot never starts on or in an
+    obstacle, and the obstacles outside the zone keep their places."""
+    ext = size[:, 0] + size[:, 1] * jnp.abs(jnp.cos(yaw))
+    lo, hi = -0.5 * row_length, 0.5 * row_length
+    z0 = jnp.clip(x_start - START_CLEAR - ext, lo, hi)
+    z1 = jnp.clip(x_start + START_CLEAR + ext, lo, hi)
+    u = lo + jax.random.uniform(key, ox.shape) * (row_length - (z1 - z0))
+    redraw = jnp.where(u >= z0, u + (z1 - z0), u)
+    return jnp.where((ox > z0) & (ox < z1), redraw, ox)
+
+
+def generate(params: FieldParams, shape: FieldShape, key: jax.Array,
+             path_length: float | jax.Array = PATH_LENGTH) -> Field:
+    """One field from scalar `params` (pure, jittable; vmap over params and key for a batch).
+
+    path_length: m, where episodes start: `path_length` before the row end on every lane
+    (sim.reset, `sim_cfg.path_length`; traced or static). Obstacles are kept START_CLEAR
+    metres (along x, across the whole field) away from that start, so no robot starts on or
+    inside one; pass the episodes' own path_length when it is not the default."""
     R, P, S = shape.max_rows, shape.max_plants_per_row, shape.obstacle_slots
     q = _scaled(params)
     lay = _layout(q)
@@ -132,10 +157,13 @@ def generate(params: FieldParams, shape: FieldShape, key: jax.Array) -> Field:
     branch_half = q["scale"] * jax.random.uniform(ko[4], (S,), minval=0.25, maxval=0.7)
     radius = jnp.where(is_stone, stone_r, branch_r)
     obst_size = jnp.stack([radius, jnp.where(is_stone, 0.0, branch_half)], -1)
+    obst_yaw = jax.random.uniform(ko[5], (S,), minval=-jnp.pi, maxval=jnp.pi)
+    x_end = x0 + (lay["n_plants"] - 1.0) * q["d_pp"]
+    ox = _clear_start(ox, obst_size, obst_yaw, x_end - path_length, q["row_length"],
+                      jax.random.fold_in(k_obs, 6))
     # stones sunk to half their radius; branches lie on the ground
     oz = terrain_height(terrain, tsize, ox, oy) + jnp.where(is_stone, 0.5, 1.0) * radius
     obst_pos = jnp.stack([ox, oy, oz], -1)
-    obst_yaw = jax.random.uniform(ko[5], (S,), minval=-jnp.pi, maxval=jnp.pi)
 
     valid = jnp.all(jnp.stack([jnp.all(ok) for ok, _ in checks(params, shape).values()]))
     return Field(
@@ -148,7 +176,7 @@ def generate(params: FieldParams, shape: FieldShape, key: jax.Array) -> Field:
         plant_row=jnp.broadcast_to(jnp.arange(R, dtype=jnp.int32)[:, None], (R, P)),
         row_y=row_y.astype(jnp.float32),
         row_active=row_active,
-        row_x=jnp.stack([x0, x0 + (lay["n_plants"] - 1.0) * q["d_pp"]]).astype(jnp.float32),
+        row_x=jnp.stack([x0, x_end]).astype(jnp.float32),
         lane_y=lane_y.astype(jnp.float32),
         lane_width=lane_width.astype(jnp.float32),
         lane_active=lane_active,
@@ -164,15 +192,33 @@ def generate(params: FieldParams, shape: FieldShape, key: jax.Array) -> Field:
     )
 
 
-def robot_lane(field: Field, robot_width: float = ROBOT_WIDTH) -> jax.Array:
-    """Index of the lane the robot drives by default (traced int32 []): the lane nearest the
-    field centre whose free width (lane width − plant width) fits the robot; in-group lanes are
-    preferred, so lettuce and chard fall back to the wider lane between groups."""
+LANE_MODES = ("auto", "in_group", "between_groups")  # robot_lane's choices (sim.SimConfig.lane)
+
+
+def robot_lane(field: Field, robot_width: float = ROBOT_WIDTH, mode: str = "auto") -> jax.Array:
+    """Index of the lane the robot drives (traced int32 []): of the active lanes of the kind
+    `mode` picks, the one nearest the field centre (y = 0) whose free width (lane width − plant
+    width) fits the robot (`robot_width` + LANE_CLEARANCE).
+
+    mode (static): "auto" prefers the lanes inside a group and falls back to the lanes between
+    groups when no in-group lane fits (lettuce and chard, or a narrow `d_rr`), so the lane
+    kind can change along a d_rr sweep; "in_group" takes only lanes between two rows of one
+    group (`d_rr` apart), "between_groups" only lanes between two groups (`d_RR` apart; with
+    rows_per_group = 1 every lane). Where no lane of the kind fits, the nearest lane of the
+    kind is returned (or, when there is none, the nearest fitting lane): traced code cannot
+    raise, so check the request on the host first with `sim.check_lane`."""
+    if mode not in LANE_MODES:
+        raise ValueError(f"sim.lane: unknown lane mode {mode!r}; expected one of {LANE_MODES}")
     q = _scaled(field.params)
     free = field.lane_width - q["plant_width"]
     fits = field.lane_active & (free >= robot_width + LANE_CLEARANCE)
     lane = jnp.arange(field.lane_y.shape[-1], dtype=jnp.float32)
     in_group = jnp.mod(lane + 1.0, q["rows_per_group"]) != 0
-    prefer_group = jnp.any(fits & in_group)
-    penalty = jnp.where(fits, 0.0, 1e6) + jnp.where(prefer_group & ~in_group, 1e3, 0.0)
+    if mode == "auto":
+        prefer_group = jnp.any(fits & in_group)
+        penalty = jnp.where(fits, 0.0, 1e6) + jnp.where(prefer_group & ~in_group, 1e3, 0.0)
+    else:
+        kind = in_group if mode == "in_group" else ~in_group
+        penalty = (jnp.where(fits, 0.0, 1e3) + jnp.where(kind, 0.0, 1e4)
+                   + jnp.where(field.lane_active, 0.0, 1e6))
     return jnp.argmin(jnp.abs(field.lane_y) + penalty).astype(jnp.int32)

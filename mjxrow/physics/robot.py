@@ -4,22 +4,30 @@ Frames: the chassis body's origin lies midway between the four wheel axles (at w
 height), x forward, y left, z up. At rest on flat ground the origin is `wheel_radius` above it.
 
 The model is four SPHERE wheels (MJX collides heightfields with spheres, not cylinders) on hinge
-joints about the chassis y axis, each driven by a velocity actuator (torque = kv·(target −
-wheel speed), optionally clipped to ±`wheel_torque`). The chassis is a box that takes no part
-in contacts unless `SimConfig.chassis_contacts` is set (sim.py). Stability notes: light wheels
-need joint armature (0.05 kg·m²) and the `implicitfast` integrator, which also treats the
-actuators' velocity gain implicitly. Wheels sit at a Jackal's track (0.376 m) so that they touch
-the ground where a Jackal's do; being spheres they reach 0.286 m sideways, beyond the 0.430 m
-footprint, which matters only for obstacle contacts (plant collisions use the footprint).
+joints about the chassis y axis. The chassis is a box that takes no part in contacts unless
+`SimConfig.chassis_contacts` is set (sim.py). Wheels sit at a Jackal's track (0.376 m) so that
+they touch the ground where a Jackal's do; being spheres they reach 0.286 m sideways, beyond
+the 0.430 m footprint, which matters only for obstacle contacts (plant collisions use the
+footprint). The wheel geoms have `priority` 1, so a wheel contact takes the wheel's `friction`
+whatever the terrain's or the obstacle's (MuJoCo would otherwise take the larger of the two).
+
+Drive. Each wheel has a velocity servo, torque = L·tanh(kv·(ω_target − ω)/L) (`servo`: kv for
+small errors, saturating smoothly at the motor limit L = `wheel_torque`), applied through a
+`<motor>` and integrated linearly implicitly: sim.step adds dt·∂torque/∂(−ω) to the wheel's
+armature for each physics step, so the torque acts with the wheel speed at the END of the step
+(backward Euler) and the contact solver sees the servo's stiffness. The armature of
+0.05 kg·m² stands for the motor and gearbox's reflected inertia and keeps light wheels stable.
+`max_accel` / `max_alpha` rate-limit the (v, ω) the wheels follow (`ramp`, every physics
+step), as the Jackal's ROS controller does. Why (MuJoCo's `<velocity>` actuator at the
+default step) and where the numbers come from: docs/physics.md.
 
 Skid steer: a commanded (v, ω) is clipped to the limits, then mapped to wheel speeds
 v_left/right = v ∓ ω·(track·turn_factor)/2, divided by the wheel radius. Skid-steer vehicles turn
 slower than the kinematic (differential-drive) rule predicts because the wheels scrub sideways;
 `turn_factor` (> 1) widens the effective track so that the yaw rate reached on flat ground
 matches the commanded ω (ROS's diff_drive "wheel_separation_multiplier" for Jackal is 1.5).
-With kv = 30 and turn_factor = 1.9 the yaw rate reached on flat ground is within 10 % of the
-command for |ω| ≤ 1 rad/s and 0 ≤ v ≤ 0.5 m/s (measured; at kv = 8 it was 36-76 %, too low
-and uneven: a soft servo lets the wheels lag while they scrub).
+turn_factor = 1.55 brings the yaw rate reached on flat ground within 6 % of the command
+(docs/physics.md).
 """
 
 from __future__ import annotations
@@ -39,7 +47,7 @@ CAMERA = "front"  # name of the robot's camera in the model
 NUMERIC = "mjxrow_robot"  # name of the <numeric> that carries the robot's numbers in the model
 # order of the numbers in that <numeric>
 NUMERIC_KEYS = ("v_max", "omega_max", "wheel_radius", "track", "wheelbase", "turn_factor",
-                "length", "width")
+                "length", "width", "max_accel", "max_alpha", "kv", "wheel_torque")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,10 +71,12 @@ class RobotConfig:
     chassis_height: float = 0.18  # m, box height
     chassis_clearance: float = 0.06  # m, box bottom above flat ground
     # drive
-    turn_factor: float = 1.9  # effective track / track in the (v, ω) → wheel speed map [-]
+    turn_factor: float = 1.55  # effective track / track in the (v, ω) → wheel speed map [-]
     kv: float = 30.0  # N·m·s/rad, velocity-actuator gain per wheel
-    wheel_torque: float = 0.0  # N·m, torque limit per wheel; 0 = unlimited (friction limits it)
-    armature: float = 0.05  # kg·m², wheel-joint armature (needed for stability)
+    wheel_torque: float = 5.0  # N·m, motor torque limit per wheel; 0 = unlimited
+    max_accel: float = 20.0  # m/s², rate limit of the v the wheels follow; 0 = none
+    max_alpha: float = 25.0  # rad/s², rate limit of the ω the wheels follow; 0 = none
+    armature: float = 0.05  # kg·m², wheel-joint armature (motor inertia; needed for stability)
     wheel_damping: float = 0.0  # N·m·s/rad, passive damping of the wheel joints
     friction: float = 1.0  # wheel sliding friction coefficient [-]
     # camera mount (chassis frame)
@@ -83,7 +93,8 @@ class RobotConfig:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"robot.{name}: must be positive, got {getattr(self, name)}")
-        for name in ("armature", "wheel_damping", "friction", "chassis_clearance", "wheel_torque"):
+        for name in ("armature", "wheel_damping", "friction", "chassis_clearance", "wheel_torque",
+                     "max_accel", "max_alpha"):
             if getattr(self, name) < 0:
                 raise ValueError(f"robot.{name}: must be non-negative, got {getattr(self, name)}")
         if self.mass <= 4 * self.wheel_mass:
@@ -128,16 +139,58 @@ def wheel_speeds(cmd: jax.Array, cfg: RobotConfig | dict) -> jax.Array:
     Returns float [..., 4] wheel speeds [rad/s] in WHEELS order (fl, fr, rl, rr); positive rolls
     the robot forward."""
     get = cfg.__getitem__ if isinstance(cfg, dict) else lambda k: getattr(cfg, k)
-    cmd = jnp.asarray(cmd)
-    v = jnp.clip(cmd[..., 0], -get("v_max"), get("v_max"))
-    w = jnp.clip(cmd[..., 1], -get("omega_max"), get("omega_max"))
+    xp = _xp(cmd)
+    cmd = xp.asarray(cmd)
+    v = xp.clip(cmd[..., 0], -get("v_max"), get("v_max"))
+    w = xp.clip(cmd[..., 1], -get("omega_max"), get("omega_max"))
     half = 0.5 * get("track") * get("turn_factor")
-    side = jnp.asarray(WHEEL_SIDE, cmd.dtype)
+    side = xp.asarray(WHEEL_SIDE, cmd.dtype)
     return (v[..., None] - side * half * w[..., None]) / get("wheel_radius")
+
+
+def _xp(*xs):
+    """numpy for host arrays (a MuJoCo C loop, tests), jax.numpy for jax arrays and tracers."""
+    return jnp if any(isinstance(x, jax.Array) for x in xs) else np
+
+
+def ramp(target: jax.Array, cmd: jax.Array, cfg: RobotConfig | dict, dt: float) -> jax.Array:
+    """The command the wheels follow after one physics step of the acceleration limits.
+
+    target: float [..., 2] (v [m/s], ω [rad/s]) followed so far; cmd: float [..., 2] the
+    controller's command (clipped to ±v_max, ±omega_max here); dt: s, the physics step.
+    Returns target moved toward cmd by at most max_accel·dt and max_alpha·dt (a limit of 0
+    jumps at once). numpy in, numpy out (`servo` too): the same code steps MuJoCo C."""
+    get = cfg.__getitem__ if isinstance(cfg, dict) else lambda k: getattr(cfg, k)
+    xp = _xp(target, cmd)
+    cmd = xp.asarray(cmd)
+    lim = xp.asarray([get("v_max"), get("omega_max")], cmd.dtype)
+    cmd = xp.clip(cmd, -lim, lim)
+    step = xp.asarray([get("max_accel") or xp.inf, get("max_alpha") or xp.inf],
+                      cmd.dtype) * dt
+    return target + xp.clip(cmd - target, -step, step)
 
 
 def _f(*xs: float) -> str:
     return " ".join(f"{x:.6g}" for x in xs)
+
+
+def servo(target: jax.Array, speed: jax.Array, cfg: RobotConfig | dict
+          ) -> tuple[jax.Array, jax.Array]:
+    """The wheel servos: (torque [N·m], stiffness [N·m·s/rad]), float [..., 4] each.
+
+    target, speed: wheel speeds [rad/s] [..., 4] (`wheel_speeds`, the wheel joints' qvel).
+    torque = L·tanh(kv·(target − speed)/L) with L = wheel_torque (kv·(target − speed) when
+    it is 0): kv for small errors, saturating smoothly at ±L; stiffness = −∂torque/∂speed =
+    kv·(1 − tanh²), the implicit term sim.step adds to the wheels' armature as dt·stiffness
+    (module doc)."""
+    get = cfg.__getitem__ if isinstance(cfg, dict) else lambda k: getattr(cfg, k)
+    kv, lim = get("kv"), get("wheel_torque")
+    xp = _xp(target, speed)
+    tau = kv * (xp.asarray(target) - xp.asarray(speed))
+    if not lim > 0:
+        return tau, xp.full_like(tau, kv)
+    t = xp.tanh(tau / lim)
+    return lim * t, kv * (1.0 - t * t)
 
 
 def mjcf_body(cfg: RobotConfig, pos: tuple[float, float, float] = (0.0, 0.0, 0.2),
@@ -145,7 +198,8 @@ def mjcf_body(cfg: RobotConfig, pos: tuple[float, float, float] = (0.0, 0.0, 0.2
     """MJCF `<body name="chassis">` (free joint, chassis box, four wheels, camera) to put in a
     `<worldbody>`. Wheels have contype=1, conaffinity=0: they touch geoms whose conaffinity
     has bit 0 (terrain, obstacles) and never each other. With `chassis_contacts` the box has
-    contype=1 as well."""
+    contype=1 as well. The wheel joints' armature is the motor's (`armature`); sim.step adds
+    the servo's implicit term to it every physics step."""
     chassis_mass = cfg.mass - 4 * cfg.wheel_mass
     box_half = (cfg.length / 2, (cfg.track - cfg.wheel_radius) / 2, cfg.chassis_height / 2)
     box_z = cfg.chassis_clearance + cfg.chassis_height / 2 - cfg.wheel_radius
@@ -167,7 +221,7 @@ def mjcf_body(cfg: RobotConfig, pos: tuple[float, float, float] = (0.0, 0.0, 0.2
             f'    <joint name="wheel_{name}" type="hinge" axis="0 1 0" '
             f'armature="{cfg.armature:.6g}" damping="{cfg.wheel_damping:.6g}"/>',
             f'    <geom name="wheel_{name}" type="sphere" size="{cfg.wheel_radius:.6g}" '
-            f'mass="{cfg.wheel_mass:.6g}" contype="1" conaffinity="0" condim="3" '
+            f'mass="{cfg.wheel_mass:.6g}" contype="1" conaffinity="0" condim="3" priority="1" '
             f'friction="{cfg.friction:.6g} 0.005 0.0001" group="1" rgba="0.1 0.1 0.1 1"/>',
             "  </body>",
         ]
@@ -176,11 +230,11 @@ def mjcf_body(cfg: RobotConfig, pos: tuple[float, float, float] = (0.0, 0.0, 0.2
 
 
 def mjcf_actuators(cfg: RobotConfig) -> str:
-    """MJCF `<velocity>` actuators (inside `<actuator>`), one per wheel in WHEELS order."""
+    """MJCF `<motor>` actuators (inside `<actuator>`), one per wheel in WHEELS order: ctrl is
+    the wheel torque [N·m] (`servo`), limited to ±wheel_torque when that is set."""
     limit = (f' forcelimited="true" forcerange="{_f(-cfg.wheel_torque, cfg.wheel_torque)}"'
              if cfg.wheel_torque > 0 else "")
-    return "\n".join(f'<velocity name="wheel_{n}" joint="wheel_{n}" kv="{cfg.kv:.6g}"{limit}/>'
-                     for n in WHEELS)
+    return "\n".join(f'<motor name="wheel_{n}" joint="wheel_{n}"{limit}/>' for n in WHEELS)
 
 
 def mjcf_numeric(cfg: RobotConfig) -> str:

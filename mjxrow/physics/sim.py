@@ -67,6 +67,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -76,7 +77,17 @@ from flax import struct
 from mujoco import mjx
 
 from mjxrow import field as F
+from mjxrow.field.generate import LANE_MODES
 from mjxrow.physics import robot as R
+from mjxrow.physics.checks import (  # noqa: F401  (re-exported: sim.check_lane, ...)
+    auto_lane_kind,
+    check_lane,
+    check_params,
+    check_patch_z,
+    fit_patch_z,
+    lane_free_width,
+    patch_relief,
+)
 
 TERRAIN = "terrain"  # name of the heightfield geom
 _PARK_DEPTH = 100.0  # m below the patch where unused obstacle slots wait
@@ -87,6 +98,8 @@ _MAX_OBST = (0.1, 1.0)  # m, (radius, half length) bound compiled into the obsta
 @dataclasses.dataclass(frozen=True)
 class SimConfig:
     """Static simulation settings (hashable: one compile per distinct value)."""
+
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"lane": LANE_MODES}
 
     dt: float = 0.01  # s, largest physics step; shortened to fit the control period exactly
     control_hz: float = 15.0  # Hz, commands per second
@@ -103,6 +116,9 @@ class SimConfig:
     chassis_contacts: bool = False  # chassis box collides with terrain and obstacles
     max_speed: float = 20.0  # m/s or rad/s: any faster velocity counts as exploded (is_bad)
     max_tilt_deg: float = 75.0  # degrees: chassis tilt beyond this counts as flipped
+    lane: str = "auto"  # lane kind driven: auto (the in-group lane when the robot fits,
+    # else the lane between groups), in_group (between two rows of a group, d_rr), or
+    # between_groups (d_RR); a kind no field can give is rejected naming field.d_rr / d_RR
 
     def __post_init__(self):
         for name in ("dt", "control_hz", "path_length", "patch_width", "patch_cell", "patch_z",
@@ -115,6 +131,8 @@ class SimConfig:
         for name in ("iterations", "ls_iterations", "obstacle_slots", "obstacle_candidates"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"sim.{name}: must be at least 1, got {getattr(self, name)}")
+        if self.lane not in LANE_MODES:
+            raise ValueError(f"sim.lane: must be one of {LANE_MODES}, got {self.lane!r}")
 
     @property
     def substeps(self) -> int:
@@ -159,6 +177,7 @@ class SimState:
 
     data: mjx.Data  # MJX data; kinematics (xpos, cam_xpos, ...) match qpos after reset/step
     steps: jax.Array  # int32 [], control periods simulated since reset
+    target: jax.Array  # float32 [2], (v [m/s], ω [rad/s]) the wheels follow (robot.ramp)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -258,6 +277,12 @@ def _geom_ids(mx: mjx.Model | mujoco.MjModel) -> tuple[int, np.ndarray, np.ndarr
 
 def _wheel_body_ids(mx: mjx.Model | mujoco.MjModel) -> np.ndarray:
     return np.array([mjx.name2id(mx, mujoco.mjtObj.mjOBJ_BODY, f"wheel_{n}") for n in R.WHEELS])
+
+
+def wheel_dofs(mx: mjx.Model | mujoco.MjModel) -> np.ndarray:
+    """int [4]: the wheel joints' qvel indices, robot.WHEELS order (static)."""
+    ids = [mjx.name2id(mx, mujoco.mjtObj.mjOBJ_JOINT, f"wheel_{n}") for n in R.WHEELS]
+    return np.asarray(mx.jnt_dofadr)[ids]
 
 
 # arrays world_model writes: batched along axis 0 by model_axes
@@ -415,6 +440,12 @@ def world_mjmodel(m: mujoco.MjModel, mx_world: mjx.Model) -> mujoco.MjModel:
 # State
 
 
+def lane_of(field: F.Field, sim_cfg: SimConfig) -> jax.Array:
+    """int32 []: the lane the robot drives, `field.robot_lane(field, mode=sim_cfg.lane)`
+    (traced; check the request on the host with `check_lane`)."""
+    return F.robot_lane(field, mode=sim_cfg.lane)
+
+
 def _patch_surface(mx: mjx.Model, sim_cfg: SimConfig, x: jax.Array, y: jax.Array) -> jax.Array:
     """Height [m] of the world's patch surface (as MuJoCo triangulates it) at world (x, y)."""
     terrain_id = _geom_ids(mx)[0]
@@ -430,15 +461,15 @@ def reset(mx: mjx.Model, field: F.Field, lane: jax.Array | None, key: jax.Array,
     """Robot at rest at the start of `lane`, wheels on the terrain (pure, jittable).
 
     mx: the world's model (`world_model(mx, field, lane, sim_cfg)`); field: the same Field;
-    lane: int32 [] lane index, or None for `field.robot_lane(field)`; key: PRNG key for the pose
-    noise; noise: start-pose noise (None: none).
+    lane: int32 [] lane index, or None for `lane_of(field, sim_cfg)`; key: PRNG key for the
+    pose noise; noise: start-pose noise (None: none).
 
     The start is x = row end − `sim_cfg.path_length`, y = lane centre + N(0, lateral_std),
     heading N(0, heading_std) around +x; the chassis is tilted to rest on the terrain under its
     four wheels and placed 2 mm above it."""
     rn = robot_numbers(mx)
     if lane is None:
-        lane = F.robot_lane(field)
+        lane = lane_of(field, sim_cfg)
     kl, kh = jax.random.split(key)
     lat = jnp.float32(0.0) if noise is None else noise.lateral_std * jax.random.normal(kl)
     yaw = jnp.float32(0.0) if noise is None else noise.heading_std * jax.random.normal(kh)
@@ -458,25 +489,39 @@ def reset(mx: mjx.Model, field: F.Field, lane: jax.Array | None, key: jax.Array,
     qpos = d.qpos.at[:3].set(jnp.stack([x0, y0, z0])).at[3:7].set(quat).at[7:].set(0.0)
     d = d.replace(qpos=qpos.astype(d.qpos.dtype), qvel=jnp.zeros_like(d.qvel))
     d = mjx.camlight(mx, mjx.kinematics(mx, d))  # poses only: step begins with mjx.forward
-    return SimState(data=d, steps=jnp.int32(0))
+    return SimState(data=d, steps=jnp.int32(0), target=jnp.zeros(2, jnp.float32))
 
 
 def step(mx: mjx.Model, state: SimState, cmd: jax.Array, sim_cfg: SimConfig) -> SimState:
     """Advance one control period (sim_cfg.substeps physics steps) under cmd float [2] =
-    (v [m/s], ω [rad/s]), clipped to the robot's limits and mapped to wheel speeds
-    (robot.wheel_speeds). The obstacle contact slots are refilled first around the chassis
-    (`refresh_contacts`). Kinematics (xpos, xmat, cam_xpos, ...) are refreshed to the final
-    qpos, so `camera_pose` and `pose` describe the same instant. mx: the world's model."""
-    ctrl = R.wheel_speeds(cmd, robot_numbers(mx))
-    d = state.data.replace(ctrl=ctrl.astype(state.data.ctrl.dtype))
-    mx = refresh_contacts(mx, d.xpos[_wheel_body_ids(mx), :2])
+    (v [m/s], ω [rad/s]), clipped to the robot's limits. Before every physics step the
+    followed command `state.target` moves toward cmd within the robot's acceleration limits
+    (robot.ramp, max_accel / max_alpha per physics_dt), so a step change of the command becomes
+    the same ramp at any dt, and is mapped to wheel speeds (robot.wheel_speeds) that the wheel
+    servos track (robot.servo: the torque goes to the wheel motors, dt × its stiffness to the
+    wheels' armature for this physics step: linearly implicit, see robot).
+    The obstacle contact slots are refilled first around the chassis (`refresh_contacts`).
+    Kinematics (xpos, xmat, cam_xpos, ...) are refreshed to the final qpos, so `camera_pose`
+    and `pose` describe the same instant. mx: the world's model."""
+    rn = robot_numbers(mx)
+    dt, dofs = sim_cfg.physics_dt, wheel_dofs(mx)
+    cmd = jnp.asarray(cmd, jnp.float32)
+    mx = refresh_contacts(mx, state.data.xpos[_wheel_body_ids(mx), :2])
 
-    def body(d, _):
-        return mjx.step(mx, d), None
+    armature = mx.dof_armature[dofs]
 
-    d, _ = jax.lax.scan(body, d, None, length=sim_cfg.substeps)
+    def body(carry, _):
+        d, target = carry
+        target = R.ramp(target, cmd, rn, dt)
+        tau, stiff = R.servo(R.wheel_speeds(target, rn), d.qvel[dofs], rn)
+        m = mx.tree_replace({"dof_armature": mx.dof_armature.at[dofs].set(armature + dt * stiff)})
+        d = d.replace(ctrl=tau.astype(d.ctrl.dtype))
+        return (mjx.step(m, d), target), None
+
+    (d, target), _ = jax.lax.scan(body, (state.data, state.target.astype(jnp.float32)), None,
+                                  length=sim_cfg.substeps)
     d = mjx.camlight(mx, mjx.kinematics(mx, d))
-    return SimState(data=d, steps=state.steps + 1)
+    return SimState(data=d, steps=state.steps + 1, target=target)
 
 
 # ---------------------------------------------------------------------------------------------

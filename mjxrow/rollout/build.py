@@ -32,6 +32,7 @@ import numpy as np
 from mjxrow import control, runtime
 from mjxrow import field as F
 from mjxrow.control import perception
+from mjxrow.field.generate import PATH_LENGTH
 from mjxrow.physics import sim
 from mjxrow.rollout import episode as E
 from mjxrow.rollout.config import RunConfig
@@ -52,9 +53,10 @@ def split_keys(keys: jax.Array) -> tuple[jax.Array, jax.Array]:
 
 
 @functools.lru_cache(maxsize=1)
-def lanes_fn():
-    """jit(vmap(field.robot_lane)): fields [B] → int32 [B] lanes."""
-    return jax.jit(jax.vmap(F.robot_lane))
+@functools.lru_cache(maxsize=4)
+def lanes_fn(mode: str):
+    """jit(vmap(field.robot_lane)) for one lane choice (`sim.lane`): fields [B] → int32 [B]."""
+    return jax.jit(jax.vmap(lambda f: F.robot_lane(f, mode=mode)))
 
 
 @functools.lru_cache(maxsize=1)
@@ -65,8 +67,14 @@ def summarise_fn():
 
 @functools.lru_cache(maxsize=1)
 def generate_fn():
-    """jit(vmap(field.generate)) over (params [B], keys [B]) for a static shape: the one."""
-    return jax.jit(jax.vmap(F.generate, in_axes=(0, None, 0)), static_argnums=1)
+    """jit(vmap(field.generate)) over (params [B], keys [B]) for a static shape: the one.
+    Optional 4th argument: the episodes' `sim.path_length` (m; where the obstacle-free start
+    zone lies, field.generate), default field.generate's."""
+
+    def gen(params, shape, keys, path_length=PATH_LENGTH):
+        return jax.vmap(lambda p, k: F.generate(p, shape, k, path_length))(params, keys)
+
+    return jax.jit(gen, static_argnums=1)
 
 
 def stack(trees: Sequence[Any]) -> Any:
@@ -168,9 +176,10 @@ class Built:
             if len(runs) > 1 else episode_keys(runs[0].seed, [e for _, e in full])
         fkeys, rkeys = split_keys(keys)
         fparams = put(stack([cache[r][0] for r, _ in full]))
-        fields = generate_fn()(fparams, self.shape, put(fkeys))
+        sim_cfg = self.episode.sim
+        fields = generate_fn()(fparams, self.shape, put(fkeys), sim_cfg.path_length)
         E.check_fields(fields.replace(valid=runtime.to_host(fields.valid)))
-        lanes = lanes_fn()(fields)
+        lanes = lanes_fn(sim_cfg.lane)(fields)
         pol = self._put_params(E.stack_params([cache[r][1] for r, _ in full], self.axes))
         noise = put(E.batch_noise(stack([cache[r][2] for r, _ in full]), B))
         return Batch(fields, lanes, put(rkeys), noise, pol, len(items))

@@ -32,6 +32,7 @@ import yaml
 
 from mjxrow import control, crops
 from mjxrow import field as F
+from mjxrow.physics import sim
 from mjxrow.rollout import config as schema
 from mjxrow.rollout.config import (
     ConfigError,
@@ -412,7 +413,9 @@ def checkpoint_id(path: str) -> str:
 def check(cfg: SweepConfig) -> None:
     """Checks across keys and on every cell: each section's own checks (building the cell's
     domain configs), impossible fields (field.checks), missing checkpoints, the controller's
-    params. Raises ConfigError naming the dotted key and the cell."""
+    params, the lane kind (`sim.lane`) and the physics patch's height range (`sim.patch_z`)
+    against each cell's field (physics.sim.check_params). Raises ConfigError naming the dotted
+    key and the cell."""
     cells = expand(cfg)
     params = F.stack_params([F.make_params(c.cfg.preset, **c.cfg.field_values()) for c in cells])
     roomy = F.FieldShape(crop="zucchini", max_rows=10**9, max_plants_per_row=10**9,
@@ -425,6 +428,16 @@ def check(cfg: SweepConfig) -> None:
             cell = cells[int(np.argmin(ok))]
             key = f"field.{name}" if name in F.PARAM_NAMES else name
             raise ConfigError(f"{key}: {reason}{_where(cell.point)}")
+    kinds: dict[str, tuple[str, Any]] = {}  # preset → (lane kind "auto" gives, first cell)
+    for cell, kind in zip(cells, sim.auto_lane_kind(params), strict=True):
+        if cell.cfg.sim.lane != "auto":
+            continue
+        first = kinds.setdefault(cell.cfg.preset, (str(kind), cell))
+        if first[0] != kind:
+            raise ConfigError(
+                f"sim.lane: 'auto' drives the {first[0]} lane{_where(first[1].point)} but the "
+                f"{kind} lane{_where(cell.point)}; set sim.lane to in_group or between_groups "
+                "so that every cell drives the same kind of lane")
     for cell in cells:
         c = cell.cfg
         where = _where(cell.point)
@@ -438,6 +451,10 @@ def check(cfg: SweepConfig) -> None:
         if c.controller.name == "segmin" and c.camera.width < c.controller.smooth + 4:
             raise ConfigError(f"camera.width: segmin needs at least controller.smooth + 4 = "
                               f"{c.controller.smooth + 4} columns, got {c.camera.width}{where}")
+        try:  # the lane kind and the physics patch's height range (sim.check_params)
+            sim.check_params(c.field_params(), c.sim)
+        except ValueError as e:
+            raise ConfigError(f"{e}{where}") from None
         fv = c.field_values()
         if fv["row_length"] * fv["scale"] < c.sim.path_length:
             raise ConfigError(f"sim.path_length: {c.sim.path_length} m is longer than "
