@@ -19,8 +19,7 @@ from mjxrow.rollout import build as B
 from mjxrow.rollout import metrics as M
 from mjxrow.rollout.config import RunConfig
 
-CSV_METRICS = ("success", "collision", "reason", "cha", "mae", "mse", "omega_std", "v_mean",
-               "time", "path_ratio", "max_offset")
+CSV_METRICS = M.METRICS
 
 
 @contextlib.contextmanager

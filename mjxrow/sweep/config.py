@@ -33,6 +33,7 @@ import yaml
 from mjxrow import control, crops
 from mjxrow import field as F
 from mjxrow.rollout import config as schema
+from mjxrow.rollout import limits
 from mjxrow.rollout.config import (
     ConfigError,
     ControllerChoice,
@@ -164,6 +165,9 @@ def _value(path: str, v: Any, parse, axis_ok: bool) -> Any:
         if set(v) != {"start", "stop", "num"}:
             raise ConfigError(f"{path}: a range needs start, stop and num")
         num = _scalar(f"{path}.num", v["num"], "int", check="positive")
+        if num > limits.AXIS_VALUES:
+            raise ConfigError(f"{path}.num: {num:,} values, beyond the bound of "
+                              f"{limits.AXIS_VALUES:,} values per axis (mjxrow/rollout/limits.py)")
         a = _scalar(f"{path}.start", v["start"], "float")
         b = _scalar(f"{path}.stop", v["stop"], "float")
         return _value(path, [round(float(x), 10) for x in np.linspace(a, b, num)], parse, True)
@@ -215,6 +219,10 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
             kind = "str" if m["kind"] is str else "int"
             top[key] = _value(key, v, lambda p, x, m=m, kind=kind: _scalar(
                 p, x, kind, choices=m["choices"], check=m["check"]), False)
+            try:
+                limits.check_value(key, top[key])
+            except limits.LimitError as e:
+                raise ConfigError(str(e)) from None
         else:
             raise _unknown(key, key, TOP_KEYS + schema.ORDER)
         for k, val in list(values.items()):
@@ -224,22 +232,105 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
                       base_dir=str(base_dir))
     if smoke:
         cfg = shrink(cfg)
+    check_grid(cfg)
     check(cfg)
     return cfg
 
 
-def load(path: str | Path, sets=(), smoke: bool = False) -> SweepConfig:
-    """Read a sweep YAML (`yaml.safe_load`), apply `--set` overrides, validate."""
+def check_grid(cfg: SweepConfig) -> None:
+    """ConfigError when the grid has more cells, or the sweep more episodes, than the bounds of
+    rollout.limits; the message names the longest axis (or `seeds`). Runs before any cell is
+    built."""
+    vals = dict(cfg.values)
+    sizes = {k: len(vals[k]) for k in cfg.axis_order}
+    cells = math.prod(sizes.values())
+    longest = max(sizes, key=sizes.get) if sizes else "seeds"
+    if cells > limits.CELLS:
+        raise ConfigError(f"{longest}: the grid has {cells:,} cells ("
+                          + " × ".join(f"{n} {k}" for k, n in sizes.items())
+                          + f"), beyond the bound of {limits.CELLS:,} (mjxrow/rollout/limits.py)")
+    if cells * cfg.seeds > limits.EPISODES:
+        raise ConfigError(f"seeds: {cells:,} cells × {cfg.seeds:,} seeds = "
+                          f"{cells * cfg.seeds:,} episodes, beyond the bound of "
+                          f"{limits.EPISODES:,} (mjxrow/rollout/limits.py)")
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """yaml.SafeLoader that rejects a key given twice in one mapping (plain YAML keeps the last
+    one silently)."""
+
+    path: list[str] = []
+
+
+def _construct_mapping(loader, node, deep=False):
+    seen: dict[Any, int] = {}
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=True)
+        if key in seen:
+            where = _mapping_path(loader, node)
+            raise ConfigError(f"{where}{key}: duplicate key (lines {seen[key] + 1} and "
+                              f"{key_node.start_mark.line + 1})")
+        seen[key] = key_node.start_mark.line
+    return yaml.SafeLoader.construct_mapping(loader, node, deep)
+
+
+def _mapping_path(loader, node) -> str:
+    """The dotted path of a mapping node inside the document ('' at the top, 'field.' ...)."""
+    parents = getattr(loader, "_parents", {})
+    parts = []
+    while id(node) in parents:
+        node, key = parents[id(node)]
+        parts.append(str(key))
+    return "".join(f"{p}." for p in reversed(parts))
+
+
+def _compose_with_parents(loader):
+    root = yaml.SafeLoader.get_single_node(loader)
+    parents: dict[int, tuple[Any, Any]] = {}
+    stack = [root] if root is not None else []
+    while stack:
+        n = stack.pop()
+        if isinstance(n, yaml.MappingNode):
+            for k, v in n.value:
+                if isinstance(v, yaml.MappingNode):
+                    parents[id(v)] = (n, k.value)
+                    stack.append(v)
+    loader._parents = parents
+    return root
+
+
+_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG,
+                                 _construct_mapping)
+_UniqueKeyLoader.get_single_node = _compose_with_parents
+
+
+def read_yaml(path: str | Path) -> Any:
+    """Parse a YAML file, rejecting duplicate keys and an empty file; ConfigError naming the
+    file (and line) or the key."""
     path = Path(path)
     try:
-        raw = yaml.safe_load(path.read_text())
+        text = path.read_text()
     except OSError as e:
         raise ConfigError(f"{path}: cannot read ({e.strerror})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text file") from None
+    try:
+        raw = yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 (a SafeLoader)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f":{mark.line + 1}" if mark else ""
         raise ConfigError(f"{path}{where}: invalid YAML ({getattr(e, 'problem', e)})") from None
-    return from_dict(raw, path.parent, sets, smoke)
+    if raw is None:
+        raise ConfigError(f"{path}: empty file; a sweep YAML needs at least one key "
+                          "(sweeps.yaml is an example)")
+    return raw
+
+
+def load(path: str | Path, sets=(), smoke: bool = False) -> SweepConfig:
+    """Read a sweep YAML (`read_yaml`: no duplicate keys, not empty), apply `--set` overrides,
+    validate."""
+    path = Path(path)
+    return from_dict(read_yaml(path), path.parent, sets, smoke)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -409,6 +500,23 @@ def checkpoint_id(path: str) -> str:
     return h.hexdigest()[:16]
 
 
+def _blame(cfg: RunConfig, name: str, shape: F.FieldShape) -> str:
+    """The dotted key to name for a failed field check `name`: the key itself when it was given
+    (or is not a field key); else the given field key whose preset value makes the check pass
+    (`d_rr: 1e9` fails the terrain_width check: the key to name is field.d_rr)."""
+    key = f"field.{name}" if name in F.PARAM_NAMES else name
+    given = [k for k, v in cfg.field.items() if v is not None]
+    if name in given or not given:
+        return key
+    preset = crops.get(cfg.preset).preset
+    for k in given:
+        values = {**cfg.field_values(), k: preset[k]}
+        ok, _ = F.checks(F.make_params(cfg.preset, **values), shape)[name]
+        if bool(np.all(np.asarray(ok))):
+            return f"field.{k}"
+    return key
+
+
 def check(cfg: SweepConfig) -> None:
     """Checks across keys and on every cell: each section's own checks (building the cell's
     domain configs), impossible fields (field.checks), missing checkpoints, the controller's
@@ -423,8 +531,20 @@ def check(cfg: SweepConfig) -> None:
         ok = np.asarray(ok).reshape(-1)
         if not ok.all():
             cell = cells[int(np.argmin(ok))]
-            key = f"field.{name}" if name in F.PARAM_NAMES else name
+            key = _blame(cell.cfg, name, roomy)
             raise ConfigError(f"{key}: {reason}{_where(cell.point)}")
+    shape = F.fit_shape(params, cells[0].cfg.preset)
+    for size, bound, what, keys in (
+            (shape.max_rows, limits.ROWS, "rows", ("d_rr", "d_RR", "terrain_width")),
+            (shape.max_plants_per_row, limits.PLANTS_PER_ROW, "plants per row",
+             ("d_pp", "row_length")),
+            (shape.obstacle_slots, limits.OBSTACLES, "obstacles",
+             ("stone_density", "branch_density", "row_length"))):
+        if size > bound:
+            given = {k for c in cells for k, v in c.cfg.field.items() if v is not None}
+            key = next((k for k in keys if k in given), keys[0])
+            raise ConfigError(f"field.{key}: gives {size:,} {what} in a field, beyond the "
+                              f"bound of {bound:,} (mjxrow/rollout/limits.py)")
     for cell in cells:
         c = cell.cfg
         where = _where(cell.point)

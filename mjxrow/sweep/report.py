@@ -1,7 +1,10 @@
 """Figures and the markdown report of a sweep (host only, matplotlib Agg).
 
 A summary table has one row per cell: the swept axes (dotted names, e.g. `field.d_rr`), `n`
-(episodes), and per metric `m` its mean with the 95 % interval `m_lo`, `m_hi`.
+(episodes), and per metric `m` its mean with the 95 % interval `m_lo`, `m_hi` and `m_n`, the
+episodes the mean is taken over: an episode excluded from the trajectory metrics (no valid step,
+flipped, simulation error: metrics.TRAJECTORY) and a failed episode's `time` are NaN in
+results.csv and left out, so `m_n` < `n` says how many were left out.
 """
 
 from __future__ import annotations
@@ -25,6 +28,8 @@ from mjxrow.sweep import config as C  # noqa: E402
 METRICS: dict[str, tuple[str, str, str, str | None]] = {
     "success": ("success rate", "fraction", "{:.2f}", "high"),
     "collision": ("collision rate", "fraction", "{:.2f}", "low"),
+    "excluded": ("share of episodes excluded from the trajectory metrics", "fraction", "{:.2f}",
+                 "low"),
     "cha": ("cumulative heading average (CHA)", "rad", "{:.3f}", None),
     "mae": ("mean absolute lateral error (MAE)", "m", "{:.3f}", "low"),
     "mse": ("mean squared lateral error (MSE)", "m²", "{:.4f}", "low"),
@@ -191,16 +196,18 @@ def surfaces(summary: pd.DataFrame, axes: list[str], metrics: list[str], out_dir
 
 
 def summary_table(results: pd.DataFrame, axes: list[str], metric_names: list[str]) -> pd.DataFrame:
-    """Per cell: axis values, n, and per metric its mean with the 95 % interval (`m`, `m_lo`,
-    `m_hi`; Wilson for rates, Student t otherwise, via metrics.aggregate), plus the share of
-    episodes per ending reason (`reason_<name>`)."""
+    """Per cell: axis values, n, and per metric its mean with the 95 % interval and the number
+    of episodes it is taken over (`m`, `m_lo`, `m_hi`, `m_n`; Wilson for rates, Student t
+    otherwise, via metrics.aggregate; NaN values left out), plus the share of episodes per
+    ending reason (`reason_<name>`)."""
     out = []
     for cell, rows in results.groupby("cell", sort=True):
         row: dict[str, Any] = {"cell": cell, **{a: rows[a].iloc[0] for a in axes},
                                "n": len(rows)}
         table = {m: rows[m].to_numpy() for m in metric_names if m != "reason"}
         for m, agg in M.aggregate(table).items():
-            row.update({m: agg["mean"], f"{m}_lo": agg["lo"], f"{m}_hi": agg["hi"]})
+            row.update({m: agg["mean"], f"{m}_lo": agg["lo"], f"{m}_hi": agg["hi"],
+                        f"{m}_n": agg["n"]})
         if "reason" in rows:
             shares = rows["reason"].value_counts(normalize=True)
             row.update({f"reason_{r}": float(shares.get(r, 0.0)) for r in M.REASONS[1:]})
@@ -221,13 +228,26 @@ def _md_table(df: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
+def _mean_ci(fmt: str, mean, lo, hi, n_used, n) -> str:
+    """`mean [lo, hi]`, with `(n = k of N)` when only k of the cell's N episodes count."""
+    if not np.isfinite(mean):
+        text = "–"
+    elif np.isfinite(lo) and np.isfinite(hi):
+        text = f"{fmt.format(mean)} [{fmt.format(lo)}, {fmt.format(hi)}]"
+    else:
+        text = fmt.format(mean)
+    return text if n_used >= n else f"{text} (n = {int(n_used)} of {int(n)})"
+
+
 def summary_markdown(summary: pd.DataFrame, axes: list[str], metrics: list[str]) -> str:
-    """Markdown table: axis values, n, and `mean [lo, hi]` per metric."""
+    """Markdown table: axis values, n, and `mean [lo, hi]` per metric, with the count of the
+    episodes it is taken over where some were left out."""
     out = summary[axes + ["n"]].copy() if axes else summary[["n"]].copy()
     for m in metrics:
         fmt = metric_info(m)[2]
-        out[m] = [f"{fmt.format(a)} [{fmt.format(b)}, {fmt.format(c)}]" for a, b, c in
-                  zip(summary[m], summary[f"{m}_lo"], summary[f"{m}_hi"], strict=True)]
+        used = summary[f"{m}_n"] if f"{m}_n" in summary else summary["n"]
+        out[m] = [_mean_ci(fmt, *v) for v in zip(
+            summary[m], summary[f"{m}_lo"], summary[f"{m}_hi"], used, summary["n"], strict=True)]
     return _md_table(out)
 
 
