@@ -6,8 +6,11 @@ value (one compile each) → batches of episodes → per-episode metrics → `re
 
 Resumable: each finished cell is written at once to `DIR/cells/<hash>.csv` (temp file +
 `os.replace`), `hash` covering the cell's resolved parameters and its group's static field
-shape; a re-run skips the cells whose file exists. Ctrl-C and SIGTERM stop between writes, so
-no finished cell is lost and no file is left half-written.
+shape; a re-run verifies each cell file (complete, every episode, its own hash) and skips the
+cells whose file passes; a damaged one is reported and recomputed. `DIR/.lock` keeps a second
+sweep out of the folder. From the command line, Ctrl-C and SIGTERM at any moment (compilation
+included) write results.csv and summary.csv from the finished cells and exit with 130
+(mjxrow.interrupt); no finished cell is lost and no file is left half-written.
 
 The evaluation of one group is one call with a narrow interface (tests inject a fake one):
 
@@ -21,6 +24,7 @@ import argparse
 import contextlib
 import dataclasses
 import datetime
+import json
 import os
 import signal
 import sys
@@ -36,9 +40,12 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 from mjxrow import field as F
+from mjxrow import files as FS
+from mjxrow import interrupt
 from mjxrow.rollout import build as B
 from mjxrow.rollout import metrics as M
 from mjxrow.sweep import config as C
+from mjxrow.sweep import estimate as EST
 from mjxrow.sweep import report as plots
 
 Evaluator = Callable[["Group", C.SweepConfig, Callable[[pd.DataFrame], None]], pd.DataFrame]
@@ -97,13 +104,56 @@ def atomic_write_csv(path: Path, df: pd.DataFrame) -> None:
     atomic_write_text(path, df.to_csv(index=False))
 
 
-def finished_cells(cells_dir: Path) -> set[str]:
-    """Hashes of the finished cells; removes temp files a killed run may have left."""
+IDENTITY = ("cell", "episode", "cell_hash")
+
+
+def cell_file_problem(path: Path, seeds: int | None) -> str | None:
+    """Why a cell file cannot be reused (None: it can): empty, cut short (no final newline),
+    header only, unreadable, episodes missing or repeated, another cell's hash inside."""
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        return f"unreadable ({e.strerror})"
+    if not data.strip():
+        return "empty"
+    if not data.endswith(b"\n"):
+        return "cut short (no final newline)"
+    try:
+        df = pd.read_csv(path)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
+        return f"not a readable table ({str(e).splitlines()[0]})"
+    missing = [c for c in IDENTITY if c not in df]
+    if missing:
+        return f"no {missing[0]} column"
+    if df.empty:
+        return "header only"
+    if df[list(IDENTITY)].isna().any().any():
+        return "rows cut short"
+    if set(df["cell_hash"].astype(str)) != {path.stem}:
+        return "holds another cell's rows"
+    if seeds is not None and sorted(df["episode"].tolist()) != list(range(seeds)):
+        return f"{len(df)} of {seeds} episodes"
+    return None
+
+
+def finished_cells(cells_dir: Path, seeds: int | None = None, report: bool = False) -> set[str]:
+    """Hashes of the finished cells whose file passes `cell_file_problem` (with `seeds`, every
+    episode must be there). With `report` (only under the folder's lock): removes the temp
+    files a killed run may have left, and each damaged cell file, saying so on stderr, so that
+    the cell is recomputed."""
     if not cells_dir.is_dir():
         return set()
-    for tmp in cells_dir.glob(".*.tmp"):
+    for tmp in FS.temp_files(cells_dir) if report else ():
         tmp.unlink(missing_ok=True)
-    return {p.stem for p in cells_dir.glob("*.csv")}
+    done = set()
+    for p in sorted(cells_dir.glob("*.csv")):
+        problem = cell_file_problem(p, seeds)
+        if problem is None:
+            done.add(p.stem)
+        elif report:
+            print(f"{p}: {problem}; the cell is run again", file=sys.stderr)
+            p.unlink(missing_ok=True)
+    return done
 
 
 def cell_rows(group: Group, cell_index: int, rows: pd.DataFrame) -> pd.DataFrame:
@@ -179,15 +229,31 @@ def _raise_interrupt(signum, frame):
     raise _Terminated(f"signal {signum}")
 
 
+COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"  # jax.monitoring, per XLA compile
+
+
 class _CellWriter:
     """on_batch_done of one group: collects episode rows per cell and writes each cell's file
     (atomically) as soon as all its episodes are in; advances the progress bar."""
 
-    def __init__(self, group: Group, seeds: int, cells_dir: Path, bar):
+    def __init__(self, group: Group, seeds: int, cells_dir: Path, bar, lock=None):
         self.group, self.seeds, self.dir, self.bar = group, seeds, cells_dir, bar
+        self.lock = lock or contextlib.nullcontext()
         self.pending: dict[int, list[pd.DataFrame]] = {}
         self.times = [time.perf_counter()]
         self.episodes = 0
+        self.compile_s, self.programs = 0.0, 0
+
+    def on_compile(self, event: str, seconds: float, **_) -> None:
+        """A jax.monitoring listener: adds up XLA compilations, so that the bar tells compile
+        from run and the ETA counts run time only."""
+        if event != COMPILE_EVENT:
+            return
+        self.compile_s += seconds
+        self.programs += 1
+        if not self.episodes:
+            self.bar.set_postfix_str(f"group {self.group.index}: compiled {self.programs} "
+                                     f"program(s) in {self.compile_s:.0f} s, running")
 
     def __call__(self, rows: pd.DataFrame) -> None:
         self.times.append(time.perf_counter())
@@ -196,10 +262,22 @@ class _CellWriter:
             parts.append(part)
             if sum(len(p) for p in parts) >= self.seeds:
                 df = cell_rows(self.group, int(ci), pd.concat(self.pending.pop(int(ci))))
-                atomic_write_csv(self.dir / f"{df['cell_hash'].iloc[0]}.csv", df)
+                with self.lock:
+                    atomic_write_csv(self.dir / f"{df['cell_hash'].iloc[0]}.csv", df)
         self.episodes += len(rows)
         self.bar.update(len(rows))
-        self.bar.set_postfix_str(f"group {self.group.index}")
+        self.bar.set_postfix_str(f"group {self.group.index}: {self.eta()}")
+
+    def eta(self) -> str:
+        """Time left in this group at the rate of the batches so far, compilation left out:
+        known from the first batch on."""
+        run_s = self.times[-1] - self.times[0] - self.compile_s
+        left = len(self.group.episodes) - self.episodes
+        if not left:
+            return "done"
+        if run_s <= 0:
+            return "running"
+        return f"about {left * run_s / self.episodes:.0f} s left in this group"
 
     def timing(self) -> str:
         dt = np.diff(self.times)
@@ -208,7 +286,7 @@ class _CellWriter:
         rest = f", then {np.median(dt[1:]):.1f} s per batch (median of {dt.size - 1})" \
             if dt.size > 1 else ""
         return (f"{self.times[-1] - self.times[0]:.1f} s for {self.episodes} episodes: first "
-                f"batch {dt[0]:.1f} s including compilation{rest}")
+                f"batch {dt[0]:.1f} s including {self.compile_s:.1f} s of compilation{rest}")
 
 
 @contextlib.contextmanager
@@ -232,15 +310,30 @@ def _ticking(bar, enabled: bool):
 
 
 def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
-        progress: bool = True, command: str = "", figures: bool = True) -> dict[str, Any]:
+        progress: bool = True, command: str = "", figures: bool = True,
+        hard_stop: bool = False) -> dict[str, Any]:
     """Run every unfinished cell of `cfg`, persisting each as it finishes, then write the
     outputs (without `figures`: no PNGs and no report). Returns {'groups', 'ran', 'skipped',
-    'files'}. On Ctrl-C or SIGTERM the finished cells are kept, results.csv and summary.csv
-    hold them, and KeyboardInterrupt propagates."""
+    'files'}. Holds `out/.lock` (files.OutLock): a second run into `out` gets OutputError.
+
+    On Ctrl-C or SIGTERM the finished cells are kept and results.csv and summary.csv hold them;
+    then KeyboardInterrupt propagates, or, with `hard_stop` (the CLI), the process ends at once
+    with exit code 130, whatever it was doing, compilation included (interrupt.HardStop)."""
     evaluate = evaluate or evaluate_group
     out = Path(out)
     (out / "cells").mkdir(parents=True, exist_ok=True)
-    groups = plan(cfg, finished_cells(out / "cells"))
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(FS.OutLock(out))
+        stop = stack.enter_context(interrupt.HardStop()) if hard_stop else None
+        return _run(cfg, out, evaluate, progress, command, figures, stop)
+
+
+FACTS = "run.json"  # the facts (date, command, device, timings) of the last run that ran episodes
+
+
+def _run(cfg: C.SweepConfig, out: Path, evaluate: Evaluator, progress: bool, command: str,
+         figures: bool, stop: interrupt.HardStop | None) -> dict[str, Any]:
+    groups = plan(cfg, finished_cells(out / "cells", cfg.seeds, report=True))
     n_cells = sum(len(g.cells) for g in groups)
     total, todo = n_cells * cfg.seeds, sum(len(g.episodes) for g in groups)
     skipped = (total - todo) // cfg.seeds
@@ -250,7 +343,19 @@ def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
                             "cells skipped (already finished)": skipped}
     bar = tqdm(total=total, initial=total - todo, unit="ep", disable=not progress,
                desc=cfg.name, dynamic_ncols=True)
-    old = signal.signal(signal.SIGTERM, _raise_interrupt) if _main_thread() else None
+
+    def flush() -> None:
+        bar.close()
+        write_outputs(cfg, groups, out, info, figures=False)
+        kept = len(finished_cells(out / "cells") & {h for g in groups for h in g.hashes})
+        print(f"interrupted: {kept} of {n_cells} cells finished and kept in {out}; run the "
+              "same command again to resume", file=sys.stderr)
+
+    if stop is not None:
+        stop.flush = flush
+    old = signal.signal(signal.SIGTERM, _raise_interrupt) \
+        if _main_thread() and stop is None else None
+    lock = stop.lock if stop is not None else contextlib.nullcontext()
     ran, t0 = 0, time.perf_counter()
     try:
         with _ticking(bar, progress):
@@ -258,27 +363,44 @@ def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
                 if not g.episodes:
                     continue
                 bar.set_postfix_str(f"group {g.index}: compiling")
-                writer = _CellWriter(g, cfg.seeds, out / "cells", bar)
+                writer = _CellWriter(g, cfg.seeds, out / "cells", bar, lock)
+                jax.monitoring.register_event_duration_secs_listener(writer.on_compile)
                 try:
                     evaluate(g, cfg, writer)
                 finally:
+                    jax.monitoring.unregister_event_duration_listener(writer.on_compile)
                     ran += writer.episodes
                     info[f"group {g.index} ({g.shape.crop}, {len(g.cells)} cells)"] = \
                         writer.timing()
     except KeyboardInterrupt:
-        bar.close()
-        write_outputs(cfg, groups, out, info, figures=False)
-        kept = len(finished_cells(out / "cells") & {h for g in groups for h in g.hashes})
-        print(f"interrupted: {kept} of {n_cells} cells finished and kept in {out}; run the "
-              "same command again to resume", file=sys.stderr)
+        with lock:
+            flush()
         raise
     finally:
         bar.close()
         if old is not None:
             signal.signal(signal.SIGTERM, old)
     info["wall time"] = f"{time.perf_counter() - t0:.1f} s for {ran} episodes"
-    return {"groups": groups, "ran": ran, "skipped": skipped,
-            "files": write_outputs(cfg, groups, out, info, figures)}
+    with lock:
+        info = _facts(out, info, ran, todo)
+        files = write_outputs(cfg, groups, out, info, figures)
+    return {"groups": groups, "ran": ran, "skipped": skipped, "files": files}
+
+
+def _facts(out: Path, info: dict[str, Any], ran: int, todo: int) -> dict[str, Any]:
+    """The run facts for report.md: this run's, saved to out/run.json when it ran episodes; a
+    re-run with nothing to do keeps the saved facts of the run that made the results, and
+    says when it was re-run."""
+    path = out / FACTS
+    if ran or todo:
+        FS.atomic_write_text(path, json.dumps(info, indent=1, ensure_ascii=False) + "\n")
+        return info
+    try:
+        saved = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return info
+    return {**saved, "re-run": f"{info['date']} ({info['command']}): every cell already "
+            "finished, nothing run"}
 
 
 def _main_thread() -> bool:
@@ -314,24 +436,42 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a dotted key, e.g. --set field.d_rr=[1.2,1.8] (repeatable)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--force", action="store_true",
+                   help="run even when the memory estimate exceeds this machine's memory")
     args = p.parse_args(argv)
     cpu_devices()
     try:
         cfg = C.load(args.config, args.set, args.smoke)
-    except C.ConfigError as e:
+        out = Path(args.out or cfg.out)
+        if args.smoke and not args.out:
+            out = out.with_name(out.name + "_smoke")
+        FS.check_out_dir(out, "--out")
+        cells = out / "cells"
+        est = EST.estimate(plan(cfg, finished_cells(cells, cfg.seeds)), cfg.seeds,
+                           cfg.batch_size, _device_name())
+        line = EST.check(est, args.force)
+    except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    out = Path(args.out or cfg.out)
-    if args.smoke and not args.out:
-        out = out.with_name(out.name + "_smoke")
+    if not args.no_progress:
+        print(line, file=sys.stderr)
     command = "python -m mjxrow.sweep " + " ".join(argv if argv is not None else sys.argv[1:])
     try:
-        res = run(cfg, out, progress=not args.no_progress, command=command)
+        res = run(cfg, out, progress=not args.no_progress, command=command, hard_stop=True)
+    except FS.OutputError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         return 130
     print(f"{res['ran']} episodes run, {res['skipped']} cells skipped; report: "
           f"{res['files'].get('report', out)}")
     return 0
+
+
+def _device_name() -> str:
+    """The device as benchmarks.jsonl names it: the accelerator's name, or `cpu`."""
+    dev = jax.devices()[0]
+    return "cpu" if dev.platform == "cpu" else dev.device_kind
 
 
 if __name__ == "__main__":
