@@ -73,10 +73,10 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
-from mujoco import mjx
 
 from mjxrow import field as F
 from mjxrow.physics import robot as R
+from mjxrow.physics.quiet import mjx
 
 TERRAIN = "terrain"  # name of the heightfield geom
 _PARK_DEPTH = 100.0  # m below the patch where unused obstacle slots wait

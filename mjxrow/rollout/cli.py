@@ -15,6 +15,7 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 from mjxrow import field as F
+from mjxrow.files import atomic_write_text
 from mjxrow.rollout import build as B
 from mjxrow.rollout import metrics as M
 from mjxrow.rollout.config import RunConfig
@@ -84,7 +85,7 @@ def run_episodes(run: RunConfig, n: int, out: str | Path, progress: bool = True
     t2 = time.perf_counter()
     table = results_table(run, np.arange(n), np.asarray(batch.lanes)[:n], summary)
     out.mkdir(parents=True, exist_ok=True)
-    table.to_csv(out / "episodes.csv", index=False)
+    atomic_write_text(out / "episodes.csv", table.to_csv(index=False))
     print(f"{run.controller.name} on {run.preset}: {n} episodes, compile {t1 - t0:.1f} s, "
           f"run {t2 - t1:.1f} s ({n * built.episode.n_steps / (t2 - t1):.0f} env-steps/s)")
     print(M.format_table({k: summary[k] for k in CSV_METRICS}))

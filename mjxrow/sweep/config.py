@@ -517,6 +517,19 @@ def _blame(cfg: RunConfig, name: str, shape: F.FieldShape) -> str:
     return key
 
 
+@functools.lru_cache(maxsize=32)
+def _verified(path: str) -> str:
+    """`path` once seg.checkpoint.verify passes (config readable, weights present)."""
+    if path:
+        from mjxrow.seg import checkpoint as ckpt
+
+        try:
+            ckpt.verify(path)
+        except ValueError as e:
+            raise ConfigError(f"perception.checkpoint: {e}") from None
+    return path
+
+
 def check(cfg: SweepConfig) -> None:
     """Checks across keys and on every cell: each section's own checks (building the cell's
     domain configs), impossible fields (field.checks), missing checkpoints, the controller's
@@ -549,7 +562,7 @@ def check(cfg: SweepConfig) -> None:
         c = cell.cfg
         where = _where(cell.point)
         try:
-            checkpoint_path(c)
+            _verified(checkpoint_path(c))
             c.controller_params()
         except ConfigError as e:
             raise ConfigError(f"{e}{where}") from None

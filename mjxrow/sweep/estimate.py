@@ -128,15 +128,24 @@ def estimate(groups, seeds: int, batch_size: int, device: str) -> Estimate:
     return Estimate(peak, per, batch, steps, seconds, n_groups)
 
 
-def check(est: Estimate, force: bool = False) -> str:
+def check(est: Estimate, force: bool = False, key: str = "batch_size") -> str:
     """The estimate as a line; ValueError (with the estimate) when the peak memory exceeds what
     the machine has, unless `force`."""
     have, where = available_bytes()
     line = est.text()
     if est.peak_bytes > have and not force:
-        raise ValueError(f"batch_size: {line}, more than {where} ({_gib(have)}); lower "
-                         f"batch_size or the image size, or pass --force to run anyway")
+        raise ValueError(f"{key}: {line}, more than {where} ({_gib(have)}); lower {key} or "
+                         f"the image size, or pass --force to run anyway")
     return line + ("" if est.peak_bytes <= have else f" (beyond {where}: --force)")
 
 
-__all__ = ["Estimate", "available_bytes", "check", "episode_bytes", "estimate"]
+def check_episodes(run, n: int, force: bool = False) -> str:
+    """`check` for one batch of `n` episodes of one RunConfig (the episode command)."""
+    from mjxrow.rollout import build as B
+
+    e = episode_bytes(run, B.fit_shape([run]))
+    steps = n * run.episode.static().n_steps
+    return check(Estimate(2 * n * e + OVERHEAD, e, n, steps, None, 1), force, "--n")
+
+
+__all__ = ["check_episodes", "Estimate", "available_bytes", "check", "episode_bytes", "estimate"]
