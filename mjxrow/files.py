@@ -37,7 +37,7 @@ def check_out_dir(path: str | Path, option: str = "--out") -> Path:
     if p.exists() and not p.is_dir():
         raise OutputError(f"{option} {path}: exists and is not a folder")
     if not probe_in.is_dir():
-        raise OutputError(f"{option} {path}: {probe_in} is not a folder")
+        raise OutputError(f"{option} {path}: cannot write there ({probe_in} is not a folder)")
     try:
         if probe_in == p:
             fd, name = tempfile.mkstemp(prefix=".probe-", dir=p)
