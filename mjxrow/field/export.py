@@ -23,6 +23,7 @@ from PIL import Image
 from mjxrow import crops
 from mjxrow import field as F
 from mjxrow.crops import prims as PL
+from mjxrow.files import check_out_dir, check_out_file
 from mjxrow.overrides import parse_sets
 
 PLANT_RGB = {"leaf": (0.23, 0.50, 0.14), "stem": (0.42, 0.60, 0.22), "trunk": (0.36, 0.25, 0.16),
@@ -382,8 +383,9 @@ def snapshot(xml_path: str | Path, png_path: str | Path, width: int = 960,
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjxrow.worlds", description=__doc__.split("\n")[0])
-    ap.add_argument("--preset", choices=crops.names(), default="zucchini")
-    ap.add_argument("--all", action="store_true", help="export every preset")
+    which = ap.add_mutually_exclusive_group(required=True)
+    which.add_argument("--preset", choices=crops.names(), help="the preset to export")
+    which.add_argument("--all", action="store_true", help="export every preset")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default="worlds", help="output folder")
     ap.add_argument("--set", action="append", metavar="KEY=VALUE", dest="sets",
@@ -392,7 +394,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="plant collisions in the SDF (see to_sdf)")
     ap.add_argument("--gzip-sdf", action="store_true",
                     help="write <preset>.sdf.gz (gunzip before opening in Gazebo)")
-    ap.add_argument("--picture", metavar="PNG", help="also render the `eye` view (one preset)")
+    ap.add_argument("--picture", metavar="PNG", help="also render the `eye` view (one preset; "
+                    "needs MuJoCo's offscreen GL: MUJOCO_GL=egl on a GPU, or osmesa with "
+                    "libosmesa6)")
     args = ap.parse_args(argv)
     if args.picture and args.all:
         ap.error("--picture takes one preset, not --all")
@@ -400,6 +404,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         sets = parse_sets(args.sets)
         resolved = {p: resolve(p, sets) for p in presets}
+        check_out_dir(args.out, "--out")
+        if args.picture:
+            check_out_file(args.picture, "--picture")
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -28,6 +28,7 @@ import json
 import os
 import signal
 import sys
+import textwrap
 import threading
 import time
 from collections.abc import Callable
@@ -427,8 +428,13 @@ def cpu_devices() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m mjxrow.sweep", description=__doc__.split("\n")[2],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        prog="python -m mjxrow.sweep", description=__doc__.split("\n\n")[1],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=textwrap.fill(
+            "Exit codes: 0 done, 2 invalid configuration, output folder or resources (the key or "
+            "option is named), 130 interrupted (the finished cells are kept; run the same "
+            "command again to resume).", 88))
     p.add_argument("config", help="sweep YAML file")
     p.add_argument("--out", help="output directory (default: the YAML's `out`)")
     p.add_argument("--smoke", action="store_true",
