@@ -56,3 +56,14 @@ def test_summary_markdown_counts_left_out_episodes():
     s.loc[0, "mae_n"] = 5
     text = R.summary_markdown(s, ["field.d_rr", "field.terrain_dh"], ["mae"])
     assert "(n = 5 of 8)" in text and text.count("(n = ") == 1
+
+
+def test_every_metric_has_a_unit_in_the_docs():
+    from pathlib import Path
+
+    from mjxrow.rollout import metrics as M
+
+    doc = (Path(__file__).parents[1] / "docs" / "guarantees.md").read_text()
+    table = doc.split("## Units of results.csv")[1].split("\n## ")[0]
+    for m in M.METRICS:
+        assert f"`{m}`" in table, m
