@@ -54,6 +54,8 @@ def sweep(out, fake=None, figures=False):
 def test_damaged_cell_files_are_reported_and_recomputed(tmp_path, capsys):
     sweep(tmp_path)
     first = pd.read_csv(tmp_path / "results.csv")
+    # the render knobs left at None are written as the values used, not as NaN
+    assert first[["render.tile", "render.deep_share", "render.kernel"]].notna().all().all()
     files = sorted((tmp_path / "cells").glob("*.csv"))
     assert len(files) == 4
     text = files[0].read_text()

@@ -157,6 +157,20 @@ def finished_cells(cells_dir: Path, seeds: int | None = None, report: bool = Fal
     return done
 
 
+def resolved_params(run: C.RunConfig) -> dict[str, Any]:
+    """C.resolved with the render knobs left at None (by crop, by resolution, by backend) set
+    to the values the renderer used (render.resolve), so that results.csv says what ran. The
+    cell hash keeps the given values."""
+    from mjxrow import render as RD
+
+    out = C.resolved(run)
+    used = RD.resolve(run.render, run.preset, run.camera)
+    for k, v in dataclasses.asdict(used).items():
+        if out.get(f"render.{k}", 0) is None:
+            out[f"render.{k}"] = v
+    return out
+
+
 def cell_rows(group: Group, cell_index: int, rows: pd.DataFrame) -> pd.DataFrame:
     """Episode rows of one cell with identity columns and every resolved parameter."""
     cell = group.cell(cell_index)
@@ -164,7 +178,7 @@ def cell_rows(group: Group, cell_index: int, rows: pd.DataFrame) -> pd.DataFrame
     ident = pd.DataFrame({"cell": cell.index, "episode": rows["episode"],
                           "cell_hash": group.hashes[group.cells.index(cell)],
                           "group": group.index})
-    params = pd.DataFrame([C.resolved(cell.cfg)] * len(rows))
+    params = pd.DataFrame([resolved_params(cell.cfg)] * len(rows))
     metrics = rows.drop(columns=[c for c in ("cell", "episode") if c in rows])
     return pd.concat([ident, params, metrics], axis=1)
 
