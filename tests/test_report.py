@@ -67,3 +67,18 @@ def test_every_metric_has_a_unit_in_the_docs():
     table = doc.split("## Units of results.csv")[1].split("\n## ")[0]
     for m in M.METRICS:
         assert f"`{m}`" in table, m
+
+
+def test_summary_gives_n_per_metric_and_leaves_excluded_out():
+    """One cell, four episodes: one excluded (NaN trajectory metrics), one collided."""
+    results = pd.DataFrame({
+        "cell": 0, "field.d_rr": 1.5, "episode": range(4),
+        "success": [True, True, False, False], "excluded": [False, False, False, True],
+        "reason": ["goal", "goal", "collision", "flipped"],
+        "mae": [0.1, 0.2, 0.3, np.nan], "time": [10.0, 12.0, np.nan, np.nan]})
+    s = R.summary_table(results, ["field.d_rr"], ["success", "excluded", "reason", "mae",
+                                                  "time"])
+    row = s.iloc[0]
+    assert row["n"] == 4 and row["mae_n"] == 3 and row["time_n"] == 2 and row["success_n"] == 4
+    assert row["mae"] == pytest.approx(0.2) and row["excluded"] == pytest.approx(0.25)
+    assert row["mae_lo"] >= 0.0
