@@ -41,7 +41,7 @@ import pandas as pd
 from PIL import Image
 from tqdm.auto import tqdm
 
-from mjxrow import crops
+from mjxrow import crops, interrupt
 from mjxrow import field as F
 from mjxrow import files as FS
 from mjxrow import render as RD
@@ -260,10 +260,9 @@ def write_dataset(crop: str, n: int, out: str | Path, seed: int = 0, size: int =
     meta = np.concatenate(metas)
 
     paths = [rel_paths(crop, i) for i in range(n)]
-    for cond in RD.CONDITIONS:  # temp files of a killed run
-        for kind in ("rgb", "mask"):
-            for tmp in (out / cond / kind).glob(".tmp_*"):
-                tmp.unlink(missing_ok=True)
+    for folder in [out] + [out / c / k for c in RD.CONDITIONS for k in ("rgb", "mask")]:
+        for tmp in folder.glob(".tmp_*"):  # temp files of a killed run
+            tmp.unlink(missing_ok=True)
     damaged = remove_damaged(out, paths, size)
     if damaged:
         print(f"{len(damaged)} damaged image(s) in {out} removed and rendered again: "
@@ -394,8 +393,9 @@ def main(argv: list[str] | None = None) -> int:
     except FS.OutputError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    index = write_dataset(args.crop, args.n, args.out, args.seed, args.size, args.test_frac,
-                          args.batch, args.workers)
+    with interrupt.HardStop():  # Ctrl-C: exit 130; a re-run resumes (and cleans up)
+        index = write_dataset(args.crop, args.n, args.out, args.seed, args.size,
+                              args.test_frac, args.batch, args.workers)
     print(f"{args.n} samples of {args.crop} in {args.out}; index: {index}")
     return 0
 
