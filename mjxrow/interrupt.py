@@ -23,8 +23,8 @@ EXIT_CODE = 130  # 128 + SIGINT, as a shell reports a Ctrl-C
 
 class HardStop:
     """`with HardStop(flush):` makes SIGINT and SIGTERM end the process with exit code 130
-    after `flush()` (under `lock`). Main thread only; outside the block the previous handlers
-    are back."""
+    after `flush()` (under `lock`). Outside the block the previous handlers are back; entered
+    from another thread than the main one (where signals never arrive) it does nothing."""
 
     def __init__(self, flush: Callable[[], None] | None = None, code: int = EXIT_CODE):
         self.flush, self.code = flush, code
@@ -58,6 +58,9 @@ class HardStop:
                 os._exit(self.code)
 
     def __enter__(self) -> HardStop:
+        self._active = threading.current_thread() is threading.main_thread()
+        if not self._active:  # signals reach the main thread only: nothing to install
+            return self
         self._r, self._w = os.pipe()
         os.set_blocking(self._w, False)
         self._old_fd = signal.set_wakeup_fd(self._w, warn_on_full_buffer=False)
@@ -67,6 +70,8 @@ class HardStop:
         return self
 
     def __exit__(self, *exc) -> None:
+        if not self._active:
+            return
         self._closing = True
         for s, h in self._old.items():
             signal.signal(s, h)
