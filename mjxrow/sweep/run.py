@@ -219,8 +219,9 @@ class _CellWriter:
         self.compile_s += seconds
         self.programs += 1
         if not self.episodes:
-            self.bar.set_postfix_str(f"group {self.group.index}: compiled {self.programs} "
-                                     f"program(s) in {self.compile_s:.0f} s, running")
+            self.bar.set_postfix_str(f"group {self.group.index}: compiling, then the first "
+                                     f"batch ({self.compile_s:.0f} s of compilation so far)",
+                                     refresh=False)
 
     def __call__(self, rows: pd.DataFrame) -> None:
         self.times.append(time.perf_counter())
