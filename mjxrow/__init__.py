@@ -4,4 +4,10 @@ One module per stage of the data flow: `field` → `worlds` (exports) / `sim` (p
 `render` → `seg` → `control` → `episode` → `metrics` → `sweep` (+ `plots`).
 """
 
+import os as _os
+
+# XLA's C++ warnings (on GPUs, the autotuner's "Delay kernel timed out" timer lines) are not the
+# user's business; errors still show. An explicit TF_CPP_MIN_LOG_LEVEL wins.
+_os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
+
 __version__ = "0.1.0"

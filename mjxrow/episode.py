@@ -13,15 +13,18 @@ from __future__ import annotations
 import argparse
 import sys
 
-from mjxrow import control, crops, runtime
-from mjxrow.rollout import cli
+from mjxrow import control, crops, interrupt, runtime
+from mjxrow import files as FS
+from mjxrow.rollout import cli, limits
 from mjxrow.sweep import config as C
+from mjxrow.sweep import estimate
 
 
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m mjxrow.episode", description=__doc__.split(
         "\n")[0].split(": ", 1)[1], formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="Exit codes: 0 done, 2 invalid configuration (the key is named).")
+        epilog="Exit codes: 0 done, 2 invalid configuration or output folder (the key or option "
+        "is named), 130 interrupted (Ctrl-C or SIGTERM; nothing written).")
     p.add_argument("--preset", choices=crops.names(), help="crop preset (default: vineyard, or the "
                    "config's)")
     p.add_argument("--controller", choices=control.names(),
@@ -39,6 +42,8 @@ def parser() -> argparse.ArgumentParser:
                    help="set a dotted config key, e.g. --set field.d_rr=3.0 (repeatable)")
     p.add_argument("--no-progress", action="store_true", help="no progress lines")
     runtime.add_args(p)
+    p.add_argument("--force", action="store_true",
+                   help="run even when the memory estimate exceeds this machine's memory")
     return p
 
 
@@ -55,7 +60,14 @@ def main(argv: list[str] | None = None) -> int:
         cfg = C.load(args.config, sets) if args.config else C.from_dict({}, ".", sets)
         if cfg.axis_order:
             raise C.ConfigError(f"{cfg.axis_order[0]}: one run needs one value, got an axis")
-        cli.run_episodes(C.expand(cfg)[0].cfg, args.n, args.out, not args.no_progress)
+        if args.n < 1:
+            raise C.ConfigError(f"--n: must be at least 1, got {args.n}")
+        limits.check_count("--n", "episodes", args.n, limits.EPISODES)
+        run = C.expand(cfg)[0].cfg
+        estimate.check_episodes(run, args.n, args.force)
+        FS.check_out_dir(args.out, "--out")
+        with interrupt.HardStop():
+            cli.run_episodes(run, args.n, args.out, not args.no_progress)
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

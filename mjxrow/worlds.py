@@ -82,8 +82,12 @@ def main(argv: list[str] | None = None) -> int:
     from mjxrow import crops
     from mjxrow.field import export as X
     from mjxrow.field import replay
+    from mjxrow.files import check_out_dir, check_out_file
 
     try:
+        check_out_dir(args.out, "--out")
+        if args.picture:
+            check_out_file(args.picture, "--picture")
         if args.from_run:
             jobs = [lambda: replay.from_run(args.from_run, args.cell, args.episode)]
         else:

@@ -75,10 +75,13 @@ def test_impossible_values():
     # negative spacing is caught by field.checks, naming the cell
     msg = error_of({**GT, "field": {"d_pp": [0.7, -0.1]}})
     assert msg == "field.d_pp: must be positive (cell field.d_pp=-0.1)"
-    # plants wider than the row spacing of one cell of a 2-axis grid
+    # plants wider than the row spacing of one cell of a 2-axis grid: the key given (d_rr) is
+    # named, not the preset's plant width
     msg = error_of({**GT, "field": {"d_rr": [1.8, 0.5], "terrain_dh": [0.1, 0.2]}})
-    assert msg.startswith("field.plant_width: plants are wider than their row spacing")
+    assert msg.startswith("field.d_rr: plants are wider than their row spacing")
     assert "field.d_rr=0.5, field.terrain_dh=0.1" in msg
+    msg = error_of({**GT, "field": {"d_rr": 1.8, "plant_width": 2.0}})
+    assert msg.startswith("field.plant_width: plants are wider than their row spacing")
     assert error_of({**GT, "sim": {"path_length": 60}}).startswith(
         "sim.path_length: 60.0 m is longer than the rows (50 m)")
     assert error_of({**GT, "controller": {"name": "segmin", "smooth": 4}}).startswith(
@@ -102,6 +105,10 @@ def test_missing_checkpoint(tmp_path):
     assert "no config.json" in error_of({"perception": {"checkpoint": str(ck)}})
     (ck / "config.json").write_text("{}")
     (ck / "weights").mkdir()
+    assert "no 'model' mapping" in error_of({"perception": {"checkpoint": str(ck)}})
+    (ck / "config.json").write_text('{"model": {}}')
+    assert "weights/ holds no data" in error_of({"perception": {"checkpoint": str(ck)}})
+    (ck / "weights" / "data").write_bytes(b"w")  # verified by its files; restored when loaded
     cfg = C.from_dict({"perception": {"checkpoint": "ck"}}, base_dir=tmp_path)  # YAML-relative
     r = C.resolved(C.expand(cfg)[0].cfg)
     assert r["perception.checkpoint"] == str(ck.resolve())

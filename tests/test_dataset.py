@@ -80,6 +80,29 @@ def test_resume_rewrites_nothing(written):
     assert (written / "index.csv").read_text() == index_text
 
 
+def test_resume_renders_damaged_images_again(written, capsys):
+    """A PNG cut short, one that is not a PNG and a temp file of a killed run: the re-run
+    reports the two images, renders them again (identical to the first run), removes the temp
+    file and touches nothing else."""
+    cut = written / "sunny" / "rgb" / "zucchini_000004.png"
+    junk = written / "crepuscular" / "mask" / "zucchini_000002.png"
+    old = {p: p.read_bytes() for p in (cut, junk)}
+    cut.write_bytes(old[cut][: len(old[cut]) // 2])
+    junk.write_bytes(b"not a png")
+    tmp = written / "sunny" / "rgb" / ".tmp_killed.png"
+    tmp.write_bytes(b"half")
+    others = {p: p.stat().st_mtime_ns for p in written.rglob("*.png")
+              if p not in old and not p.name.startswith(".")}
+    capsys.readouterr()
+    assert run_cli("--crop", "zucchini", "--n", N, "--out", written, "--size", SIZE,
+                   "--batch", 4, "--workers", 2) == 0
+    err = capsys.readouterr().err
+    assert "2 damaged image(s)" in err and "zucchini_000004.png" in err, err
+    assert all(p.read_bytes() == b for p, b in old.items())
+    assert not list(written.rglob(".tmp_*"))
+    assert {p: p.stat().st_mtime_ns for p in others} == others
+
+
 def test_bad_arguments_exit_2(tmp_path, capsys):
     assert run_cli("--crop", "cabbage", "--n", 4, "--out", tmp_path) == 2
     assert "cabbage" in capsys.readouterr().err

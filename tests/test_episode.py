@@ -229,7 +229,10 @@ def test_termination_reasons(setup):
         assert log.event[i, log.steps[i] - 1] == log.reason[i]
         assert (np.delete(log.event[i], log.steps[i] - 1) == 0).all()
     s = jax.tree.map(np.asarray, E.summarise(jax.tree.map(jnp.asarray, log), CFG))
-    assert np.isfinite(s["mae"]).all()  # the NaN step of the sim_error run is masked
+    # the sim_error run (its one step exploded) is excluded from the trajectory metrics; every
+    # other run, failed or not, keeps them
+    assert s["excluded"].tolist() == [False, False, True] + [False] * 5
+    assert np.isnan(s["mae"][2]) and np.isfinite(np.delete(s["mae"], 2)).all()
     # heading 0.035 rad: 0.7 m beside the goal at the row's end, ended 0.4 m past its line
     last = log.pose[7, log.steps[7] - 1]
     goal_x = float(fields.row_x[7, 1])

@@ -170,3 +170,41 @@ def test_collides_with_a_trunk_not_in_the_lane(vineyard):
     assert not bool(collides(jnp.array([px + 0.5, py, 0.0]), f, "vineyard"))
     assert not bool(collides(jnp.array([px + 0.5, py, math.pi / 2]), f, "vineyard"))
     assert bool(collides(jnp.array([px + 0.25, py, 0.0]), f, "vineyard"))
+
+
+def test_failed_episodes_are_excluded_not_averaged():
+    """An episode with no valid step, a flipped one and one whose last step is a sim_error with a
+    finite exploded pose: flagged `excluded`, trajectory metrics NaN, so the cell's mean is the
+    good episodes' and `n` counts them; the sim_error step's pose never enters a metric."""
+    n = 40
+    good = straight(0.1, n=n, reason=M.GOAL)
+    empty = straight(0.0, n=n, reason=M.TIMEOUT, alive=np.zeros(n, bool))
+    flipped = straight(0.3, n=n, reason=M.FLIPPED)
+    exploded = straight(0.1, n=n, reason=M.SIM_ERROR)
+    pose = np.asarray(exploded.pose).copy()
+    pose[-1] = [pose[-2, 0], 35.0, 0.0]  # finite but exploded: 35 m sideways
+    exploded = exploded.replace(pose=jnp.asarray(pose))
+    collided = straight(0.2, n=n, reason=M.COLLISION)  # a failure, not a broken trajectory
+    batch = jax.tree.map(lambda *x: jnp.stack(x), good, empty, flipped, exploded, collided)
+    s = jax.tree.map(np.asarray, summarise(batch, DT))
+    assert s["excluded"].tolist() == [False, True, True, True, False]
+    for k in M.TRAJECTORY:
+        assert np.isnan(s[k][1:4]).all(), k
+        assert np.isfinite(s[k][[0, 4]]).all(), k
+    # the same sim_error episode, not flagged: the exploded step would be out of its metrics
+    kept = summarise(exploded.replace(reason=jnp.asarray(M.TIMEOUT)), DT)
+    assert float(kept["max_offset"]) == pytest.approx(0.1, abs=1e-6)
+    agg = M.aggregate(s)
+    assert agg["mae"]["n"] == 2 and agg["mae"]["mean"] == pytest.approx(0.15, abs=1e-6)
+    assert agg["excluded"]["mean"] == pytest.approx(3 / 5)
+
+
+def test_intervals_stay_in_the_metric_range():
+    """A t interval of a non-negative metric with a large spread would cross 0: clipped."""
+    agg = M.aggregate({"mse": np.array([0.0, 0.0, 0.003]), "path_ratio": np.array([1.0, 1.0, 2.0]),
+                       "cha": np.array([3.1, -3.1, 3.1])})
+    assert agg["mse"]["lo"] == 0.0 and agg["mse"]["hi"] > 0.003
+    assert agg["path_ratio"]["lo"] == 1.0
+    assert -math.pi <= agg["cha"]["lo"] and agg["cha"]["hi"] <= math.pi
+    for a in agg.values():
+        assert a["lo"] <= a["mean"] <= a["hi"]

@@ -128,7 +128,9 @@ def mujoco_scenes(tmp_path_factory):
     res = subprocess.run([sys.executable, "-c", _MJ_SCRIPT, str(tmp / "job.json"),
                           str(tmp / "out.npz")], capture_output=True, text=True, env=env,
                          timeout=300)
-    assert res.returncode == 0, res.stderr[-2000:]
+    assert res.returncode == 0, ("MuJoCo's offscreen renderer (MUJOCO_GL=osmesa) failed; it "
+                                 "needs the system package libosmesa6 (apt-get install "
+                                 "libosmesa6):\n" + res.stderr[-2000:])
     ref = dict(np.load(tmp / "out.npz"))
     return scenes, ref
 

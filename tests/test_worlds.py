@@ -175,8 +175,10 @@ def test_eye_camera_looks_down_the_default_lane(tiny, model):
     assert abs(pos[1] - field.lane_y[lane]) < 1e-3 and -rot[0, 2] > 0.9  # looks along +x
     try:
         renderer = mujoco.Renderer(m, 60, 80)
-    except Exception as e:  # no offscreen GL on this machine
-        pytest.skip(f"no MuJoCo offscreen rendering: {e}")
+    except Exception as e:  # no offscreen GL: fail loudly, never skip in silence
+        pytest.fail(f"no MuJoCo offscreen rendering with MUJOCO_GL="
+                    f"{os.environ.get('MUJOCO_GL')!r}: {e}. Install the system package "
+                    "libosmesa6 (apt-get install libosmesa6) or set MUJOCO_GL=egl on a GPU")
     renderer.enable_segmentation_rendering()
     renderer.update_scene(d, camera="eye")
     seg = renderer.render()[..., 0]

@@ -4,9 +4,16 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 
 from mjxrow import runtime
 from mjxrow.bench import STAGES, print_table, record
+
+
+def _first_sentence(doc: str) -> str:
+    """The first sentence of a docstring's first paragraph, whole (for --help lines)."""
+    para = " ".join(doc.strip().split("\n\n")[0].split())
+    return re.split(r"(?<=\.)\s", para, maxsplit=1)[0]
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -20,7 +27,7 @@ def main(argv: list[str] | None = None) -> None:
             if e.name != f"mjxrow.bench.{stage}":
                 raise
             continue
-        p = sub.add_parser(stage, help=modules[stage].__doc__.splitlines()[0])
+        p = sub.add_parser(stage, help=_first_sentence(modules[stage].__doc__))
         modules[stage].add_args(p)
         p.add_argument("--out", default="benchmarks.jsonl", help="JSON-lines file to append to")
         p.add_argument("--no-record", action="store_true", help="print only")

@@ -74,7 +74,6 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
-from mujoco import mjx
 
 from mjxrow import field as F
 from mjxrow.field.generate import LANE_MODES
@@ -88,6 +87,7 @@ from mjxrow.physics.checks import (  # noqa: F401  (re-exported: sim.check_lane,
     lane_free_width,
     patch_relief,
 )
+from mjxrow.physics.quiet import mjx
 
 TERRAIN = "terrain"  # name of the heightfield geom
 _PARK_DEPTH = 100.0  # m below the patch where unused obstacle slots wait

@@ -16,12 +16,12 @@ from tqdm.auto import tqdm
 
 from mjxrow import field as F
 from mjxrow import runtime
+from mjxrow.files import atomic_write_text
 from mjxrow.rollout import build as B
 from mjxrow.rollout import metrics as M
 from mjxrow.rollout.config import RunConfig
 
-CSV_METRICS = ("success", "collision", "reason", "cha", "mae", "mse", "omega_std", "v_mean",
-               "time", "path_ratio", "max_offset")
+CSV_METRICS = M.METRICS
 
 
 @contextlib.contextmanager
@@ -88,7 +88,7 @@ def run_episodes(run: RunConfig, n: int, out: str | Path, progress: bool = True
     if not runtime.writer():  # several processes: process 0 reports and writes
         return table
     out.mkdir(parents=True, exist_ok=True)
-    table.to_csv(out / "episodes.csv", index=False)
+    atomic_write_text(out / "episodes.csv", table.to_csv(index=False))
     print(f"{run.controller.name} on {run.preset}: {n} episodes, compile {t1 - t0:.1f} s, "
           f"run {t2 - t1:.1f} s ({n * built.episode.n_steps / (t2 - t1):.0f} env-steps/s)")
     print(M.format_table({k: summary[k] for k in CSV_METRICS}))

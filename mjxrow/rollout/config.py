@@ -28,6 +28,7 @@ import dataclasses
 import functools
 import inspect
 import json
+import math
 import re
 from pathlib import Path
 from typing import Any
@@ -41,6 +42,7 @@ from mjxrow.field import params as FP
 from mjxrow.physics.robot import RobotConfig
 from mjxrow.physics.sim import SimConfig
 from mjxrow.render import Intrinsics, RenderConfig
+from mjxrow.rollout import limits
 from mjxrow.rollout.episode import EpisodeConfig
 
 SECTIONS: dict[str, type] = {"sim": SimConfig, "robot": RobotConfig, "camera": Intrinsics,
@@ -121,11 +123,14 @@ def _class_keys(section: str, cls: type, static_default: bool) -> dict[str, Key]
     return out
 
 
+FIELD_INTEGERS = ("rows_per_group",)  # FieldParams values that are counts
+
+
 @functools.cache
 def _field_keys() -> dict[str, Key]:
     docs = comment_docs(FP.FieldParams)
-    return {f"field.{n}": Key(f"field.{n}", "float", True, None,
-                              docs.get(n, "") + " (null: the preset's value)", False)
+    return {f"field.{n}": Key(f"field.{n}", "int" if n in FIELD_INTEGERS else "float", True,
+                              None, docs.get(n, "") + " (null: the preset's value)", False)
             for n in FP.PARAM_NAMES}
 
 
@@ -339,8 +344,14 @@ def build_run(values: dict[str, Any], seed: int = 0, base_dir: str | Path = ".")
     unknown = set(by["field"]) - set(F.PARAM_NAMES)
     if unknown:
         raise ConfigError(f"field.{sorted(unknown)[0]}: unknown key")
+    try:
+        for k, v in values.items():
+            limits.check_value(k, v)
+        limits.check_value("seed", seed)
+    except limits.LimitError as e:
+        raise ConfigError(str(e)) from None
     sim_cfg = _section("sim", SimConfig, by["sim"])
-    return RunConfig(
+    run = RunConfig(
         preset=preset, field=Section("field", {n: by["field"].get(n) for n in F.PARAM_NAMES}),
         sim=sim_cfg, robot=_section("robot", RobotConfig, by["robot"]),
         camera=_section("camera", Intrinsics, by["camera"]),
@@ -350,6 +361,30 @@ def build_run(values: dict[str, Any], seed: int = 0, base_dir: str | Path = ".")
         controller=ControllerChoice(name, ctrl),
         perception=_section("perception", PerceptionConfig, by["perception"]),
         seed=int(seed), base_dir=str(base_dir))
+    check_sizes(run, values)
+    return run
+
+
+def check_sizes(run: RunConfig, given: dict[str, Any] = {}) -> None:  # noqa: B006
+    """ConfigError when a size derived from several keys (control steps, physics substeps,
+    pixels, terrain patch cells) exceeds its bound in rollout.limits; the message names the key
+    that was given (`given`), or the first of the keys the size depends on."""
+    def blame(*keys: str) -> str:
+        return next((k for k in keys if k in given), keys[0])
+
+    cells = math.ceil(run.sim.patch_size[0] / run.sim.patch_cell) * math.ceil(
+        run.sim.patch_size[1] / run.sim.patch_cell)
+    try:
+        limits.check_count(blame("episode.max_time", "sim.control_hz"), "control steps",
+                           run.episode.n_steps, limits.STEPS)
+        limits.check_count(blame("sim.dt", "sim.control_hz"), "physics steps per control step",
+                           run.sim.substeps, limits.SUBSTEPS)
+        limits.check_count(blame("camera.width", "camera.height"), "pixels",
+                           run.camera.width * run.camera.height, limits.PIXELS)
+        limits.check_count(blame("sim.patch_cell", "sim.path_length", "sim.patch_width"),
+                           "terrain patch cells", cells, limits.PATCH_CELLS)
+    except limits.LimitError as e:
+        raise ConfigError(str(e)) from None
 
 
 def apply_sets(raw: dict, sets: list[str] | tuple[str, ...] = ()) -> dict:

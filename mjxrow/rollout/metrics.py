@@ -31,9 +31,20 @@ REASONS = ("running", "goal", "collision", "timeout", "flipped", "stuck", "sim_e
 (RUNNING, GOAL, COLLISION, TIMEOUT, FLIPPED, STUCK, SIM_ERROR, OFF_PATCH,
  MISSED_GOAL) = range(len(REASONS))
 
-METRICS = ("success", "collision", "reason", "cha", "mae", "mse", "omega_std", "v_mean", "time",
-           "path_ratio", "max_offset")
-BINARY = ("success", "collision")
+METRICS = ("success", "collision", "reason", "excluded", "cha", "mae", "mse", "omega_std",
+           "v_mean", "time", "path_ratio", "max_offset")
+BINARY = ("success", "collision", "excluded")
+# Metrics of the driven trajectory: NaN for an excluded episode (one with no valid step, or one
+# that ended flipped or in a simulation error), so that it is left out of a cell's mean and
+# counted in `n`, never averaged in as a number.
+TRAJECTORY = ("cha", "mae", "mse", "omega_std", "v_mean", "path_ratio", "max_offset")
+EXCLUDED_REASONS = (FLIPPED, SIM_ERROR)
+# The range a metric can take: confidence intervals are clipped to it.
+RANGES: dict[str, tuple[float, float]] = {
+    "success": (0.0, 1.0), "collision": (0.0, 1.0), "excluded": (0.0, 1.0),
+    "cha": (-math.pi, math.pi), "mae": (0.0, math.inf), "mse": (0.0, math.inf),
+    "omega_std": (0.0, math.inf), "time": (0.0, math.inf), "path_ratio": (1.0, math.inf),
+    "max_offset": (0.0, math.inf)}
 
 
 @struct.dataclass
@@ -163,9 +174,13 @@ def summarise(log: Log, control_dt: float) -> dict[str, jax.Array]:
     - path_ratio [-]: driven path length over the straight distance from start to end, NaN when
       the robot moved less than 1 cm.
 
-    Steps are those that ran with a finite pose (a sim_error step is excluded)."""
+    - excluded (bool): the episode has no valid step, or ended flipped or in a simulation
+      error; its trajectory metrics (TRAJECTORY) are NaN, so a cell's mean leaves it out.
+
+    Valid steps are those that ran with a finite pose, except the step of a sim_error (its
+    pose, finite or not, is the exploded state)."""
     pose = jnp.asarray(log.pose)
-    ok = log.alive & jnp.all(jnp.isfinite(pose), -1)
+    ok = log.alive & jnp.all(jnp.isfinite(pose), -1) & (jnp.asarray(log.event) != SIM_ERROR)
     dev = lateral_offset(pose, jnp.asarray(log.lane_y))
     mae, n = _masked_mean(jnp.abs(dev), ok)
     mse, _ = _masked_mean(dev * dev, ok)
@@ -187,18 +202,24 @@ def summarise(log: Log, control_dt: float) -> dict[str, jax.Array]:
     end = jnp.where((n > 0)[..., None], end, log.start[..., :2])
     disp = jnp.linalg.norm(end - log.start[..., :2], axis=-1)
     success = log.reason == GOAL
-    return dict(
-        success=success,
-        collision=log.reason == COLLISION,
-        reason=log.reason,
+    excluded = (n == 0) | jnp.isin(log.reason, jnp.asarray(EXCLUDED_REASONS))
+    trajectory = dict(
         cha=cha,
         mae=mae,
         mse=mse,
         omega_std=jnp.sqrt(w_var),
         v_mean=v_mean,
-        time=jnp.where(success, log.steps * control_dt, jnp.nan),
         path_ratio=jnp.where(disp > 0.01, length / jnp.maximum(disp, 1e-9), jnp.nan),
         max_offset=max_offset,
+    )
+    trajectory = {k: jnp.where(excluded, jnp.nan, v) for k, v in trajectory.items()}
+    return dict(
+        success=success,
+        collision=log.reason == COLLISION,
+        reason=log.reason,
+        excluded=excluded,
+        time=jnp.where(success, log.steps * control_dt, jnp.nan),
+        **trajectory,
     )
 
 
@@ -221,6 +242,7 @@ def aggregate(table: dict[str, Any], confidence: float = 0.95) -> dict[str, dict
     (`success`, `collision`, any bool array) a Wilson score interval for the proportion.
     `reason` is not averaged: see `reason_counts`.
 
+    Intervals are clipped to the metric's range (RANGES: an MSE interval never goes below 0).
     Returns name → {mean, lo, hi, n, method}; with n < 2 a t interval is (nan, nan)."""
     if not 0 < confidence < 1:
         raise ValueError(f"confidence: must lie in (0, 1), got {confidence}")
@@ -250,6 +272,8 @@ def aggregate(table: dict[str, Any], confidence: float = 0.95) -> dict[str, dict
         else:
             half = _t_quantile(0.5 + confidence / 2, n - 1) * float(x.std(ddof=1)) / math.sqrt(n)
             lo, hi, method = mean - half, mean + half, "t"
+        r_lo, r_hi = RANGES.get(name, (-math.inf, math.inf))
+        lo, hi = min(max(lo, r_lo), r_hi), max(min(hi, r_hi), r_lo)
         out[name] = dict(mean=mean, lo=float(lo), hi=float(hi), n=n, method=method)
     return out
 

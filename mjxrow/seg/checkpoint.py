@@ -72,9 +72,24 @@ def resolve(crop_or_path: str | Path) -> Path:
     return path
 
 
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be used: one line naming the folder and what is wrong."""
+
+
 def read_config(crop_or_path: str | Path) -> dict[str, Any]:
-    """The checkpoint's config.json as a dict (model attributes, weights dtype, meta)."""
-    return json.loads((resolve(crop_or_path) / "config.json").read_text())
+    """The checkpoint's config.json as a dict (model attributes, weights dtype, meta).
+    CheckpointError when it is unreadable or not a checkpoint config."""
+    path = resolve(crop_or_path) / "config.json"
+    try:
+        cfg = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise CheckpointError(f"segmenter checkpoint {path.parent}: config.json is damaged "
+                              f"({str(e).splitlines()[0] if str(e) else type(e).__name__})") \
+            from None
+    if not isinstance(cfg, dict) or not isinstance(cfg.get("model"), dict):
+        raise CheckpointError(f"segmenter checkpoint {path.parent}: config.json has no "
+                              "'model' mapping")
+    return cfg
 
 
 def module_from_config(model_cfg: dict[str, Any]) -> SegNet:
@@ -86,10 +101,26 @@ def module_from_config(model_cfg: dict[str, Any]) -> SegNet:
     return SegNet(**model_cfg)
 
 
-def load(crop_or_path: str | Path) -> tuple[SegNet, dict]:
-    """(module, variables) of a shipped crop model or a checkpoint folder; float32 arrays."""
+def verify(crop_or_path: str | Path) -> Path:
+    """Cheap checks before any work: config.json readable with a valid model, weights/ not
+    empty. Returns the folder; CheckpointError otherwise (`load` finds damaged weights)."""
     path = resolve(crop_or_path)
-    cfg = json.loads((path / "config.json").read_text())
+    cfg = read_config(path)
+    try:
+        module_from_config(cfg["model"])
+        jnp.dtype(cfg.get("weights_dtype", "float32"))
+    except (ValueError, TypeError) as e:
+        raise CheckpointError(f"segmenter checkpoint {path}: {e}") from None
+    if not any(f.is_file() and f.stat().st_size for f in (path / "weights").rglob("*")):
+        raise CheckpointError(f"segmenter checkpoint {path}: weights/ holds no data")
+    return path
+
+
+def load(crop_or_path: str | Path) -> tuple[SegNet, dict]:
+    """(module, variables) of a shipped crop model or a checkpoint folder; float32 arrays.
+    CheckpointError (one line) for a missing, empty or damaged checkpoint."""
+    path = verify(crop_or_path)
+    cfg = read_config(path)
     module = module_from_config(cfg["model"])
     stored = jnp.dtype(cfg.get("weights_dtype", "float32"))
     target = jax.eval_shape(lambda k: module.init(k, jnp.zeros((1, 64, 64, 3), jnp.uint8)),
@@ -97,8 +128,13 @@ def load(crop_or_path: str | Path) -> tuple[SegNet, dict]:
     target = {k: target[k] for k in ("params", "batch_stats") if k in target}
     target = jax.tree.map(lambda s: jax.ShapeDtypeStruct(s.shape, stored)
                           if jnp.issubdtype(s.dtype, jnp.floating) else s, target)
-    with ocp.StandardCheckpointer() as ckptr:
-        tree = ckptr.restore(path / "weights", target)
+    try:
+        with ocp.StandardCheckpointer() as ckptr:
+            tree = ckptr.restore(path / "weights", target)
+    except Exception as e:  # noqa: BLE001 (orbax raises many kinds; all mean "damaged")
+        first = next((ln for ln in str(e).splitlines() if ln.strip()), type(e).__name__)
+        raise CheckpointError(f"segmenter checkpoint {path}: weights/ cannot be restored "
+                              f"({type(e).__name__}: {first[:200]})") from None
     variables = jax.tree.map(lambda x: x.astype(jnp.float32)
                              if jnp.issubdtype(x.dtype, jnp.floating) else x, tree)
     return module, dict(variables)

@@ -9,6 +9,7 @@ it evaluates on a fixed set of renders of the crop (seed 20,000 + `--seed`).
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +20,7 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 from mjxrow import crops
+from mjxrow import files as FS
 from mjxrow.seg import checkpoint as C
 from mjxrow.seg import data as D
 from mjxrow.seg.model import SegNet, apply
@@ -130,6 +132,19 @@ def evaluate_renders(module: SegNet, variables: dict, crop: str, n: int, size: i
     return counts.assign(crop=per_batch * len(batches), condition="mixed")
 
 
+def cli(argv: list[str] | None = None) -> int:
+    """`main` as a command: exit code 0, or 2 with a one-line error (a missing, empty or damaged
+    checkpoint, an unreadable dataset or output file)."""
+    try:
+        main(argv)
+    except (ValueError, OSError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    return 0
+
+
 def main(argv: list[str] | None = None) -> pd.DataFrame:
     p = argparse.ArgumentParser(prog="python -m mjxrow.seg.eval", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -145,6 +160,10 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--csv", help="also write the summary table here")
     args = p.parse_args(argv)
+    if args.csv:
+        FS.check_out_file(args.csv, "--csv")
+    if args.ckpt and not Path(args.ckpt).exists():
+        raise C.CheckpointError(f"--ckpt {args.ckpt}: no such folder")
     module, variables = C.load(args.ckpt or args.crop)
     size = args.size or C.read_config(args.ckpt or args.crop)["meta"].get("image_size", 224)
     if args.data:
@@ -158,9 +177,9 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
     with pd.option_context("display.float_format", "{:.4f}".format, "display.width", 120):
         print(table.to_string(index=False))
     if args.csv:
-        table.to_csv(args.csv, index=False)
+        FS.atomic_write_text(args.csv, table.to_csv(index=False))
     return table
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cli())

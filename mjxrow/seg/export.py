@@ -173,11 +173,35 @@ def run_onnx(model_or_path, rgb: np.ndarray) -> np.ndarray:
     return sess.run(["logits"], {"rgb": np.asarray(rgb, np.uint8)})[0]
 
 
+def require_onnx() -> None:
+    """ValueError naming the `[export]` extra when onnx or onnxruntime is not installed."""
+    import importlib.util
+
+    missing = [m for m in ("onnx", "onnxruntime") if importlib.util.find_spec(m) is None]
+    if missing:
+        raise ValueError(f"ONNX export needs {' and '.join(missing)}: install them with "
+                         "pip install -e '.[export]' (or pip install onnx onnxruntime)")
+
+
+def cli(argv: list[str] | None = None) -> int:
+    """`main` as a command: 0, or 2 with a one-line error (onnx missing, a missing or damaged
+    checkpoint, an output file that cannot be written)."""
+    import sys
+
+    try:
+        main(argv)
+    except (ValueError, OSError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def main(argv: list[str] | None = None) -> None:
     import argparse
 
     import jax
 
+    from mjxrow import files as FS
     from mjxrow.seg import checkpoint as C
     from mjxrow.seg.model import apply
 
@@ -191,6 +215,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--dynamic-batch", action="store_true", help="batch axis of any length")
     p.add_argument("--check", type=int, default=4, help="random images compared with Flax")
     args = p.parse_args(argv)
+    require_onnx()
+    FS.check_out_file(args.out, "--out")
     module, variables = C.load(args.crop or args.ckpt)
     path = save_onnx(module, variables, args.out, args.size,
                      None if args.dynamic_batch else 1)
@@ -212,4 +238,6 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    sys.exit(cli())

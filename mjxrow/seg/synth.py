@@ -41,10 +41,12 @@ import pandas as pd
 from PIL import Image
 from tqdm.auto import tqdm
 
-from mjxrow import crops
+from mjxrow import crops, interrupt
 from mjxrow import field as F
+from mjxrow import files as FS
 from mjxrow import render as RD
 from mjxrow.field import params as FP
+from mjxrow.rollout import limits
 
 COLUMNS = ("rgb", "mask", "crop", "condition", "x", "y", "z", "yaw", "pitch", "lateral", "split")
 
@@ -201,6 +203,34 @@ def _write_png(path: Path, img: np.ndarray) -> None:
         raise
 
 
+def png_problem(path: Path, size: int) -> str | None:
+    """Why an existing dataset PNG cannot be kept (None: it can): unreadable, damaged (PIL's
+    verify, then a full decode: a file cut short fails there), or not size × size."""
+    try:
+        with Image.open(path) as im:
+            im.verify()
+        with Image.open(path) as im:
+            im.load()
+            if im.size != (size, size):
+                return f"{im.size[0]}x{im.size[1]} instead of {size}x{size}"
+    except (OSError, SyntaxError, ValueError) as e:
+        return f"damaged ({str(e).splitlines()[0] if str(e) else type(e).__name__})"
+    return None
+
+
+def remove_damaged(out: Path, paths: list[tuple[str, str]], size: int) -> list[str]:
+    """Check every existing image of the dataset (`png_problem`); remove the damaged ones, so
+    that they are rendered again. Returns their paths relative to `out`."""
+    bad = []
+    for pair in paths:
+        for rel in pair:
+            p = out / rel
+            if p.exists() and png_problem(p, size) is not None:
+                p.unlink()
+                bad.append(rel)
+    return bad
+
+
 def _batches(indices: np.ndarray, batch: int):
     for s in range(0, len(indices), batch):
         chunk = indices[s:s + batch]
@@ -230,6 +260,13 @@ def write_dataset(crop: str, n: int, out: str | Path, seed: int = 0, size: int =
     meta = np.concatenate(metas)
 
     paths = [rel_paths(crop, i) for i in range(n)]
+    for folder in [out] + [out / c / k for c in RD.CONDITIONS for k in ("rgb", "mask")]:
+        for tmp in folder.glob(".tmp_*"):  # temp files of a killed run
+            tmp.unlink(missing_ok=True)
+    damaged = remove_damaged(out, paths, size)
+    if damaged:
+        print(f"{len(damaged)} damaged image(s) in {out} removed and rendered again: "
+              + ", ".join(damaged[:5]) + (" ..." if len(damaged) > 5 else ""), file=sys.stderr)
     todo = np.array([i for i in range(n) if not ((out / paths[i][0]).exists()
                                                 and (out / paths[i][1]).exists())], np.int64)
     bar = tqdm(total=n, initial=n - len(todo), desc=f"{crop} dataset", unit="img",
@@ -315,12 +352,6 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def _check_writable(out: Path) -> None:
-    out.mkdir(parents=True, exist_ok=True)
-    with tempfile.NamedTemporaryFile(dir=out, prefix=".probe_"):
-        pass
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjxrow.seg.synth",
                                  description=__doc__.split("\n")[0])
@@ -354,14 +385,17 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--test-frac: must lie in [0, 1), got {args.test_frac}")
     if args.batch < 1 or args.workers < 1:
         ap.error("--batch and --workers must be at least 1")
+    if args.n > limits.EPISODES or args.size > limits.VALUES["camera.width"][0]:
+        ap.error(f"--n {args.n} / --size {args.size}: beyond the bounds of "
+                 f"{limits.EPISODES:,} samples and {limits.VALUES['camera.width'][0]} px")
     try:
-        _check_writable(Path(args.out))
-    except OSError as e:
-        print(f"error: --out {args.out}: cannot write there ({e.strerror or e})",
-              file=sys.stderr)
+        FS.check_out_dir(args.out, "--out")
+    except FS.OutputError as e:
+        print(f"error: {e}", file=sys.stderr)
         return 2
-    index = write_dataset(args.crop, args.n, args.out, args.seed, args.size, args.test_frac,
-                          args.batch, args.workers)
+    with interrupt.HardStop():  # Ctrl-C: exit 130; a re-run resumes (and cleans up)
+        index = write_dataset(args.crop, args.n, args.out, args.seed, args.size,
+                              args.test_frac, args.batch, args.workers)
     print(f"{args.n} samples of {args.crop} in {args.out}; index: {index}")
     return 0
 

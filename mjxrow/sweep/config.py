@@ -28,12 +28,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from mjxrow import control, crops
 from mjxrow import field as F
 from mjxrow.physics import sim
 from mjxrow.rollout import config as schema
+from mjxrow.rollout import limits
 from mjxrow.rollout.config import (
     ConfigError,
     ControllerChoice,
@@ -42,6 +42,7 @@ from mjxrow.rollout.config import (
     apply_sets,
     build_run,
 )
+from mjxrow.sweep.yamlfile import read_yaml
 
 
 def _k(default, doc, unit="", check=None, choices=None, kind=int):
@@ -165,6 +166,9 @@ def _value(path: str, v: Any, parse, axis_ok: bool) -> Any:
         if set(v) != {"start", "stop", "num"}:
             raise ConfigError(f"{path}: a range needs start, stop and num")
         num = _scalar(f"{path}.num", v["num"], "int", check="positive")
+        if num > limits.AXIS_VALUES:
+            raise ConfigError(f"{path}.num: {num:,} values, beyond the bound of "
+                              f"{limits.AXIS_VALUES:,} values per axis (mjxrow/rollout/limits.py)")
         a = _scalar(f"{path}.start", v["start"], "float")
         b = _scalar(f"{path}.stop", v["stop"], "float")
         return _value(path, [round(float(x), 10) for x in np.linspace(a, b, num)], parse, True)
@@ -216,6 +220,10 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
             kind = "str" if m["kind"] is str else "int"
             top[key] = _value(key, v, lambda p, x, m=m, kind=kind: _scalar(
                 p, x, kind, choices=m["choices"], check=m["check"]), False)
+            try:
+                limits.check_value(key, top[key])
+            except limits.LimitError as e:
+                raise ConfigError(str(e)) from None
         else:
             raise _unknown(key, key, TOP_KEYS + schema.ORDER)
         for k, val in list(values.items()):
@@ -225,22 +233,34 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
                       base_dir=str(base_dir))
     if smoke:
         cfg = shrink(cfg)
+    check_grid(cfg)
     check(cfg)
     return cfg
 
 
+def check_grid(cfg: SweepConfig) -> None:
+    """ConfigError when the grid has more cells, or the sweep more episodes, than the bounds of
+    rollout.limits; the message names the longest axis (or `seeds`). Runs before any cell is
+    built."""
+    vals = dict(cfg.values)
+    sizes = {k: len(vals[k]) for k in cfg.axis_order}
+    cells = math.prod(sizes.values())
+    longest = max(sizes, key=sizes.get) if sizes else "seeds"
+    if cells > limits.CELLS:
+        raise ConfigError(f"{longest}: the grid has {cells:,} cells ("
+                          + " × ".join(f"{n} {k}" for k, n in sizes.items())
+                          + f"), beyond the bound of {limits.CELLS:,} (mjxrow/rollout/limits.py)")
+    if cells * cfg.seeds > limits.EPISODES:
+        raise ConfigError(f"seeds: {cells:,} cells × {cfg.seeds:,} seeds = "
+                          f"{cells * cfg.seeds:,} episodes, beyond the bound of "
+                          f"{limits.EPISODES:,} (mjxrow/rollout/limits.py)")
+
+
 def load(path: str | Path, sets=(), smoke: bool = False) -> SweepConfig:
-    """Read a sweep YAML (`yaml.safe_load`), apply `--set` overrides, validate."""
+    """Read a sweep YAML (`read_yaml`: no duplicate keys, not empty), apply `--set` overrides,
+    validate."""
     path = Path(path)
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except OSError as e:
-        raise ConfigError(f"{path}: cannot read ({e.strerror})") from None
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f":{mark.line + 1}" if mark else ""
-        raise ConfigError(f"{path}{where}: invalid YAML ({getattr(e, 'problem', e)})") from None
-    return from_dict(raw, path.parent, sets, smoke)
+    return from_dict(read_yaml(path), path.parent, sets, smoke)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -410,6 +430,36 @@ def checkpoint_id(path: str) -> str:
     return h.hexdigest()[:16]
 
 
+def _blame(cfg: RunConfig, name: str, shape: F.FieldShape) -> str:
+    """The dotted key to name for a failed field check `name`: the key itself when it was given
+    (or is not a field key); else the given field key whose preset value makes the check pass
+    (`d_rr: 1e9` fails the terrain_width check: the key to name is field.d_rr)."""
+    key = f"field.{name}" if name in F.PARAM_NAMES else name
+    given = [k for k, v in cfg.field.items() if v is not None]
+    if name in given or not given:
+        return key
+    preset = crops.get(cfg.preset).preset
+    for k in given:
+        values = {**cfg.field_values(), k: preset[k]}
+        ok, _ = F.checks(F.make_params(cfg.preset, **values), shape)[name]
+        if bool(np.all(np.asarray(ok))):
+            return f"field.{k}"
+    return key
+
+
+@functools.lru_cache(maxsize=32)
+def _verified(path: str) -> str:
+    """`path` once seg.checkpoint.verify passes (config readable, weights present)."""
+    if path:
+        from mjxrow.seg import checkpoint as ckpt
+
+        try:
+            ckpt.verify(path)
+        except ValueError as e:
+            raise ConfigError(f"perception.checkpoint: {e}") from None
+    return path
+
+
 def check(cfg: SweepConfig) -> None:
     """Checks across keys and on every cell: each section's own checks (building the cell's
     domain configs), impossible fields (field.checks), missing checkpoints, the controller's
@@ -426,7 +476,7 @@ def check(cfg: SweepConfig) -> None:
         ok = np.asarray(ok).reshape(-1)
         if not ok.all():
             cell = cells[int(np.argmin(ok))]
-            key = f"field.{name}" if name in F.PARAM_NAMES else name
+            key = _blame(cell.cfg, name, roomy)
             raise ConfigError(f"{key}: {reason}{_where(cell.point)}")
     kinds: dict[str, tuple[str, Any]] = {}  # preset → (lane kind "auto" gives, first cell)
     for cell, kind in zip(cells, sim.auto_lane_kind(params), strict=True):
@@ -438,11 +488,23 @@ def check(cfg: SweepConfig) -> None:
                 f"sim.lane: 'auto' drives the {first[0]} lane{_where(first[1].point)} but the "
                 f"{kind} lane{_where(cell.point)}; set sim.lane to in_group or between_groups "
                 "so that every cell drives the same kind of lane")
+    shape = F.fit_shape(params, cells[0].cfg.preset)
+    for size, bound, what, keys in (
+            (shape.max_rows, limits.ROWS, "rows", ("d_rr", "d_RR", "terrain_width")),
+            (shape.max_plants_per_row, limits.PLANTS_PER_ROW, "plants per row",
+             ("d_pp", "row_length")),
+            (shape.obstacle_slots, limits.OBSTACLES, "obstacles",
+             ("stone_density", "branch_density", "row_length"))):
+        if size > bound:
+            given = {k for c in cells for k, v in c.cfg.field.items() if v is not None}
+            key = next((k for k in keys if k in given), keys[0])
+            raise ConfigError(f"field.{key}: gives {size:,} {what} in a field, beyond the "
+                              f"bound of {bound:,} (mjxrow/rollout/limits.py)")
     for cell in cells:
         c = cell.cfg
         where = _where(cell.point)
         try:
-            checkpoint_path(c)
+            _verified(checkpoint_path(c))
             c.controller_params()
         except ConfigError as e:
             raise ConfigError(f"{e}{where}") from None

@@ -1,7 +1,10 @@
 """Figures and the markdown report of a sweep (host only, matplotlib Agg).
 
 A summary table has one row per cell: the swept axes (dotted names, e.g. `field.d_rr`), `n`
-(episodes), and per metric `m` its mean with the 95 % interval `m_lo`, `m_hi`.
+(episodes), and per metric `m` its mean with the 95 % interval `m_lo`, `m_hi` and `m_n`, the
+episodes the mean is taken over: an episode excluded from the trajectory metrics (no valid step,
+flipped, simulation error: metrics.TRAJECTORY) and a failed episode's `time` are NaN in
+results.csv and left out, so `m_n` < `n` says how many were left out.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 import yaml  # noqa: E402
+from matplotlib.patches import Rectangle  # noqa: E402
 
 from mjxrow.rollout import metrics as M  # noqa: E402
 from mjxrow.sweep import config as C  # noqa: E402
@@ -25,6 +29,8 @@ from mjxrow.sweep import config as C  # noqa: E402
 METRICS: dict[str, tuple[str, str, str, str | None]] = {
     "success": ("success rate", "fraction", "{:.2f}", "high"),
     "collision": ("collision rate", "fraction", "{:.2f}", "low"),
+    "excluded": ("share of episodes excluded from the trajectory metrics", "fraction", "{:.2f}",
+                 "low"),
     "cha": ("cumulative heading average (CHA)", "rad", "{:.3f}", None),
     "mae": ("mean absolute lateral error (MAE)", "m", "{:.3f}", "low"),
     "mse": ("mean squared lateral error (MSE)", "m²", "{:.4f}", "low"),
@@ -78,7 +84,32 @@ def _cmap(better):
     return "viridis_r" if better == "low" else "viridis"
 
 
-def _panel(ax, grid: np.ndarray, xs, ys, fmt, cmap, vmin, vmax, xlabel, ylabel):
+# metrics of the driven trajectory (and how fast): a cell whose episodes failed is hatched
+QUALITY = ("cha", "mae", "mse", "omega_std", "v_mean", "path_ratio", "max_offset")
+
+
+def colour_range(values: np.ndarray, fmt: str) -> tuple[float, float]:
+    """(vmin, vmax) of a colour scale over finite `values`: their range, widened to at least
+    ten steps of the printed precision (`{:.2f}`: 0.1), so that rounding noise (0.49975 to
+    0.50000) does not fill the whole scale."""
+    if not values.size:
+        return 0.0, 1.0
+    lo, hi = float(values.min()), float(values.max())
+    digits = fmt.split(".")[-1].rstrip("}") if "." in fmt else ""
+    if digits.endswith("f") and digits[:-1].isdigit():
+        step = 10.0 ** -int(digits[:-1])
+    else:  # significant digits: a step relative to the magnitude
+        step = max(abs(lo), abs(hi), 1e-12) * 1e-3
+    if hi - lo < 10 * step:
+        mid = (lo + hi) / 2
+        lo, hi = mid - 5 * step, mid + 5 * step
+    return lo, hi
+
+
+def _panel(ax, grid: np.ndarray, xs, ys, fmt, cmap, vmin, vmax, xlabel, ylabel,
+           failed: np.ndarray | None = None, counts: np.ndarray | None = None):
+    """One heatmap panel; with `failed` (episodes that did not reach the goal per cell) and
+    `counts` (episodes per cell), cells with failures are hatched and say `k/N failed`."""
     im = ax.imshow(grid, origin="lower", aspect="auto", cmap=cmap, vmin=vmin, vmax=vmax)
     ax.set_xticks(range(len(xs)), [_fmt_tick(v) for v in xs], rotation=45 if len(xs) > 8 else 0)
     ax.set_yticks(range(len(ys)), [_fmt_tick(v) for v in ys])
@@ -86,33 +117,56 @@ def _panel(ax, grid: np.ndarray, xs, ys, fmt, cmap, vmin, vmax, xlabel, ylabel):
     ax.set_ylabel(ylabel)
     norm = im.norm
     for (j, i), v in np.ndenumerate(grid):
+        bad = failed is not None and np.isfinite(failed[j, i]) and failed[j, i] > 0
+        if bad:
+            ax.add_patch(Rectangle((i - 0.5, j - 0.5), 1, 1, fill=False, hatch="///",
+                                   edgecolor="0.5", linewidth=0))
         if np.isfinite(v):
             light = np.asarray(im.cmap(norm(v)))[:3] @ [0.299, 0.587, 0.114] > 0.55
-            ax.text(i, j, fmt.format(v), ha="center", va="center", fontsize=8,
-                    color="black" if light else "white")
+            text = fmt.format(v)
+            if bad:
+                text += f"\n{failed[j, i]:.0f}/{counts[j, i]:.0f} failed"
+            ax.text(i, j, text, ha="center", va="center", fontsize=8 if not bad else 7,
+                    color="black" if light else "white",
+                    bbox=dict(boxstyle="round,pad=0.1", fc="white", ec="none", alpha=0.6)
+                    if bad else None)
         else:
-            ax.text(i, j, "–", ha="center", va="center", fontsize=8, color="grey")
+            ax.text(i, j, "–" if not bad else f"–\n{failed[j, i]:.0f}/{counts[j, i]:.0f} "
+                    "failed", ha="center", va="center", fontsize=8, color="grey")
     return im
 
 
 def heatmap(summary: pd.DataFrame, metric: str, x: str, y: str, path: str | Path,
             title: str = "", facet: str | None = None) -> Path:
     """One PNG: `metric`'s cell means over axes `x` (columns) and `y` (rows), values written in
-    the cells; one panel per value of `facet` if given. Cells are averaged over other columns."""
+    the cells; one panel per value of `facet` if given. Cells are averaged over other columns.
+
+    For a trajectory-quality metric (QUALITY) a cell in which some episodes did not reach the
+    goal is hatched and says how many of its episodes failed: its value averages collided or
+    stuck episodes and is not comparable with a clean cell's. The colour scale spans at least
+    ten steps of the printed precision (`colour_range`)."""
     name, unit, fmt, better = metric_info(metric)
     xs = list(dict.fromkeys(summary[x]))
     ys = list(dict.fromkeys(summary[y]))
     fs = list(dict.fromkeys(summary[facet])) if facet else [None]
-    grids = []
+    mark = metric in QUALITY and "success" in summary
+    grids, fails, counts = [], [], []
     for f in fs:
         sub = summary if facet is None else summary[summary[facet] == f]
         g = np.full((len(ys), len(xs)), np.nan)
-        for (xv, yv), val in sub.groupby([x, y], sort=False)[metric].mean().items():
-            g[ys.index(yv), xs.index(xv)] = val
+        k, n = np.full_like(g, np.nan), np.full_like(g, np.nan)
+        for (xv, yv), rows in sub.groupby([x, y], sort=False):
+            at = ys.index(yv), xs.index(xv)
+            g[at] = rows[metric].mean()
+            if mark:
+                k[at] = float(np.round((rows["n"] * (1 - rows["success"])).sum()))
+                n[at] = float(rows["n"].sum())
         grids.append(g)
+        fails.append(k if mark else None)
+        counts.append(n)
     finite = np.concatenate([g[np.isfinite(g)] for g in grids] + [np.zeros(0)])
-    vmin, vmax = (finite.min(), finite.max()) if finite.size else (0.0, 1.0)
-    if metric in ("success", "collision"):
+    vmin, vmax = colour_range(finite, fmt)
+    if metric in ("success", "collision", "excluded"):
         vmin, vmax = 0.0, 1.0
     ncol = min(len(fs), 3)
     nrow = -(-len(fs) // ncol)
@@ -124,7 +178,7 @@ def heatmap(summary: pd.DataFrame, metric: str, x: str, y: str, path: str | Path
     for k, (f, g) in enumerate(zip(fs, grids, strict=True)):
         ax = axs[k // ncol][k % ncol]
         im = _panel(ax, g, xs, ys, fmt, _cmap(better), vmin, vmax, axis_label(x),
-                    axis_label(y) if k % ncol == 0 else "")
+                    axis_label(y) if k % ncol == 0 else "", fails[k], counts[k])
         if facet:
             ax.set_title(f"{axis_label(facet)} = {_fmt_tick(f)}", fontsize=9)
     for k in range(len(fs), nrow * ncol):
@@ -133,6 +187,9 @@ def heatmap(summary: pd.DataFrame, metric: str, x: str, y: str, path: str | Path
     cb = fig.colorbar(im, ax=axs.ravel().tolist(), shrink=0.9)
     cb.set_label(f"{name} [{unit}]{hint}" if unit else name + hint)
     fig.suptitle(f"{title}: {name}" if title else name)
+    if mark and any(np.nansum(k) > 0 for k in fails):
+        fig.text(0.01, 0.005, "hatched: cells where some episodes did not reach the goal "
+                 "(k/N failed); their value is not comparable", fontsize=7, color="0.3")
     return _save(fig, Path(path))
 
 
@@ -191,16 +248,18 @@ def surfaces(summary: pd.DataFrame, axes: list[str], metrics: list[str], out_dir
 
 
 def summary_table(results: pd.DataFrame, axes: list[str], metric_names: list[str]) -> pd.DataFrame:
-    """Per cell: axis values, n, and per metric its mean with the 95 % interval (`m`, `m_lo`,
-    `m_hi`; Wilson for rates, Student t otherwise, via metrics.aggregate), plus the share of
-    episodes per ending reason (`reason_<name>`)."""
+    """Per cell: axis values, n, and per metric its mean with the 95 % interval and the number
+    of episodes it is taken over (`m`, `m_lo`, `m_hi`, `m_n`; Wilson for rates, Student t
+    otherwise, via metrics.aggregate; NaN values left out), plus the share of episodes per
+    ending reason (`reason_<name>`)."""
     out = []
     for cell, rows in results.groupby("cell", sort=True):
         row: dict[str, Any] = {"cell": cell, **{a: rows[a].iloc[0] for a in axes},
                                "n": len(rows)}
         table = {m: rows[m].to_numpy() for m in metric_names if m != "reason"}
         for m, agg in M.aggregate(table).items():
-            row.update({m: agg["mean"], f"{m}_lo": agg["lo"], f"{m}_hi": agg["hi"]})
+            row.update({m: agg["mean"], f"{m}_lo": agg["lo"], f"{m}_hi": agg["hi"],
+                        f"{m}_n": agg["n"]})
         if "reason" in rows:
             shares = rows["reason"].value_counts(normalize=True)
             row.update({f"reason_{r}": float(shares.get(r, 0.0)) for r in M.REASONS[1:]})
@@ -221,13 +280,26 @@ def _md_table(df: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
+def _mean_ci(fmt: str, mean, lo, hi, n_used, n) -> str:
+    """`mean [lo, hi]`, with `(n = k of N)` when only k of the cell's N episodes count."""
+    if not np.isfinite(mean):
+        text = "–"
+    elif np.isfinite(lo) and np.isfinite(hi):
+        text = f"{fmt.format(mean)} [{fmt.format(lo)}, {fmt.format(hi)}]"
+    else:
+        text = fmt.format(mean)
+    return text if n_used >= n else f"{text} (n = {int(n_used)} of {int(n)})"
+
+
 def summary_markdown(summary: pd.DataFrame, axes: list[str], metrics: list[str]) -> str:
-    """Markdown table: axis values, n, and `mean [lo, hi]` per metric."""
+    """Markdown table: axis values, n, and `mean [lo, hi]` per metric, with the count of the
+    episodes it is taken over where some were left out."""
     out = summary[axes + ["n"]].copy() if axes else summary[["n"]].copy()
     for m in metrics:
         fmt = metric_info(m)[2]
-        out[m] = [f"{fmt.format(a)} [{fmt.format(b)}, {fmt.format(c)}]" for a, b, c in
-                  zip(summary[m], summary[f"{m}_lo"], summary[f"{m}_hi"], strict=True)]
+        used = summary[f"{m}_n"] if f"{m}_n" in summary else summary["n"]
+        out[m] = [_mean_ci(fmt, *v) for v in zip(
+            summary[m], summary[f"{m}_lo"], summary[f"{m}_hi"], used, summary["n"], strict=True)]
     return _md_table(out)
 
 

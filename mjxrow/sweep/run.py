@@ -6,8 +6,11 @@ value (one compile each) → batches of episodes → per-episode metrics → `re
 
 Resumable: each finished cell is written at once to `DIR/cells/<hash>.csv` (temp file +
 `os.replace`), `hash` covering the cell's resolved parameters and its group's static field
-shape; a re-run skips the cells whose file exists. Ctrl-C and SIGTERM stop between writes, so
-no finished cell is lost and no file is left half-written.
+shape; a re-run verifies each cell file (complete, every episode, its own hash) and skips the
+cells whose file passes; a damaged one is reported and recomputed. `DIR/.lock` keeps a second
+sweep out of the folder. From the command line, Ctrl-C and SIGTERM at any moment (compilation
+included) write results.csv and summary.csv from the finished cells and exit with 130
+(mjxrow.interrupt); no finished cell is lost and no file is left half-written.
 
 The evaluation of one group is one call with a narrow interface (tests inject a fake one):
 
@@ -21,8 +24,10 @@ import argparse
 import contextlib
 import dataclasses
 import datetime
+import json
 import signal
 import sys
+import textwrap
 import threading
 import time
 from collections.abc import Callable
@@ -35,10 +40,14 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 from mjxrow import field as F
+from mjxrow import files as FS
+from mjxrow import interrupt
 from mjxrow import runtime as R
 from mjxrow.rollout import build as B
 from mjxrow.rollout import metrics as M
+from mjxrow.sweep import cells as CF
 from mjxrow.sweep import config as C
+from mjxrow.sweep import estimate as EST
 from mjxrow.sweep import report as plots
 
 Evaluator = Callable[["Group", C.SweepConfig, Callable[[pd.DataFrame], None]], pd.DataFrame]
@@ -97,13 +106,21 @@ def atomic_write_csv(path: Path, df: pd.DataFrame) -> None:
     atomic_write_text(path, df.to_csv(index=False))
 
 
-def finished_cells(cells_dir: Path) -> set[str]:
-    """Hashes of the finished cells; removes temp files a killed run may have left."""
-    if not cells_dir.is_dir():
-        return set()
-    for tmp in cells_dir.glob(".*.tmp"):
-        tmp.unlink(missing_ok=True)
-    return {p.stem for p in cells_dir.glob("*.csv")}
+cell_file_problem, finished_cells = CF.cell_file_problem, CF.finished_cells  # resume checks
+
+
+def resolved_params(run: C.RunConfig) -> dict[str, Any]:
+    """C.resolved with the render knobs left at None (by crop, by resolution, by backend) set
+    to the values the renderer used (render.resolve), so that results.csv says what ran. The
+    cell hash keeps the given values."""
+    from mjxrow import render as RD
+
+    out = C.resolved(run)
+    used = RD.resolve(run.render, run.preset, run.camera)
+    for k, v in dataclasses.asdict(used).items():
+        if out.get(f"render.{k}", 0) is None:
+            out[f"render.{k}"] = v
+    return out
 
 
 def cell_rows(group: Group, cell_index: int, rows: pd.DataFrame) -> pd.DataFrame:
@@ -113,7 +130,7 @@ def cell_rows(group: Group, cell_index: int, rows: pd.DataFrame) -> pd.DataFrame
     ident = pd.DataFrame({"cell": cell.index, "episode": rows["episode"],
                           "cell_hash": group.hashes[group.cells.index(cell)],
                           "group": group.index})
-    params = pd.DataFrame([C.resolved(cell.cfg)] * len(rows))
+    params = pd.DataFrame([resolved_params(cell.cfg)] * len(rows))
     metrics = rows.drop(columns=[c for c in ("cell", "episode") if c in rows])
     return pd.concat([ident, params, metrics], axis=1)
 
@@ -179,17 +196,34 @@ def _raise_interrupt(signum, frame):
     raise _Terminated(f"signal {signum}")
 
 
+COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"  # jax.monitoring, per XLA compile
+
+
 class _CellWriter:
     """on_batch_done of one group: collects episode rows per cell and writes each cell's file
     (atomically) as soon as all its episodes are in; advances the progress bar."""
 
     def __init__(self, group: Group, seeds: int, cells_dir: Path, bar,
-                 watch: R.Stopwatch | None = None):
+                 watch: R.Stopwatch | None = None, lock=None):
         self.group, self.seeds, self.dir, self.bar = group, seeds, cells_dir, bar
         self.watch = watch or R.Stopwatch()
+        self.lock = lock or contextlib.nullcontext()
         self.pending: dict[int, list[pd.DataFrame]] = {}
         self.times = [time.perf_counter()]
         self.episodes = 0
+        self.compile_s, self.programs = 0.0, 0
+
+    def on_compile(self, event: str, seconds: float, **_) -> None:
+        """A jax.monitoring listener: adds up XLA compilations, so that the bar tells compile
+        from run and the ETA counts run time only."""
+        if event != COMPILE_EVENT:
+            return
+        self.compile_s += seconds
+        self.programs += 1
+        if not self.episodes:
+            self.bar.set_postfix_str(f"group {self.group.index}: compiling, then the first "
+                                     f"batch ({self.compile_s:.0f} s of compilation so far)",
+                                     refresh=False)
 
     def __call__(self, rows: pd.DataFrame) -> None:
         self.times.append(time.perf_counter())
@@ -199,11 +233,22 @@ class _CellWriter:
             if sum(len(p) for p in parts) >= self.seeds:
                 df = cell_rows(self.group, int(ci), pd.concat(self.pending.pop(int(ci))))
                 if R.writer():
-                    with self.watch.writing():
+                    with self.lock, self.watch.writing():
                         atomic_write_csv(self.dir / f"{df['cell_hash'].iloc[0]}.csv", df)
         self.episodes += len(rows)
         self.bar.update(len(rows))
-        self.bar.set_postfix_str(f"group {self.group.index}")
+        self.bar.set_postfix_str(f"group {self.group.index}: {self.eta()}")
+
+    def eta(self) -> str:
+        """Time left in this group at the rate of the batches so far, compilation left out:
+        known from the first batch on."""
+        run_s = self.times[-1] - self.times[0] - self.compile_s
+        left = len(self.group.episodes) - self.episodes
+        if not left:
+            return "done"
+        if run_s <= 0:
+            return "running"
+        return f"about {left * run_s / self.episodes:.0f} s left in this group"
 
     def timing(self) -> str:
         dt = np.diff(self.times)
@@ -212,7 +257,7 @@ class _CellWriter:
         rest = f", then {np.median(dt[1:]):.1f} s per batch (median of {dt.size - 1})" \
             if dt.size > 1 else ""
         return (f"{self.times[-1] - self.times[0]:.1f} s for {self.episodes} episodes: first "
-                f"batch {dt[0]:.1f} s including compilation{rest}")
+                f"batch {dt[0]:.1f} s including {self.compile_s:.1f} s of compilation{rest}")
 
 
 @contextlib.contextmanager
@@ -236,18 +281,33 @@ def _ticking(bar, enabled: bool):
 
 
 def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
-        progress: bool = True, command: str = "", figures: bool = True) -> dict[str, Any]:
+        progress: bool = True, command: str = "", figures: bool = True,
+        hard_stop: bool = False) -> dict[str, Any]:
     """Run every unfinished cell of `cfg`, persisting each as it finishes, then write the
     outputs (without `figures`: no PNGs and no report). Returns {'groups', 'ran', 'skipped',
-    'files'}. On Ctrl-C or SIGTERM the finished cells are kept, results.csv and summary.csv
-    hold them, and KeyboardInterrupt propagates."""
+    'files'}. Holds `out/.lock` (files.OutLock): a second run into `out` gets OutputError.
+
+    On Ctrl-C or SIGTERM the finished cells are kept and results.csv and summary.csv hold them;
+    then KeyboardInterrupt propagates, or, with `hard_stop` (the CLI), the process ends at once
+    with exit code 130, whatever it was doing, compilation included (interrupt.HardStop)."""
     evaluate = evaluate or evaluate_group
     out = Path(out)
-    watch = R.Stopwatch()
-    done: list[str] = []
-    if R.writer():  # several processes: process 0 writes, and decides what is finished
+    if R.writer():  # several processes: process 0 writes, locks and decides what is finished
         (out / "cells").mkdir(parents=True, exist_ok=True)
-        done = sorted(finished_cells(out / "cells"))
+    with contextlib.ExitStack() as stack:
+        if R.writer():
+            stack.enter_context(FS.OutLock(out))
+        stop = stack.enter_context(interrupt.HardStop()) if hard_stop else None
+        return _run(cfg, out, evaluate, progress, command, figures, stop)
+
+
+FACTS = "run.json"  # the facts (date, command, device, timings) of the last run that ran episodes
+
+
+def _run(cfg: C.SweepConfig, out: Path, evaluate: Evaluator, progress: bool, command: str,
+         figures: bool, stop: interrupt.HardStop | None) -> dict[str, Any]:
+    watch = R.Stopwatch()
+    done = sorted(finished_cells(out / "cells", cfg.seeds, report=True)) if R.writer() else []
     groups = plan(cfg, set(R.agree(done)))
     n_cells = sum(len(g.cells) for g in groups)
     total, todo = n_cells * cfg.seeds, sum(len(g.episodes) for g in groups)
@@ -258,7 +318,20 @@ def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
                             "cells skipped (already finished)": skipped}
     bar = tqdm(total=total, initial=total - todo, unit="ep", disable=not progress,
                desc=cfg.name, dynamic_ncols=True)
-    old = signal.signal(signal.SIGTERM, _raise_interrupt) if _main_thread() else None
+
+    def flush() -> None:
+        bar.close()
+        if R.writer():
+            write_outputs(cfg, groups, out, info, figures=False)
+        kept = len(finished_cells(out / "cells") & {h for g in groups for h in g.hashes})
+        print(f"interrupted: {kept} of {n_cells} cells finished and kept in {out}; run the "
+              "same command again to resume", file=sys.stderr)
+
+    if stop is not None:
+        stop.flush = flush
+    old = signal.signal(signal.SIGTERM, _raise_interrupt) \
+        if _main_thread() and stop is None else None
+    lock = stop.lock if stop is not None else contextlib.nullcontext()
     ran, t0 = 0, time.perf_counter()
     try:
         with _ticking(bar, progress):
@@ -266,20 +339,18 @@ def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
                 if not g.episodes:
                     continue
                 bar.set_postfix_str(f"group {g.index}: compiling")
-                writer = _CellWriter(g, cfg.seeds, out / "cells", bar, watch)
+                writer = _CellWriter(g, cfg.seeds, out / "cells", bar, watch, lock)
+                jax.monitoring.register_event_duration_secs_listener(writer.on_compile)
                 try:
                     evaluate(g, cfg, writer)
                 finally:
+                    jax.monitoring.unregister_event_duration_listener(writer.on_compile)
                     ran += writer.episodes
                     info[f"group {g.index} ({g.shape.crop}, {len(g.cells)} cells)"] = \
                         writer.timing()
     except KeyboardInterrupt:
-        bar.close()
-        if R.writer():
-            write_outputs(cfg, groups, out, info, figures=False)
-        kept = len(finished_cells(out / "cells") & {h for g in groups for h in g.hashes})
-        print(f"interrupted: {kept} of {n_cells} cells finished and kept in {out}; run the "
-              "same command again to resume", file=sys.stderr)
+        with lock:
+            flush()
         raise
     finally:
         bar.close()
@@ -289,9 +360,28 @@ def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
     split = watch.split()
     info["time"] = (f"compile {split['compile']:.1f} s, run {split['run']:.1f} s, write cells "
                     f"{split['write']:.1f} s")
-    with watch.writing():
-        files = write_outputs(cfg, groups, out, info, figures) if R.writer() else {}
+    files: dict[str, Any] = {}
+    if R.writer():
+        with lock, watch.writing():
+            info = _facts(out, info, ran, todo)
+            files = write_outputs(cfg, groups, out, info, figures)
     return {"groups": groups, "ran": ran, "skipped": skipped, "files": files, "time": watch}
+
+
+def _facts(out: Path, info: dict[str, Any], ran: int, todo: int) -> dict[str, Any]:
+    """The run facts for report.md: this run's, saved to out/run.json when it ran episodes; a
+    re-run with nothing to do keeps the saved facts of the run that made the results, and
+    says when it was re-run."""
+    path = out / FACTS
+    if ran or todo:
+        FS.atomic_write_text(path, json.dumps(info, indent=1, ensure_ascii=False) + "\n")
+        return info
+    try:
+        saved = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return info
+    return {**saved, "re-run": f"{info['date']} ({info['command']}): every cell already "
+            "finished, nothing run"}
 
 
 def _main_thread() -> bool:
@@ -311,8 +401,13 @@ cpu_devices = R.cpu_devices  # one XLA CPU device per core (runtime.cpu_devices)
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m mjxrow.sweep", description=__doc__.split("\n")[2],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        prog="python -m mjxrow.sweep", description=__doc__.split("\n\n")[1],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=textwrap.fill(
+            "Exit codes: 0 done, 2 invalid configuration, output folder or resources (the key or "
+            "option is named), 130 interrupted (the finished cells are kept; run the same "
+            "command again to resume).", 88))
     p.add_argument("config", help="sweep YAML file")
     p.add_argument("--out", help="output directory (default: the YAML's `out`)")
     p.add_argument("--smoke", action="store_true",
@@ -321,19 +416,31 @@ def main(argv: list[str] | None = None) -> int:
                    help="override a dotted key, e.g. --set field.d_rr=[1.2,1.8] (repeatable)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     R.add_args(p)
+    p.add_argument("--force", action="store_true",
+                   help="run even when the memory estimate exceeds this machine's memory")
     args = p.parse_args(argv)
     try:
         R.setup(args, cpu_split=True)
         cfg = C.load(args.config, args.set, args.smoke)
+        out = Path(args.out or cfg.out)
+        if args.smoke and not args.out:
+            out = out.with_name(out.name + "_smoke")
+        FS.check_out_dir(out, "--out")
+        cells = out / "cells"
+        est = EST.estimate(plan(cfg, finished_cells(cells, cfg.seeds)), cfg.seeds,
+                           cfg.batch_size, _device_name())
+        line = EST.check(est, args.force)
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    out = Path(args.out or cfg.out)
-    if args.smoke and not args.out:
-        out = out.with_name(out.name + "_smoke")
+    if not args.no_progress:
+        print(line, file=sys.stderr)
     command = "python -m mjxrow.sweep " + " ".join(argv if argv is not None else sys.argv[1:])
     try:
-        res = run(cfg, out, progress=not args.no_progress, command=command)
+        res = run(cfg, out, progress=not args.no_progress, command=command, hard_stop=True)
+    except FS.OutputError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         return 130
     if R.writer():
@@ -341,6 +448,12 @@ def main(argv: list[str] | None = None) -> int:
               f"{res['files'].get('report', out)}")
         print(res["time"].line())
     return 0
+
+
+def _device_name() -> str:
+    """The device as benchmarks.jsonl names it: the accelerator's name, or `cpu`."""
+    dev = jax.devices()[0]
+    return "cpu" if dev.platform == "cpu" else dev.device_kind
 
 
 if __name__ == "__main__":

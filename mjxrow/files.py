@@ -1,0 +1,124 @@
+"""Output files of every command: the output folder checked before any work, atomic writes, and a
+lock so that two runs never write one folder.
+
+- `check_out_dir(path)` proves, before a command works, that it can create and write the folder
+  (`--out /proc/x` fails at once, not after minutes of work); it leaves nothing behind.
+- `atomic_write_*` write a temp file in the same folder, then `os.replace` it: a reader (or a
+  resumed run) sees the old file or the new one, never half of one; a failed write removes its
+  temp file.
+- `OutLock(folder)` holds `folder/.lock` (an OS file lock, released when the process ends, even
+  by a kill) and refuses a second holder with a one-line error.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import filelock
+
+
+class OutputError(ValueError):
+    """A one-line error about an output folder or file; the message starts with the option."""
+
+
+def check_out_dir(path: str | Path, option: str = "--out") -> Path:
+    """The folder `path` as an absolute Path once it is known that it can be created and written.
+
+    Creates nothing that outlives the check: a probe file (or folder) in the folder (or in its
+    nearest existing parent) is made and removed. OutputError naming `option` and the reason."""
+    p = Path(path).expanduser().absolute()
+    probe_in = p
+    while not probe_in.exists():
+        if probe_in.parent == probe_in:
+            break
+        probe_in = probe_in.parent
+    if p.exists() and not p.is_dir():
+        raise OutputError(f"{option} {path}: exists and is not a folder")
+    if not probe_in.is_dir():
+        raise OutputError(f"{option} {path}: cannot write there ({probe_in} is not a folder)")
+    try:
+        if probe_in == p:
+            fd, name = tempfile.mkstemp(prefix=".probe-", dir=p)
+            os.close(fd)
+            os.unlink(name)
+        else:
+            os.rmdir(tempfile.mkdtemp(prefix=".probe-", dir=probe_in))
+    except OSError as e:
+        raise OutputError(f"{option} {path}: cannot write in {probe_in} "
+                          f"({e.strerror or e})") from None
+    return p
+
+
+def check_out_file(path: str | Path, option: str = "--out") -> Path:
+    """`check_out_dir` for the folder of a file to write; the file itself must not be a folder."""
+    p = Path(path).expanduser().absolute()
+    if p.is_dir():
+        raise OutputError(f"{option} {path}: is a folder, expected a file name")
+    check_out_dir(p.parent, option)
+    return p
+
+
+def _tmp(path: Path) -> Path:
+    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
+    """Write `data` to `path` atomically (temp file in the same folder, then os.replace)."""
+    path = Path(path)
+    tmp = _tmp(path)
+    try:
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def atomic_write_text(path: str | Path, text: str) -> Path:
+    """Write `text` (UTF-8) to `path` atomically."""
+    return atomic_write_bytes(path, text.encode())
+
+
+def atomic_save(path: str | Path, save) -> Path:
+    """Call `save(tmp_path)` (e.g. `fig.savefig`, `image.save`), then move the result onto
+    `path` atomically; the temp file keeps `path`'s suffix so that writers can read the format
+    from it."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    try:
+        save(tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def temp_files(folder: str | Path) -> list[Path]:
+    """Temp files that an interrupted atomic write may have left in `folder` (not recursive)."""
+    folder = Path(folder)
+    return sorted(folder.glob(".*.tmp")) + sorted(folder.glob(".*.tmp.*")) \
+        if folder.is_dir() else []
+
+
+class OutLock:
+    """`with OutLock(folder):` holds `folder/.lock`; a second holder, in this or another
+    process, gets OutputError at once. The OS releases the lock when the process ends."""
+
+    def __init__(self, folder: str | Path, option: str = "--out"):
+        self.folder, self.option = Path(folder), option
+        self._lock = filelock.FileLock(str(self.folder / ".lock"), timeout=0,
+                                       is_singleton=False)
+
+    def __enter__(self) -> OutLock:
+        try:
+            self._lock.acquire()
+        except filelock.Timeout:
+            raise OutputError(f"{self.option} {self.folder}: another run is writing this folder "
+                              f"(it holds {self.folder / '.lock'}); wait for it to end or choose "
+                              "another --out") from None
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._lock.release()
