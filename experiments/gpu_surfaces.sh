@@ -28,6 +28,8 @@ declare -A runs=(
   [slope_policy]="sweeps/policy_slope_roughness.yaml"
   [slope_oracle]="sweeps/slope_roughness.yaml --set controller.name=oracle"
 )
+# the sweeps share the GPU: each may take a sixth of its memory (JAX takes 75 % by default)
+export XLA_PYTHON_CLIENT_MEM_FRACTION=${XLA_PYTHON_CLIENT_MEM_FRACTION:-0.15}
 for name in "${!runs[@]}"; do
   # shellcheck disable=SC2086
   timeout "$limit" $py -m mjxrow.sweep ${runs[$name]} "${flags[@]}" --out "$work/$name" \
