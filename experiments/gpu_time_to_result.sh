@@ -21,7 +21,8 @@
 #     is at least FULL_TABLE3 seconds (set FULL_TABLE3=0 to force it after the rest).
 # Raw figures: $OUT/ttr.jsonl (one line per step: wall time, the command's own compile / run /
 # write split, programs, cache hits), $OUT/closed_loop.jsonl (bench rows), $OUT/seg_bf16_iou.jsonl,
-# logs $OUT/<step>.log. Ends with a short table of the figures.
+# logs $OUT/<step>.log. Ends with a short table of the figures. ONLY="step step ..." runs only
+# the steps named (e.g. ONLY="closed_loop_64_bf16 seg_bf16_iou").
 set -uo pipefail
 out=${OUT:-/tmp/ttr_out}; mkdir -p "$out"
 py=${PY:-python3}
@@ -53,6 +54,7 @@ mujoco.__version__, jax.devices())"; } 2>&1 | tee "$out/device.txt"
 # for at most MAX_S seconds and what is left; one JSON line to $out/ttr.jsonl.
 step() {
   local name=$1 need=$2 max=$3; shift 3
+  if [ -n "${ONLY:-}" ] && [[ " $ONLY " != *" $name "* ]]; then return; fi
   local l; l=$(left)
   if [ "$l" -lt "$need" ]; then
     echo "== $name: skipped ($l s left, needs $need)"
