@@ -2,7 +2,6 @@
 
     python experiments/benchmarks_table.py            # latest row per device, stage, config
     python experiments/benchmarks_table.py --all      # every recorded row
-    python experiments/benchmarks_table.py --readme   # rewrite the table in README.md
 """
 
 from __future__ import annotations
@@ -40,15 +39,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--file", default="benchmarks.jsonl")
     ap.add_argument("--all", action="store_true", help="every row, not only the latest")
-    ap.add_argument("--readme", action="store_true", help="rewrite the table in README.md")
     args = ap.parse_args()
     text = table(load(args.file), latest=not args.all)
-    if args.readme:
-        start, end = "<!-- benchmarks:start -->", "<!-- benchmarks:end -->"
-        readme = Path("README.md").read_text()
-        head, rest = readme.split(start, 1)
-        readme = head + start + "\n" + text + "\n" + end + rest.split(end, 1)[1]
-        Path("README.md").write_text(readme)
     print(text)
 
 
