@@ -352,7 +352,7 @@ def test_cli_bad_input_names_the_key(tmp_path, capsys):
     proc = subprocess.run([sys.executable, "-m", "mjxrow.worlds", "--preset", "chard", "--set",
                            "field.d_RR=0.2", "--out", str(tmp_path)], capture_output=True,
                           text=True)
-    assert proc.returncode == 2 and "plant_width" in proc.stderr and "d_RR" in proc.stderr
+    assert proc.returncode == 2 and "field.d_RR" in proc.stderr and "wider" in proc.stderr
 
 
 def test_overrides_grow_the_shape():

@@ -8,8 +8,11 @@ obstacles 2. Plants never collide (contype = conaffinity = 0); the robot's wheel
 terrain and the obstacles.
 
 The robot is `physics.sim.model_xml`'s own: its `<option>` (time step, integrator, solver),
-`<custom>` numbers, chassis body (free joint, sphere wheels, camera `front`) and wheel velocity
-actuators, taken from that model's text, so the viewer runs the closed loop's physics. The
+`<custom>` numbers, chassis body (free joint, sphere wheels, camera `front`) and wheel
+actuators, taken from that model's text, so the viewer runs the closed loop's physics; the
+closed loop's `<motor>`s, which it drives with its own implicit servo (`robot.servo`), become
+MuJoCo `<velocity>` actuators of the same gain and torque limit, so the viewer's sliders set
+wheel speeds. The
 actuators get a `ctrlrange` of the largest wheel speed a command within the robot's limits
 asks for (so the viewer's control panel has sliders of that range; the closed loop never leaves
 it), and keyframes `start` (at rest), `forward` (v_max straight on), `left` / `right` (v_max/2
@@ -78,7 +81,12 @@ def robot_parts(shape: F.FieldShape, robot: S.Robot, start: S.Start) -> dict[str
     corners = np.array([[a, b] for a in (-1, 1) for b in (-1, 1)])
     lim = np.array([robot.robot.v_max, robot.robot.omega_max])
     top = float(np.max(np.abs(R.wheel_speeds(corners * lim, robot.robot))))
+    # the closed loop drives <motor>s with its own implicit servo (robot.servo); the viewer gets
+    # MuJoCo's velocity actuators with the same gain and torque limit, integrated implicitly
+    parts["option"].set("integrator", "implicitfast")
     for act in parts["actuator"]:
+        act.tag = "velocity"
+        act.set("kv", f"{robot.robot.kv:.6g}")
         act.set("ctrlrange", f"{-top:.6g} {top:.6g}")
     nq = 7 + len(R.WHEELS)
     qpos = S.nums(np.r_[start.qpos, np.zeros(nq - 7)], 6)

@@ -53,12 +53,14 @@ def episode_world(run: RunConfig, shape: F.FieldShape, episode: int = 0,
         raise ValueError(f"episode: must be non-negative, got {episode}")
     fkeys, rkeys = B.split_keys(B.episode_keys(run.seed, [episode]))
     params = B.stack([run.field_params()])
-    fld = S.host(jax.tree.map(lambda x: x[0], B.generate_fn()(params, shape, fkeys)))
+    sim_cfg = run.episode.sim  # where the start zone lies and which lane: as rollout.build
+    fld = S.host(jax.tree.map(lambda x: x[0], B.generate_fn()(params, shape, fkeys,
+                                                              sim_cfg.path_length)))
     robot = run_robot(run)
     if lane is not None:
         start = S.default_start(fld, shape, robot, lane)
     else:
-        field_lane = int(F.robot_lane(fld))
+        field_lane = int(F.robot_lane(fld, mode=sim_cfg.lane))
         k_reset, _ = jax.random.split(rkeys[0])
         qpos = S.start_poses(fld, shape, robot, [field_lane], k_reset[None],
                              run.episode.noise)[0]
