@@ -201,3 +201,12 @@ def test_command_line_error_is_one_line_without_noise(tmp_path):
     assert res.stderr.strip() == ("error: --out /proc/mjxrow_x: cannot write in /proc (No such "
                                   "file or directory)"), res.stderr
     assert "warp" not in res.stdout
+
+
+def test_seg_train_checks_its_output_folder_first(capsys):
+    from mjxrow.seg import train
+
+    assert train.cli(["--crop", "zucchini", "--on-the-fly", "--steps", "1", "--out",
+                      "/proc/x"]) == 2
+    err = capsys.readouterr().err
+    assert "--out" in err and len(err.strip().splitlines()) == 1, err

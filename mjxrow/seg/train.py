@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -381,6 +382,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         if size < 16 or size % 16:
             raise ValueError(f"--size: {size} is not a positive multiple of 16 (output stride)")
     out = Path(args.out or f"runs/seg_{args.crop}_{args.arch}")
+    from mjxrow.files import check_out_dir
+
+    check_out_dir(out, "--out")  # OutputError (a ValueError) before any work
     if args.restart and out.exists():
         shutil.rmtree(out)
     if args.init:
@@ -410,5 +414,20 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     return result
 
 
+def cli(argv: list[str] | None = None) -> int:
+    """`main` as a command: a bad flag, output folder or checkpoint is one line and exit 2,
+    Ctrl-C exit 130 (the last saved checkpoint is kept; the same command resumes)."""
+    try:
+        main(argv)
+    except ValueError as e:
+        print(f"error: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted: the last saved checkpoint is kept; run the same command again to "
+              "resume", file=sys.stderr)
+        return 130
+    return 0
+
+
 if __name__ == "__main__":
-    main()
+    sys.exit(cli())

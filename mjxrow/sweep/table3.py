@@ -277,7 +277,8 @@ def block_timing(folder: Path, cell_hash: str, ran: int, wall: float, device: st
 def run_table(presets: list[str], controllers: list[str], episodes: int, out: str | Path,
               image: int | None = None, batch_size: int = 256, seed: int = 0,
               smoke: bool = False, base: dict | None = None, evaluate=None,
-              progress: bool = True, command: str = "") -> tuple[str, dict]:
+              progress: bool = True, command: str = "",
+              hard_stop: bool = False) -> tuple[str, dict]:
     """Run (or resume) every (controller, preset) block into OUT/<controller>/<preset>/ and
     assemble the markdown page. `evaluate`: sweep.run's evaluator (None: the real one; tests
     inject a fake). Returns (markdown, stats by (controller, preset))."""
@@ -305,7 +306,8 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
             continue
         cfg = build_config(c, p, episodes, image, base, batch_size, seed, smoke)
         t0 = time.perf_counter()
-        res = S.run(cfg, out / c / p, evaluate=evaluate, progress=progress, command=command)
+        res = S.run(cfg, out / c / p, evaluate=evaluate, progress=progress, command=command,
+                    hard_stop=hard_stop)  # Ctrl-C in a block: its finished cells kept, exit 130
         wall = time.perf_counter() - t0
         if not runtime.writer():  # several processes: process 0 reads and writes
             continue
@@ -383,7 +385,8 @@ def main(argv: list[str] | None = None) -> int:
         base = load_base(args.base)
         md, stats = run_table(args.presets, args.controllers, args.episodes, out, args.image,
                               args.batch_size, args.seed, args.smoke, base,
-                              progress=not args.no_progress, command=command.strip())
+                              progress=not args.no_progress, command=command.strip(),
+                              hard_stop=True)
     except C.ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
