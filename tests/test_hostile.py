@@ -210,3 +210,11 @@ def test_seg_train_checks_its_output_folder_first(capsys):
                       "/proc/x"]) == 2
     err = capsys.readouterr().err
     assert "--out" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_bench_checks_its_record_file_first(capsys):
+    from mjxrow.bench.__main__ import main as bench_main
+
+    with pytest.raises(SystemExit) as exit_info:
+        bench_main(["fields", "--out", "/proc/x/bench.jsonl"])
+    assert exit_info.value.code == 2 and "--out" in capsys.readouterr().err

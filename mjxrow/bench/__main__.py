@@ -35,6 +35,10 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     try:  # the closed loop runs as the sweep does: on a CPU, one device per core
         runtime.setup(args, cpu_split=args.stage == "closed_loop")
+        if not args.no_record:  # the record file must be writable before any measurement
+            from mjxrow.files import check_out_file
+
+            check_out_file(args.out, "--out")
     except ValueError as e:
         parser.error(str(e))
     rows = modules[args.stage].run(args)
