@@ -29,7 +29,8 @@ def _parser() -> argparse.ArgumentParser:
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog="Exit codes: 0 done, 2 invalid input (the flag or key "
                                  "is named).")
-    ap.add_argument("--preset", choices=crops.names(), default="zucchini")
+    ap.add_argument("--preset", choices=crops.names(), help="the preset to export (one of "
+                    "--preset, --all and --from-run is required; with --from-run the run's own)")
     ap.add_argument("--all", action="store_true", help="export every preset")
     ap.add_argument("--seed", type=int, default=0, help="run seed, as `mjxrow.episode --seed`")
     ap.add_argument("--episode", type=int, help="episode index (default 0); with --from-run "
@@ -69,6 +70,10 @@ def resolve_run(preset: str, seed: int = 0, sets: list[str] | tuple[str, ...] = 
 def main(argv: list[str] | None = None) -> int:
     ap = _parser()
     args = ap.parse_args(argv)
+    if args.preset is None and not args.all and args.from_run is None:
+        ap.error("say what to export: --preset P, --all or --from-run RUN_DIR")
+    if args.preset is not None and args.all:
+        ap.error("--preset and --all: one of them")
     if args.picture and args.all:
         ap.error("--picture takes one world, not --all")
     if args.from_run and (args.cell is None or args.episode is None):

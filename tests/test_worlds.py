@@ -424,3 +424,12 @@ def test_from_run_exports_the_episode_the_sweep_ran(tmp_path):
     assert int(S.field_lanes(ep.field)[ep.start.lane]) == lane
     np.testing.assert_allclose(spawn["spawn_x"], spawn["x_end"] - 1.5, atol=1e-3)
     assert 1e-4 < abs(spawn["spawn_y"] - spawn["y"]) < 0.4
+
+
+def test_cli_needs_what_to_export(tmp_path, capsys):
+    for args in ([], ["--preset", "chard", "--all"]):
+        with pytest.raises(SystemExit) as exit_info:
+            worlds.main(["--out", str(tmp_path / "w"), *args])
+        assert exit_info.value.code == 2
+        assert "--preset" in capsys.readouterr().err
+    assert not (tmp_path / "w").exists()
