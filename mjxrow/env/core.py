@@ -39,6 +39,7 @@ from mjxrow.env import randomize as RZ
 from mjxrow.env import reward as RW
 from mjxrow.physics import sim
 from mjxrow.rollout import build as B
+from mjxrow.rollout import episode as E
 from mjxrow.rollout import metrics as M
 from mjxrow.rollout.config import ControllerChoice, RunConfig
 
@@ -278,7 +279,7 @@ class Env:
         s_new = sim.step(m, d.sim, cmd, scfg)
         bad = sim.is_bad(s_new, scfg) | ~jnp.all(jnp.isfinite(cmd))
         p_old, p = sim.pose(d.sim), sim.pose(s_new)
-        reason = RW.end_reason(m, s_new, bad, d.t, d.anchor, d.goal, d.field, self.half,
+        reason = E.end_reason(m, s_new, bad, d.t, d.anchor, d.goal, d.field, self.half,
                                self.episode)
         s_next = jax.tree.map(lambda x, y: jnp.where(bad, x, y), d.sim, s_new)
         check = (d.t + 1) % self.episode.stuck_window == 0

@@ -1,10 +1,6 @@
-"""The environment's end-of-episode events (as the evaluation episode decides them) and its
-reward terms.
-
-`end_reason` takes the same inputs in the same order of precedence as `rollout.episode`'s step
-(sim_error > flipped > collision > goal > missed_goal > off_patch > stuck > timeout), so an
-episode of the environment ends where the sweep's would; `tests/test_env.py` checks this on an
-oracle episode against `rollout.episode.episode`.
+"""The environment's reward terms. Its episodes end where the sweep's would: the environment
+calls `rollout.episode.end_reason`, the evaluation episode's own step events
+(`tests/test_env.py` checks this on an oracle episode against `rollout.episode.episode`).
 
 Reward of one control step (each term is logged as a metric `reward/<term>`):
 
@@ -25,7 +21,6 @@ import jax
 import jax.numpy as jnp
 
 from mjxrow.control.base import wrap_angle
-from mjxrow.physics import sim
 from mjxrow.rollout import metrics as M
 
 TERMS = ("progress", "lateral", "heading", "collision", "goal", "failure")
@@ -48,32 +43,6 @@ class RewardConfig:
             if not getattr(self, f.name) >= 0:
                 raise ValueError(f"env.reward.{f.name}: must be non-negative, got "
                                  f"{getattr(self, f.name)}")
-
-
-def end_reason(m, s_new: sim.SimState, bad: jax.Array, t: jax.Array, anchor: jax.Array,
-               goal: jax.Array, field, half: tuple[float, float], cfg) -> jax.Array:
-    """int32 [] `metrics.REASONS` code of the step that produced `s_new` (RUNNING if none), as
-    `rollout.episode` decides it. m: the world's model; bad: the step failed (NaN, exploded,
-    non-finite command); t: int32 [] index of the step; anchor [2]: the position at the last
-    stuck check; goal [2]; half: the robot's half length and width [m]; cfg: the static
-    `rollout.episode.EpisodeConfig`."""
-    scfg = cfg.sim
-    p = sim.pose(s_new)
-    check = (t + 1) % cfg.stuck_window == 0
-    events = [  # lowest precedence first: later entries win (rollout.episode's order)
-        (t >= cfg.n_steps - 1, M.TIMEOUT),
-        (check & (jnp.linalg.norm(p[:2] - anchor) < cfg.stuck_dist), M.STUCK),
-        (sim.off_patch(m, s_new, scfg) if cfg.end_off_patch else False, M.OFF_PATCH),
-        (p[0] > goal[0] + cfg.goal_radius if cfg.end_missed_goal else False, M.MISSED_GOAL),
-        (jnp.linalg.norm(p[:2] - goal) <= cfg.goal_radius, M.GOAL),
-        (M.collides(p, field, cfg.crop, half, cfg.collision_window), M.COLLISION),
-        (sim.is_flipped(s_new, scfg), M.FLIPPED),
-        (bad, M.SIM_ERROR),
-    ]
-    reason = jnp.int32(M.RUNNING)
-    for happened, code in events:
-        reason = jnp.where(happened, code, reason)
-    return reason
 
 
 def terms(prev_pose: jax.Array, pose: jax.Array, lane_y: jax.Array, reason: jax.Array,

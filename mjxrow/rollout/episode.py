@@ -106,6 +106,34 @@ class EpisodeConfig:
         return dataclasses.replace(self, start_offset_std=0.0, start_yaw_std=0.0)
 
 
+def end_reason(m, s_new: sim.SimState, bad: jax.Array, t: jax.Array, anchor: jax.Array,
+               goal: jax.Array, field: F.Field, half: tuple[float, float],
+               cfg: EpisodeConfig) -> jax.Array:
+    """int32 [] `metrics.REASONS` code of the step that produced `s_new` (RUNNING if none), for
+    the episode here and the training environment alike. m: the world's model; bad: the step
+    failed (NaN, exploded, non-finite command); t: int32 [] index of the step; anchor [2]: the
+    position at the last stuck check; goal [2]; half: the robot's half length and width [m].
+    Precedence: sim_error > flipped > collision > goal > missed_goal > off_patch > stuck >
+    timeout."""
+    scfg = cfg.sim
+    p = sim.pose(s_new)
+    check = (t + 1) % cfg.stuck_window == 0
+    events = [  # lowest precedence first: later entries win
+        (t >= cfg.n_steps - 1, M.TIMEOUT),
+        (check & (jnp.linalg.norm(p[:2] - anchor) < cfg.stuck_dist), M.STUCK),
+        (sim.off_patch(m, s_new, scfg) if cfg.end_off_patch else False, M.OFF_PATCH),
+        (p[0] > goal[0] + cfg.goal_radius if cfg.end_missed_goal else False, M.MISSED_GOAL),
+        (jnp.linalg.norm(p[:2] - goal) <= cfg.goal_radius, M.GOAL),
+        (M.collides(p, field, cfg.crop, half, cfg.collision_window), M.COLLISION),
+        (sim.is_flipped(s_new, scfg), M.FLIPPED),
+        (bad, M.SIM_ERROR),
+    ]
+    reason = jnp.int32(M.RUNNING)
+    for happened, code in events:
+        reason = jnp.where(happened, code, reason)
+    return reason
+
+
 def _select(c, a, b):
     """Per leaf: a where c else b."""
     return jax.tree.map(lambda x, y: jnp.where(c, x, y), a, b)
@@ -147,20 +175,7 @@ def episode(mx, field: F.Field, lane: jax.Array, key: jax.Array, noise: sim.Pose
         bad = sim.is_bad(s_new, scfg) | ~jnp.all(jnp.isfinite(cmd))
         p = sim.pose(s_new)
         check = (t + 1) % cfg.stuck_window == 0
-        events = [  # lowest precedence first: later entries win
-            (t == cfg.n_steps - 1, M.TIMEOUT),
-            (check & (jnp.linalg.norm(p[:2] - anchor) < cfg.stuck_dist), M.STUCK),
-            (sim.off_patch(m, s_new, scfg) if cfg.end_off_patch else False, M.OFF_PATCH),
-            (p[0] > goal[0] + cfg.goal_radius if cfg.end_missed_goal else False,
-             M.MISSED_GOAL),
-            (jnp.linalg.norm(p[:2] - goal) <= cfg.goal_radius, M.GOAL),
-            (M.collides(p, field, cfg.crop, half, cfg.collision_window), M.COLLISION),
-            (sim.is_flipped(s_new, scfg), M.FLIPPED),
-            (bad, M.SIM_ERROR),
-        ]
-        reason = jnp.int32(M.RUNNING)
-        for happened, code in events:
-            reason = jnp.where(happened, code, reason)
+        reason = end_reason(m, s_new, bad, t, anchor, goal, field, half, cfg)
         event = jnp.where(done, M.RUNNING, reason).astype(jnp.int32)
         keep_old = done | bad
         s_next = _select(keep_old, s, s_new)
