@@ -4,8 +4,11 @@ table to paste into BENCHMARKS.md (human)."""
 
 from __future__ import annotations
 
+import contextlib
 import datetime
+import fcntl
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -31,17 +34,39 @@ def device_name() -> str:
         return jax.devices()[0].device_kind
 
 
+LOCK_ENV = "MJXROW_BENCH_LOCK"
+
+
+@contextlib.contextmanager
+def timing_lock():
+    """Held around the timed calls when $MJXROW_BENCH_LOCK names a file: several bench
+    processes on one machine then compile side by side but time one at a time."""
+    path = os.environ.get(LOCK_ENV)
+    if not path:
+        yield
+        return
+    with open(path, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
 def time_call(fn: Callable[..., Any], *args: Any, repeats: int = 5) -> dict[str, float]:
     """Compile time (first call) apart from run time: median and all of `repeats` further calls.
-    Seconds; every call is waited for with block_until_ready."""
+    Seconds; every call is waited for with block_until_ready. The further calls run under
+    `timing_lock`."""
     t0 = time.perf_counter()
     jax.block_until_ready(fn(*args))
     compile_s = time.perf_counter() - t0
     runs = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        runs.append(time.perf_counter() - t0)
+    with timing_lock():
+        jax.block_until_ready(fn(*args))  # after the wait for the lock: warm again
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn(*args))
+            runs.append(time.perf_counter() - t0)
     return {"compile_s": compile_s, "median_s": statistics.median(runs), "runs_s": runs}
 
 

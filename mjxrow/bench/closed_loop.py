@@ -28,6 +28,7 @@ import numpy as np
 
 from mjxrow import control, crops, runtime
 from mjxrow.control import perception
+from mjxrow.bench import timing_lock
 from mjxrow.rollout import build as B
 from mjxrow.rollout.config import RunConfig
 from mjxrow.sweep import config as C
@@ -82,10 +83,11 @@ def measure(built: B.Built, run: RunConfig, b: int, repeats: int) -> dict:
     compile_s = time.perf_counter() - t0
     split = watch.split()
     runs = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        log = jax.block_until_ready(exe(*args))
-        runs.append(time.perf_counter() - t0)
+    with timing_lock():
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            log = jax.block_until_ready(exe(*args))
+            runs.append(time.perf_counter() - t0)
     summary = built.summarise(log, b)
     return {"compile_s": compile_s, "cache_hits": split["cache_hits"], "runs_s": runs,
             "alive_end": int(np.sum(runtime.to_host(log.alive[:, -1]))),

@@ -89,6 +89,7 @@ class RenderConfig:
     deep_row_blocks: int | None = None  # the same for the deep tiles (None: by crop)
     deep_block_keep: int | None = None
     deep_keep: int | None = None
+    deep_split: int = 2  # deep tiles are culled again as split × split sub-tiles (1: whole)
     shadow_row_blocks: int = 2  # the same for the shadow rays of a tile
     shadow_block_keep: int = 4
     shadow_keep: int = 6
@@ -110,6 +111,9 @@ class RenderConfig:
             v = getattr(self, name)
             if v is not None and int(v) < 1:
                 raise ValueError(f"render.{name}: must be at least 1, got {v}")
+        if int(self.deep_split) < 1 or int(self.deep_split) & (int(self.deep_split) - 1):
+            raise ValueError(f"render.deep_split: must be a power of two, got "
+                             f"{self.deep_split}")
         if self.deep_keep is not None and int(self.deep_keep) < 0:
             raise ValueError(f"render.deep_keep: must be at least 0, got {self.deep_keep}")
         if self.deep_share is not None and not 0.0 <= self.deep_share <= 1.0:
@@ -264,16 +268,49 @@ def _trace_plants(shape, tab, sweep, oc, d, t_far, cfg):
             # plants entered before the cut beyond the first `keep`
             score = jnp.where(rest > 0, rest + jnp.sum(entry < cut[:, None], 1), 0)
             score, sel = jax.lax.top_k(score.astype(jnp.float32), n_deep)
-            ids2, entry2, _ = RT.cull(tab, P, o[sel], cc[sel], g[sel], tau[sel], cut[sel],
-                                      cfg.deep_row_blocks, cfg.deep_block_keep, cfg.deep_keep)
-            entry2 = jnp.where(score[:, None] > 0, entry2, INF)
-            t2, plant2, k2 = RT.exact(tab, ids2, entry2, oc, G.xyz(d[sel]), t_min[sel], u[sel],
-                                      kernel=cfg.kernel)
+            sweep = (o[sel], cc[sel], g[sel], tau[sel])
+            t2, plant2, k2 = _deep_pass(tab, P, sweep, d[sel], t_min[sel], u[sel],
+                                        score > 0, oc, cfg)
             better = t2 < t[sel]
             t = t.at[sel].set(jnp.where(better, t2, t[sel]))
             plant = plant.at[sel].set(jnp.where(better, plant2, plant[sel]))
             k = k.at[sel].set(jnp.where(better, k2, k[sel]))
     return t.reshape(-1), plant.reshape(-1), k.reshape(-1)
+
+
+def _deep_pass(tab, P, sweep, d, t_min, u, live, oc, cfg):
+    """The deep tiles' second cull and exact test (sweep: their `camera_sweep`, d [D, Q, 3]
+    their rays,
+    u [D, Q] the rays' current hits, live [D] tiles with plants left to test): each tile, or
+    each of its `deep_split`² sub-tiles (its own cone and cut, so a sub-tile over near hits
+    keeps few plants and one over the far field keeps far ones), keeps the `deep_keep` plants
+    its sweep enters first within a window of `deep_row_blocks`. Returns (t, plant, k) [D, Q]."""
+    D, Q = u.shape
+    n = cfg.deep_split
+    ts = int(round(np.sqrt(Q)))
+    if n > 1 and ts % n == 0 and RP.supported(Q // (n * n)):
+        sub = ts // n  # pixel index of the sub-tiles' rays, sub-tile-major
+        r = np.arange(ts).reshape(n, sub)
+        idx = (r[:, None, :, None] * ts + r[None, :, None, :]).reshape(n * n, sub * sub)
+        order = idx.reshape(-1)
+        back = np.argsort(order)
+        ds = d[:, order].reshape(D * n * n, sub * sub, 3)
+        c = jnp.mean(ds, 1)
+        c = c / jnp.linalg.norm(c, axis=-1, keepdims=True)
+        cos_a = jnp.clip(jnp.min(jnp.sum(ds * c[:, None], -1), 1), 1e-6, 1.0)
+        tau = jnp.sqrt(1.0 - cos_a ** 2) / cos_a * 1.001 + 1e-6
+        us = u[:, order].reshape(D * n * n, -1)
+        ts_min = t_min[:, order].reshape(D * n * n, -1)
+        os = jnp.repeat(sweep[0], n * n, axis=0)
+        ids, entry, _ = RT.cull(tab, P, os, c, jnp.zeros_like(c), tau, jnp.max(us, axis=1),
+                                cfg.deep_row_blocks, cfg.deep_block_keep, cfg.deep_keep)
+        entry = jnp.where(jnp.repeat(live, n * n)[:, None], entry, INF)
+        out = RT.exact(tab, ids, entry, oc, G.xyz(ds), ts_min, us, kernel=cfg.kernel)
+        return tuple(x.reshape(D, Q)[:, back] for x in out)
+    ids, entry, _ = RT.cull(tab, P, *sweep, jnp.max(u, axis=1), cfg.deep_row_blocks,
+                            cfg.deep_block_keep, cfg.deep_keep)
+    entry = jnp.where(live[:, None], entry, INF)
+    return RT.exact(tab, ids, entry, oc, G.xyz(d), t_min, u, kernel=cfg.kernel)
 
 
 def _shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, nt):
