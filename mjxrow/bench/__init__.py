@@ -19,7 +19,8 @@ from typing import Any
 
 import jax
 
-STAGES = ("fields", "physics", "render", "segmenter", "closed_loop", "dataset", "train")
+STAGES = ("fields", "physics", "render", "render_mjwarp", "segmenter", "closed_loop", "dataset",
+          "train")
 
 
 def device_name() -> str:

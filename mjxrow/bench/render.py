@@ -78,17 +78,25 @@ def worlds(preset: str, b: int, seed: int = 0):
 
 
 def batched_render(shape: F.FieldShape, intr: RD.Intrinsics, cfg: RD.RenderConfig, b: int,
-                   chunk: int):
+                   chunk: int, shared_field: bool = False):
     """jit of render over [B] worlds: one vmap, or lax.map over chunks of `chunk` frames.
     Arguments (fields, pos, rot, conds) or, with plant tables, (fields, pos, rot, conds,
-    tables)."""
-    def one(x):
-        f, p, r, c, *tab = x
+    tables). With `shared_field`, `fields` is ONE field that every world renders (vmap in_axes
+    None: what depends on the field alone, e.g. its plant table, is computed once per call)."""
+    def one(f, x):
+        p, r, c, *tab = x
         return RD.render(f, shape, p, r, intr, c, cfg=cfg, table=tab[0] if tab else None)
 
-    if chunk >= b:
-        return jax.jit(lambda *x: jax.vmap(lambda *y: one(y))(*x))
-    return jax.jit(lambda *x: jax.lax.map(one, x, batch_size=chunk))
+    def frames(f, *x):
+        if shared_field:
+            per, xs = (lambda y: one(f, y)), x
+        else:
+            per, xs = (lambda y: one(y[0], y[1:])), (f, *x)
+        if chunk >= b:
+            return jax.vmap(lambda *y: per(y))(*xs)
+        return jax.lax.map(per, xs, batch_size=chunk)
+
+    return jax.jit(frames)
 
 
 def run(args: argparse.Namespace) -> list[dict]:
