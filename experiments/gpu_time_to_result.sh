@@ -11,6 +11,8 @@
 #  1. `python -m mjxrow.sweep sweeps.yaml` with an empty compilation cache (cold), then again
 #     in a new process with the same cache into a fresh --out (warm): wall time and the sweep's
 #     own compile / run / write split;
+#     Then in one call of 216 episodes (batch_size=216), cold, and with the XLA renderer
+#     (render.kernel=fused) cold and warm, each with its own empty cache;
 #  2. `python -m mjxrow.bench closed_loop` at 64 x 64 (B = 1024), segmenter float32: control
 #     steps/s, episodes/min of 600 steps, compile apart;
 #  3. the same at 224 x 224 (B = 512);
@@ -94,6 +96,14 @@ sweep=($py -m mjxrow.sweep sweeps.yaml "${sweep_flags[@]}" --no-progress --cache
 step sweep_cold 60 300 "${sweep[@]}" --out "$work/sweep_cold"
 step sweep_warm 20 120 "${sweep[@]}" --out "$work/sweep_warm"
 cp "$work/sweep_warm/summary.csv" "$out/sweep_summary.csv" 2>/dev/null
+# the same sweep in one call of 216 episodes, then also with the XLA renderer (render.kernel
+# fused: no Pallas kernels to compile, and the traced program can be kept beside the cache)
+one=(--set batch_size=216)
+step sweep_b216_cold 60 300 "${sweep[@]/$cache/$work/cache_b216}" "${one[@]}" \
+  --out "$work/sweep_b216_cold"
+fused=("${sweep[@]/$cache/$work/cache_fused}" "${one[@]}" --set render.kernel=fused)
+step sweep_fused_cold 60 300 "${fused[@]}" --out "$work/sweep_fused_cold"
+step sweep_fused_warm 20 120 "${fused[@]}" --out "$work/sweep_fused_warm"
 
 bench=($py -m mjxrow.bench closed_loop --out "$out/closed_loop.jsonl" --cache-dir "$cache")
 step closed_loop_64 60 200 "${bench[@]}" "${b64[@]}"

@@ -301,3 +301,18 @@ def test_obstacles_culled_per_tile_match_every_obstacle():
     assert np.sum(np.asarray(a.classes) == RD.OBSTACLE) >= 30
     assert np.array_equal(np.asarray(a.classes), np.asarray(b.classes))
     assert np.array_equal(np.asarray(a.rgb), np.asarray(b.rgb))
+
+
+def test_deep_sub_tiles_keep_what_whole_deep_tiles_drop(lane_scene):
+    # the same grazing view, deep lists too short for a whole tile: split into 2 x 2 sub-tiles
+    # (each its own cone and cut), the deep pass finds the plants the whole tile's list drops
+    fld, shape, pos = lane_scene
+    intr = RD.Intrinsics(48, 32, 45.0)
+    rot = np.asarray(RD.camera_rot(0.08, np.deg2rad(-6.0)))
+    ref = _reference_classes(fld, shape, intr, pos, rot)
+    short = dict(tile=8, keep=2, deep_keep=6, deep_share=0.5)
+    miss = [int(np.sum(np.asarray(_geometry(shape, intr, RD.RenderConfig(
+        **short, deep_split=n))(fld, pos, rot)[1]) != ref)) for n in (1, 2, 4)]
+    assert miss[1] < miss[0] and miss[2] <= miss[1], miss
+    with pytest.raises(ValueError, match="render.deep_split"):
+        RD.RenderConfig(deep_split=3)

@@ -46,8 +46,8 @@ from mjxrow.bench import render as BR
 from mjxrow.bench import time_call
 
 NEEDS = ("warp", "mujoco.mjx.third_party.mujoco_warp")
-MISSING = ("bench render_mjwarp: needs warp-lang and mujoco-warp: pip install warp-lang "
-           "mujoco-warp")
+MISSING = ("bench render_mjwarp: needs warp-lang (mujoco-mjx carries MuJoCo Warp): pip install "
+           "warp-lang")
 RIG, CAMERA = "lane_rig", "lane_eye"  # the mocap body and its camera added to the export
 GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 

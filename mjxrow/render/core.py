@@ -87,8 +87,8 @@ class RenderConfig:
     keep: int = 16  # candidate plants per tile that every ray intersects exactly
     deep_share: float | None = None  # share of a frame's tiles that may be deep (None: by crop)
     deep_row_blocks: int | None = None  # the same for the deep tiles (None: by crop)
-    deep_block_keep: int | None = None
-    deep_keep: int | None = None
+    deep_block_keep: int | None = None  # blocks per deep tile whose plants' boxes are tested
+    deep_keep: int | None = None  # candidate plants per deep (sub-)tile
     deep_split: int = 2  # deep tiles are culled again as split × split sub-tiles (1: whole)
     shadow_row_blocks: int = 2  # the same for the shadow rays of a tile
     shadow_block_keep: int = 4
