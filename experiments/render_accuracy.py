@@ -106,7 +106,8 @@ def compare(preset: str, n: int, res: int, cfg: RD.RenderConfig, seed: int = 0,
     soil = (c == RD.SOIL) & (c_ref == RD.SOIL)
     err = np.abs(d - d_ref)[soil]
     out = {"iou": inter / max(union, 1), "iou_min": float(np.min(per)) if seen.any() else 1.0,
-           "worst": int(np.argmin(per)), "frames": int(seen.sum()), "class_diff": float(np.mean(c != c_ref)),
+           "worst": int(np.argmin(per)), "frames": int(seen.sum()),
+           "class_diff": float(np.mean(c != c_ref)),
            "depth_med": float(np.median(err)) if err.size else 0.0,
            "depth_p99": float(np.percentile(err, 99)) if err.size else 0.0}
     if shading:  # shadows and shading: pixels of the same class whose colour differs

@@ -27,8 +27,8 @@ import jax
 import numpy as np
 
 from mjxrow import control, crops, runtime
-from mjxrow.control import perception
 from mjxrow.bench import timing_lock
+from mjxrow.control import perception
 from mjxrow.rollout import build as B
 from mjxrow.rollout.config import RunConfig
 from mjxrow.sweep import config as C
