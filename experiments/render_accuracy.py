@@ -79,13 +79,13 @@ def views(preset: str, n: int, kind: str, seed: int = 0):
     shape, fields, pos, rot, conds = BR.worlds(preset, n, seed)
     if kind == "dataset":
         return shape, fields, pos, rot, conds
-    per = 4  # views per field
-    idx = np.arange(n) // per
-    one = jax.tree.map(lambda x: x[idx], fields)
-    keys = jax.random.split(jax.random.key(seed + 1), -(-n // per))
+    per = 4  # views per field: field i // per for view i
+    m = -(-n // per)
+    keys = jax.random.split(jax.random.key(seed + 1), m)
     pos, rot = jax.jit(jax.vmap(lambda f, k: _lane_views(f, k, per, kind)))(
-        jax.tree.map(lambda x: x[::per], one), keys)
-    return shape, one, pos.reshape(-1, 3)[:n], rot.reshape(-1, 3, 3)[:n], conds
+        jax.tree.map(lambda x: x[:m], fields), keys)
+    fields = jax.tree.map(lambda x: x[np.arange(n) // per], fields)
+    return shape, fields, pos.reshape(-1, 3)[:n], rot.reshape(-1, 3, 3)[:n], conds
 
 
 def compare(preset: str, n: int, res: int, cfg: RD.RenderConfig, seed: int = 0,

@@ -72,10 +72,13 @@ SWEEP_CASES = [
 def test_sweep_rejects(tmp_path, capsys, content, extra, needle):
     path = tmp_path / "s.yaml"
     path.write_text(content if isinstance(content, str) else yaml.safe_dump(content))
-    out = tmp_path / "o"
-    args = [str(path), "--no-progress"] + (extra if "--out" in extra else
-                                          ["--out", str(out), *extra])
-    assert S.main(args) == 2
+    _rejected(capsys, S.main, [str(path), "--no-progress"], extra, tmp_path / "o", needle)
+
+
+def _rejected(capsys, main, args, extra, out, needle):
+    """`main(args + extra)` (with `--out out` unless extra names one) exits 2 with one line
+    naming `needle`, and creates no `out`."""
+    assert main(args + (extra if "--out" in extra else ["--out", str(out), *extra])) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: ") and "\n" not in err, err
     assert needle in err, err
@@ -136,14 +139,7 @@ EPISODE_CASES = [
 @pytest.mark.parametrize("extra, needle", [c[1:] for c in EPISODE_CASES],
                          ids=[c[0] for c in EPISODE_CASES])
 def test_episode_rejects(tmp_path, capsys, extra, needle):
-    out = tmp_path / "o"
-    args = ["--n", "2", "--no-progress"] + (extra if "--out" in extra else
-                                          ["--out", str(out), *extra])
-    assert EP.main(args) == 2
-    err = capsys.readouterr().err.strip()
-    assert err.startswith("error: ") and "\n" not in err, err
-    assert needle in err, err
-    assert not out.exists()
+    _rejected(capsys, EP.main, ["--n", "2", "--no-progress"], extra, tmp_path / "o", needle)
 
 
 @pytest.mark.parametrize("kind, needle", [("missing", "no such folder"),

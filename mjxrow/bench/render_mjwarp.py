@@ -44,6 +44,7 @@ from mjxrow import field as F
 from mjxrow import render as RD
 from mjxrow.bench import render as BR
 from mjxrow.bench import time_call
+from mjxrow.field import mjcf
 
 NEEDS = ("warp", "mujoco.mjx.third_party.mujoco_warp")
 MISSING = ("bench render_mjwarp: needs warp-lang (mujoco-mjx carries MuJoCo Warp): pip install "
@@ -189,7 +190,7 @@ def exported(preset: str):
     """(episode, MJCF text, assets) of `preset`'s world as `python -m mjxrow.worlds` exports
     it, without the robot."""
     from mjxrow import worlds
-    from mjxrow.field import mjcf, replay
+    from mjxrow.field import replay
 
     run, shape = worlds.resolve_run(preset)
     ep = replay.episode_world(run, shape, 0)
@@ -208,7 +209,7 @@ def run(args: argparse.Namespace) -> list[dict]:
     ep, xml, assets = exported(args.preset)
     robot = ep.robot.robot
     pos, rot = lane_poses(ep.field, robot.cam_height, robot.cam_pitch_deg, b)
-    sun = np.array([-0.35, -0.45, 1.0]) / np.linalg.norm([0.35, 0.45, 1.0])  # field.mjcf's sun
+    sun = -np.array(mjcf.SUN_DIR) / np.linalg.norm(mjcf.SUN_DIR)  # towards the export's sun
     cond = RD.conditions("sunny").replace(sun_dir=jnp.asarray(sun, jnp.float32))
     conds = jax.tree.map(lambda x: jnp.broadcast_to(x, (b, *x.shape)), cond)
     field = jax.tree.map(jnp.asarray, ep.field)

@@ -37,6 +37,7 @@ PLANT_RGB = {"leaf": (0.23, 0.50, 0.14), "stem": (0.42, 0.60, 0.22), "trunk": (0
              "canopy": (0.17, 0.40, 0.12), "fruit": (0.85, 0.75, 0.25)}
 STONE_RGB, BRANCH_RGB, SOIL_RGB = (0.50, 0.48, 0.45), (0.40, 0.29, 0.18), (0.45, 0.34, 0.23)
 EYE_FOVY = 45.0  # deg, vertical field of view of the `eye` camera
+SUN_DIR = (0.35, 0.45, -1.0)  # direction of the `sun` light's rays (downwards)
 HFIELD_BASE = 0.5  # m, thickness of the MuJoCo heightfield below its lowest sample
 KEYS = {"start": (0.0, 0.0), "forward": (1.0, 0.0), "left": (0.5, 0.5), "right": (0.5, -0.5)}
 
@@ -151,7 +152,7 @@ def to_mjcf(field: F.Field, shape: F.FieldShape, name: str = "field", robot: S.R
             '    <default class="branch"><geom type="capsule" material="branch" group="2"/>'
             '</default>', '  </default>', '  <worldbody>',
             '    <light name="sun" directional="true" castshadow="false" pos="0 0 40" '
-            'dir="0.35 0.45 -1" diffuse="0.75 0.75 0.7" specular="0.1 0.1 0.1"/>',
+            f'dir="{S.nums(SUN_DIR)}" diffuse="0.75 0.75 0.7" specular="0.1 0.1 0.1"/>',
             f'    <camera name="eye" pos="{S.nums(cam_pos)}" xyaxes="{S.nums(cam_rot[:, 0], 5)} '
             f'{S.nums(cam_rot[:, 1], 5)}" fovy="{EYE_FOVY}"/>',
             f'    <geom name="terrain" type="hfield" hfield="terrain" pos="0 0 {S.num(z_lo, 6)}" '

@@ -280,37 +280,29 @@ def _trace_plants(shape, tab, sweep, oc, d, t_far, cfg):
 
 def _deep_pass(tab, P, sweep, d, t_min, u, live, oc, cfg):
     """The deep tiles' second cull and exact test (sweep: their `camera_sweep`, d [D, Q, 3]
-    their rays,
-    u [D, Q] the rays' current hits, live [D] tiles with plants left to test): each tile, or
-    each of its `deep_split`² sub-tiles (its own cone and cut, so a sub-tile over near hits
-    keeps few plants and one over the far field keeps far ones), keeps the `deep_keep` plants
-    its sweep enters first within a window of `deep_row_blocks`. Returns (t, plant, k) [D, Q]."""
+    their rays, t_min and u [D, Q] the rays' near limit and current hits, live [D] tiles with
+    plants left to test): each tile, or each of its `deep_split`² sub-tiles (its own cone and
+    cut, so a sub-tile over near hits keeps few plants and one over the far field keeps far
+    ones), keeps the `deep_keep` plants its sweep enters first within a window of
+    `deep_row_blocks`. Returns (t, plant, k) [D, Q]."""
     D, Q = u.shape
     n = cfg.deep_split
     ts = int(round(np.sqrt(Q)))
-    if n > 1 and ts % n == 0 and RP.supported(Q // (n * n)):
-        sub = ts // n  # pixel index of the sub-tiles' rays, sub-tile-major
-        r = np.arange(ts).reshape(n, sub)
-        idx = (r[:, None, :, None] * ts + r[None, :, None, :]).reshape(n * n, sub * sub)
-        order = idx.reshape(-1)
-        back = np.argsort(order)
-        ds = d[:, order].reshape(D * n * n, sub * sub, 3)
-        c = jnp.mean(ds, 1)
-        c = c / jnp.linalg.norm(c, axis=-1, keepdims=True)
-        cos_a = jnp.clip(jnp.min(jnp.sum(ds * c[:, None], -1), 1), 1e-6, 1.0)
-        tau = jnp.sqrt(1.0 - cos_a ** 2) / cos_a * 1.001 + 1e-6
-        us = u[:, order].reshape(D * n * n, -1)
-        ts_min = t_min[:, order].reshape(D * n * n, -1)
-        os = jnp.repeat(sweep[0], n * n, axis=0)
-        ids, entry, _ = RT.cull(tab, P, os, c, jnp.zeros_like(c), tau, jnp.max(us, axis=1),
-                                cfg.deep_row_blocks, cfg.deep_block_keep, cfg.deep_keep)
-        entry = jnp.where(jnp.repeat(live, n * n)[:, None], entry, INF)
-        out = RT.exact(tab, ids, entry, oc, G.xyz(ds), ts_min, us, kernel=cfg.kernel)
-        return tuple(x.reshape(D, Q)[:, back] for x in out)
+    m = n * n
+    split = n > 1 and ts % n == 0 and RP.supported(Q // m)
+    if split:  # the rays regrouped sub-tile-major: [D·m, Q/m]
+        r = np.arange(ts).reshape(n, ts // n)
+        order = (r[:, None, :, None] * ts + r[None, :, None, :]).reshape(-1)
+        d, t_min, u = (x[:, order].reshape(D * m, Q // m, *x.shape[2:]) for x in (d, t_min, u))
+        sweep = RT.camera_sweep(sweep[0][:1], *RT.cone(d))
+        live = jnp.repeat(live, m)
     ids, entry, _ = RT.cull(tab, P, *sweep, jnp.max(u, axis=1), cfg.deep_row_blocks,
                             cfg.deep_block_keep, cfg.deep_keep)
     entry = jnp.where(live[:, None], entry, INF)
-    return RT.exact(tab, ids, entry, oc, G.xyz(d), t_min, u, kernel=cfg.kernel)
+    out = RT.exact(tab, ids, entry, oc, G.xyz(d), t_min, u, kernel=cfg.kernel)
+    if split:
+        out = tuple(x.reshape(D, Q)[:, np.argsort(order)] for x in out)
+    return out
 
 
 def _shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, nt):

@@ -62,12 +62,19 @@ def tile_layout(width: int, height: int, fovy: float, ts: int):
     ray = ray.reshape(ny, ts, nx, ts, 3).transpose(0, 2, 1, 3, 4).reshape(ny * nx, ts * ts, 3)
     norm = np.linalg.norm(ray, axis=-1)
     dirs = ray / norm[..., None]
-    c = dirs.mean(1)
-    c /= np.linalg.norm(c, axis=-1, keepdims=True)
-    cos_a = np.clip(np.min(np.sum(dirs * c[:, None], -1), 1), 1e-6, 1.0)
-    tan_a = np.sqrt(1.0 - cos_a ** 2) / cos_a * 1.001 + 1e-6
+    c, tan_a = cone(dirs, np)
     return (dirs.astype(np.float32), norm.astype(np.float32), c.astype(np.float32),
             tan_a.astype(np.float32), (ny, nx))
+
+
+def cone(dirs, xp=jnp):
+    """The cone around a tile's unit ray directions dirs [T, P, 3] (numpy or jax, `xp`): its
+    unit centre direction [T, 3] and the tangent of its half-angle [T] (grown a little, so that
+    every ray lies inside)."""
+    c = dirs.mean(1)
+    c = c / xp.linalg.norm(c, axis=-1, keepdims=True)
+    cos_a = xp.clip(xp.min(xp.sum(dirs * c[:, None], -1), 1), 1e-6, 1.0)
+    return c, xp.sqrt(1.0 - cos_a ** 2) / cos_a * 1.001 + 1e-6
 
 
 def untile(x: jax.Array, tiles: tuple[int, int], height: int, width: int) -> jax.Array:
