@@ -72,9 +72,12 @@ def time_call(fn: Callable[..., Any], *args: Any, repeats: int = 5) -> dict[str,
 
 
 def record(rows: list[dict], path: str | Path = "benchmarks.jsonl") -> None:
-    """Append rows ({stage, config, batch, value, unit, ...}) with date, device and command."""
+    """Append rows ({stage, config, batch, value, unit, ...}) with date, device and command
+    (and $XLA_FLAGS where set: they change compile and run times)."""
     base = {"date": datetime.date.today().isoformat(), "device": device_name(),
             "command": "python -m mjxrow.bench " + " ".join(sys.argv[1:])}
+    if os.environ.get("XLA_FLAGS", "").strip():
+        base["xla_flags"] = os.environ["XLA_FLAGS"].strip()
     with open(path, "a") as f:
         for row in rows:
             f.write(json.dumps({**base, **row}) + "\n")
