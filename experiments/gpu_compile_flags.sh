@@ -6,30 +6,26 @@
 #
 #   OUT=DIR bash experiments/gpu_compile_flags.sh [VARIANT ...]
 #
-#  default   XLA's defaults (the compiler's own stage timers in $OUT/default.log)
-#  par       LLVM modules compiled in parallel over the host's cores
-#            (--xla_gpu_enable_llvm_module_compilation_parallelism, 16 threads)
-#  par_cmd   par, and the control loop's body captured as CUDA graphs
-#            (--xla_gpu_enable_command_buffer=+WHILE,+CONDITIONAL)
-#  par_noat  par, and no autotuning (--xla_gpu_autotune_level=0)
+#  default   XLA's defaults
+#  cmd       the control loop captured whole as CUDA graphs, not only its fusions
+#            (--xla_gpu_enable_command_buffer=+WHILE)
+#  noat      no autotuning (--xla_gpu_autotune_level=0): its share of the compile time
+# (XLA compiles the LLVM modules of a program on several threads by default.)
 # Raw rows: $OUT/benchmarks.jsonl; a short table last.
 set -uo pipefail
 out=${OUT:-/tmp/flags_out}; mkdir -p "$out"
 py=${PY:-python3}
-variants=("$@"); [ ${#variants[@]} -eq 0 ] && variants=(default par par_cmd)
-par="--xla_gpu_enable_llvm_module_compilation_parallelism=true --xla_gpu_force_compilation_parallelism=16"
+variants=("$@"); [ ${#variants[@]} -eq 0 ] && variants=(default cmd noat)
 declare -A flags=(
   [default]=""
-  [par]="$par"
-  [par_cmd]="$par --xla_gpu_enable_command_buffer=+WHILE,+CONDITIONAL"
-  [par_noat]="$par --xla_gpu_autotune_level=0"
+  [cmd]="--xla_gpu_enable_command_buffer=+WHILE"
+  [noat]="--xla_gpu_autotune_level=0"
 )
 export XLA_PYTHON_CLIENT_PREALLOCATE=false
 jsonl="$PWD/benchmarks.jsonl"; lines0=$(wc -l < "$jsonl")
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee "$out/device.txt"
 for v in "${variants[@]}"; do
-  extra=()
-  [ "$v" = default ] && extra=(TF_CPP_MIN_LOG_LEVEL=0 TF_CPP_VMODULE=gpu_compiler=1,nvptx_compiler=1)
+  extra=(JAX_LOG_COMPILES=1 TF_CPP_MIN_LOG_LEVEL=0 TF_CPP_VMODULE=gpu_compiler=1)
   t0=$(date +%s)
   env XLA_FLAGS="${flags[$v]}" "${extra[@]}" timeout 300 $py -m mjxrow.bench closed_loop \
     --image 64 --batch 216 --steps 150 --repeats 3 --no-cache --set render.kernel=fused \
@@ -37,6 +33,9 @@ for v in "${variants[@]}"; do
   echo "$v: exit $? in $(( $(date +%s) - t0 )) s" | tee -a "$out/summary.txt"
   grep -E "^B=" "$out/$v.log" | tee -a "$out/summary.txt"
 done
-grep -E "took|Compil|compil" "$out/default.log" | grep -v "^WARNING" | head -60 > "$out/default_timers.txt"
+for v in "${variants[@]}"; do  # the compiler's stage times of the closed-loop program
+  grep -E "(RunHloPasses|RunBackend) for jit_one |tracing one for|conversion jit\(one\)|compilation of jit\(one\)" \
+    "$out/$v.log" | sed -E "s/^.*(GpuCompiler::|Finished )/$v: /; s/ \(cumul.*//" | tee -a "$out/summary.txt"
+done
 tail -n +$((lines0 + 1)) "$jsonl" > "$out/benchmarks.jsonl"
 cat "$out/summary.txt"
