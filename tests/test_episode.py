@@ -107,6 +107,31 @@ def test_early_stop_matches_stepping_every_step(setup, monkeypatch):
     np.testing.assert_array_equal(np.where(alive, log.cmd, 0), np.where(alive, full.cmd, 0))
 
 
+def test_the_step_is_traced_once_per_compile(setup):
+    """The batch's loop runs the vmapped step: the policy is traced once (not again for the
+    output shapes, and the loops are never batched afterwards)."""
+    mx, fields, _, _ = setup
+    calls = []
+
+    def act(params, state, obs, key):
+        calls.append(1)
+        return state, jnp.stack([jnp.float32(0.3), jnp.float32(0.0)])
+
+    cfg = dataclasses.replace(CFG, max_time=2.0)
+    log = E.rollout(mx, fields, None, jax.random.split(jax.random.key(1), B),
+                    C.Policy(lambda p: (), act), (), cfg)
+    assert len(calls) == 1
+    assert np.asarray(log.alive).all() and np.allclose(np.asarray(log.cmd[..., 0]), 0.3)
+
+
+def test_a_command_of_the_wrong_shape_is_named(setup):
+    mx, fields, _, _ = setup
+    act = lambda params, state, obs, key: (state, jnp.zeros(3))  # noqa: E731
+    with pytest.raises(ValueError, match=r"command must be float \[2\].*\(3,\)"):
+        E.rollout(mx, fields, None, jax.random.split(jax.random.key(1), B),
+                  C.Policy(lambda p: (), act), (), dataclasses.replace(CFG, max_time=1.0))
+
+
 def test_prepare_runs_once_per_episode_and_reaches_every_step(setup):
     mx, fields, _, _ = setup
     calls = []

@@ -1,8 +1,10 @@
-"""Batched closed-loop episodes: the one place where jit(vmap(scan)) is composed for evaluation.
+"""Batched closed-loop episodes: the one place where the jitted batch of episodes is composed
+for evaluation.
 
 `episode(...)` runs ONE world for `cfg.n_steps` control steps in a `lax.scan` (pure, not
-jitted); `rollout(...)` vmaps it over B fields and keys and jits it, once per (policy, static
-config, policy-params axes): fields, lanes, keys, per-episode start-pose noise and the policy's
+jitted); `episodes(...)` runs B of them with the same numbers (the loop over control steps
+outside, the step vmapped inside: traced once); `rollout(...)` jits it over B fields and keys,
+once per (policy, static config, policy-params axes): fields, lanes, keys, per-episode start-pose noise and the policy's
 params (per episode or shared, `params_axes`) are traced arrays, so new FieldParams, gains,
 noise or segmenter weights never retrace. `TRACES` counts the traces. Perception policies
 (render → segment → SegZeros) come from `closed_loop`.
@@ -42,6 +44,7 @@ from mjxrow.rollout.metrics import Log
 
 TRACES = 0  # times the episode function was traced (each one is a compile)
 CHUNK = 25  # control steps per scan between checks for the end of every episode of a batch
+CMD_SHAPE = (2,)  # a policy's command: (v [m/s], omega [rad/s])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -139,20 +142,10 @@ def _select(c, a, b):
     return jax.tree.map(lambda x, y: jnp.where(c, x, y), a, b)
 
 
-def episode(mx, field: F.Field, lane: jax.Array, key: jax.Array, noise: sim.PoseNoise,
-            policy: control.Policy, policy_params: Any, cfg: EpisodeConfig) -> Log:
-    """One world's episode (pure; not jitted: `rollout` composes jit and vmap).
-
-    mx: the shape's MJX model (sim.make_model); field: one Field; lane: int32 [] lane index;
-    key: PRNG key (start-pose noise and the policy's per-step keys); noise: this episode's
-    start-pose noise (sim.PoseNoise of scalars);
-    policy: `control.Policy` (or any callable `(params, state, obs, key) -> (state, cmd)`,
-    stateless: its state is None); cfg: static settings. Returns the Log ([T] per step)."""
-    global TRACES
-    TRACES += 1
+def _world(mx, field: F.Field, lane: jax.Array, key: jax.Array, noise: sim.PoseNoise,
+           policy: control.Policy, policy_params: Any, cfg: EpisodeConfig):
+    """One world's set-up: (context for every step, initial carry, start pose [3])."""
     scfg = cfg.sim
-    rn = sim.robot_numbers(mx)
-    half = (0.5 * rn["length"], 0.5 * rn["width"])
     m = sim.world_model(mx, field, lane, scfg)
     k_reset, k_policy = jax.random.split(key)
     s0 = sim.reset(m, field, lane, k_reset, scfg, noise)
@@ -163,61 +156,133 @@ def episode(mx, field: F.Field, lane: jax.Array, key: jax.Array, noise: sim.Pose
     ps0 = init(policy_params) if init is not None else None
     prepare = getattr(policy, "prepare", None)
     aux = prepare(policy_params, field) if prepare is not None else None  # once per episode
+    rn = sim.robot_numbers(mx)
+    half = (0.5 * rn["length"], 0.5 * rn["width"])
+    ctx = dict(m=m, field=field, lane_y=lane_y, goal=goal, aux=aux, k_policy=k_policy, half=half)
+    return ctx, (s0, ps0, jnp.zeros((), bool), p0[:2]), p0
 
-    def body(carry, t):
-        s, ps, done, anchor = carry
-        cam_pos, cam_rot = sim.camera_pose(s)
-        obs = control.Obs(pose=sim.pose(s), lane_y=lane_y, lane_end_x=goal[0], goal=goal,
-                          cam_pos=cam_pos, cam_rot=cam_rot, field=field, aux=aux)
-        ps_new, cmd = policy(policy_params, ps, obs, jax.random.fold_in(k_policy, t))
-        cmd = jnp.asarray(cmd, jnp.float32)
-        s_new = sim.step(m, s, cmd, scfg)
-        bad = sim.is_bad(s_new, scfg) | ~jnp.all(jnp.isfinite(cmd))
-        p = sim.pose(s_new)
-        check = (t + 1) % cfg.stuck_window == 0
-        reason = end_reason(m, s_new, bad, t, anchor, goal, field, half, cfg)
-        event = jnp.where(done, M.RUNNING, reason).astype(jnp.int32)
-        keep_old = done | bad
-        s_next = _select(keep_old, s, s_new)
-        ps_next = _select(done, ps, ps_new)
-        anchor = jnp.where(check, p[:2], anchor)
-        out = dict(pose=jnp.where(done, jnp.nan, p), cmd=cmd, alive=~done, event=event,
-                   vel=jnp.where(done | bad, jnp.nan, sim.velocity(s_new)))
-        return (s_next, ps_next, done | (reason != M.RUNNING), anchor), out
 
-    carry = (s0, ps0, jnp.zeros((), bool), p0[:2])
-    out = _run_until_done(body, carry, cfg.n_steps)
+def _step(ctx: dict, policy_params: Any, carry: tuple, t: jax.Array, policy: control.Policy,
+          cfg: EpisodeConfig) -> tuple[tuple, dict]:
+    """One world's control step t: observation → policy → physics → events."""
+    scfg = cfg.sim
+    m, field, goal, half = ctx["m"], ctx["field"], ctx["goal"], ctx["half"]
+    s, ps, done, anchor = carry
+    cam_pos, cam_rot = sim.camera_pose(s)
+    obs = control.Obs(pose=sim.pose(s), lane_y=ctx["lane_y"], lane_end_x=goal[0], goal=goal,
+                      cam_pos=cam_pos, cam_rot=cam_rot, field=field, aux=ctx["aux"])
+    ps_new, cmd = policy(policy_params, ps, obs, jax.random.fold_in(ctx["k_policy"], t))
+    cmd = jnp.asarray(cmd, jnp.float32)
+    if cmd.shape != CMD_SHAPE:
+        raise ValueError(f"policy: the command must be float [2] = (v [m/s], omega [rad/s]), "
+                         f"got shape {cmd.shape}")
+    s_new = sim.step(m, s, cmd, scfg)
+    bad = sim.is_bad(s_new, scfg) | ~jnp.all(jnp.isfinite(cmd))
+    p = sim.pose(s_new)
+    check = (t + 1) % cfg.stuck_window == 0
+    reason = end_reason(m, s_new, bad, t, anchor, goal, field, half, cfg)
+    event = jnp.where(done, M.RUNNING, reason).astype(jnp.int32)
+    keep_old = done | bad
+    s_next = _select(keep_old, s, s_new)
+    ps_next = _select(done, ps, ps_new)
+    anchor = jnp.where(check, p[:2], anchor)
+    out = dict(pose=jnp.where(done, jnp.nan, p), cmd=cmd, alive=~done, event=event,
+               vel=jnp.where(done | bad, jnp.nan, sim.velocity(s_new)))
+    return (s_next, ps_next, done | (reason != M.RUNNING), anchor), out
+
+
+def _log(out: dict, p0: jax.Array, goal: jax.Array, lane_y: jax.Array) -> Log:
+    """One world's Log from its per-step outputs ([T] each)."""
     return Log(pose=out["pose"], cmd=out["cmd"], alive=out["alive"], event=out["event"],
                start=p0, goal=goal, lane_y=lane_y, reason=jnp.max(out["event"]),
                steps=jnp.sum(out["alive"]).astype(jnp.int32), vel=out["vel"])
 
 
-def _run_until_done(body, carry, n_steps: int) -> dict:
-    """`lax.scan(body, carry, arange(n_steps))[1]`, stopped early once the episode is done.
+def _out_shapes(s0: sim.SimState) -> dict:
+    """Shapes of one world's per-step outputs (without tracing the step)."""
+    one = lambda f: jax.eval_shape(f, s0)  # noqa: E731
+    return dict(pose=one(sim.pose), cmd=jax.ShapeDtypeStruct(CMD_SHAPE, jnp.float32),
+                alive=jax.ShapeDtypeStruct((), jnp.bool_),
+                event=jax.ShapeDtypeStruct((), jnp.int32), vel=one(sim.velocity))
 
-    Steps run in chunks of CHUNK (a scan each) inside a while loop that ends after the chunk in
-    which `carry[2]` (done) became True; under vmap it ends when every episode of the batch is
-    done, so a batch whose episodes all end early skips the rest of the timeout. Steps that did
-    not run read as steps after the end: pose and vel NaN, cmd 0, alive False, event RUNNING."""
+
+def episode(mx, field: F.Field, lane: jax.Array, key: jax.Array, noise: sim.PoseNoise,
+            policy: control.Policy, policy_params: Any, cfg: EpisodeConfig) -> Log:
+    """One world's episode (pure; not jitted; `compiled` runs a batch of them).
+
+    mx: the shape's MJX model (sim.make_model); field: one Field; lane: int32 [] lane index;
+    key: PRNG key (start-pose noise and the policy's per-step keys); noise: this episode's
+    start-pose noise (sim.PoseNoise of scalars);
+    policy: `control.Policy` (or any callable `(params, state, obs, key) -> (state, cmd)`,
+    stateless: its state is None); cfg: static settings. Returns the Log ([T] per step)."""
+    global TRACES
+    TRACES += 1
+    ctx, carry, p0 = _world(mx, field, lane, key, noise, policy, policy_params, cfg)
+    body = functools.partial(_step, ctx, policy_params, policy=policy, cfg=cfg)
+    out = _run_until_done(body, carry, cfg.n_steps, _out_shapes(carry[0]))
+    return _log(out, p0, ctx["goal"], ctx["lane_y"])
+
+
+def episodes(mx, fields: F.Field, lanes: jax.Array, keys: jax.Array, noise: sim.PoseNoise,
+             policy: control.Policy, policy_params: Any, cfg: EpisodeConfig,
+             params_axes: Any = None) -> Log:
+    """A batch of episodes: `vmap(episode)` (the same numbers), written as a loop over the
+    control steps of the whole batch with the step vmapped inside it, so that JAX traces the
+    step once and never batches the loops afterwards (a third of the tracing time).
+    fields, lanes, keys, noise: [B]; params_axes: as `compiled`. Returns the Log [B]."""
+    global TRACES
+    TRACES += 1
+    p_axes = jax.tree.unflatten(*canonical_axes(params_axes))
+    world = functools.partial(_world, policy=policy, cfg=cfg)
+    ctx_axes = dict(m=sim.model_axes(mx), field=0, lane_y=0, goal=0, aux=0, k_policy=0, half=0)
+    ctx, carry, p0 = jax.vmap(
+        lambda f, ln, k, nz, pp: world(mx, f, ln, k, nz, policy_params=pp),
+        in_axes=(0, 0, 0, 0, p_axes), out_axes=(ctx_axes, 0, 0))(
+            fields, lanes, keys, noise, policy_params)
+    step = jax.vmap(functools.partial(_step, policy=policy, cfg=cfg),
+                    in_axes=(ctx_axes, p_axes, 0, None))
+    body = functools.partial(step, ctx, policy_params)
+    s0 = jax.tree.map(lambda x: x[0], carry[0])
+    out = _run_until_done(body, carry, cfg.n_steps, _out_shapes(s0))
+    return jax.vmap(_log)(out, p0, ctx["goal"], ctx["lane_y"])
+
+
+def _run_until_done(body, carry, n_steps: int, shapes: dict) -> dict:
+    """`lax.scan(body, carry, arange(n_steps))[1]`, stopped early once the episode is done,
+    for one world or a batch (`carry[2]` (done) [] or [B]; outputs [T, ...] or [B, T, ...]).
+
+    Steps run in chunks of CHUNK (a scan each) inside a while loop that ends after the chunk
+    in which the last episode became done, so a batch whose episodes all end early skips the
+    rest of the timeout. An episode done before a chunk keeps its carry through the chunk and
+    records nothing in it (what `vmap` of a one-world loop does). Steps that did not run read
+    as steps after the end: pose and vel NaN, cmd 0, alive False, event RUNNING.
+    shapes: one world's per-step outputs (`_out_shapes`)."""
     chunk = min(n_steps, CHUNK)
     n_chunks = -(-n_steps // chunk)
-    shapes = jax.eval_shape(body, carry, jnp.int32(0))[1]
+    lead = jnp.shape(carry[2])  # () or (B,)
     fill = dict(pose=jnp.nan, vel=jnp.nan, cmd=0, alive=False, event=M.RUNNING)
-    buf0 = {k: jnp.full((n_chunks * chunk,) + v.shape, fill[k], v.dtype)
+    buf0 = {k: jnp.full((n_chunks * chunk,) + lead + v.shape, fill[k], v.dtype)
             for k, v in shapes.items()}
 
     def more(state):
         c, (_, _, done, _), _ = state
-        return (c < n_chunks) & ~done
+        return (c < n_chunks) & ~jnp.all(done)
+
+    def per_world(on, a, b):  # a where `on` [B] (broadcast over the trailing axes) else b
+        return jnp.where(on.reshape(on.shape + (1,) * (a.ndim - on.ndim)), a, b)
 
     def run_chunk(state):
         c, carry, buf = state
-        carry, out = jax.lax.scan(body, carry, c * chunk + jnp.arange(chunk))
+        new, out = jax.lax.scan(body, carry, c * chunk + jnp.arange(chunk))
+        if lead:  # the episodes done before this chunk keep their carry and record nothing
+            on = ~carry[2]
+            new = jax.tree.map(functools.partial(per_world, on), new, carry)
+            out = {k: per_world(on[None], v, jnp.full_like(v, fill[k])) for k, v in out.items()}
         buf = {k: jax.lax.dynamic_update_slice_in_dim(buf[k], out[k], c * chunk, 0) for k in buf}
-        return c + 1, carry, buf
+        return c + 1, new, buf
 
     _, _, buf = jax.lax.while_loop(more, run_chunk, (jnp.int32(0), carry, buf0))
-    return {k: v[:n_steps] for k, v in buf.items()}
+    return {k: jnp.moveaxis(v[:n_steps], 0, len(lead)) for k, v in buf.items()}
 
 
 def canonical_axes(params_axes: Any) -> tuple:
@@ -232,7 +297,7 @@ def canonical_axes(params_axes: Any) -> tuple:
 
 
 def compiled(policy, cfg: EpisodeConfig, params_axes: Any = None):
-    """jit(vmap(episode)) for one policy, static config and policy-params axes: a function
+    """jit(episodes) for one policy, static config and policy-params axes: a function
     `(mx, fields [B], lanes [B], keys [B], noise [B], policy_params) -> Log [B]`. params_axes:
     vmap in_axes prefix of the policy params (None: all shared, 0: all per episode, or a
     pytree such as `((None, 0), 0)`). Cached, so equal (policy, cfg, axes) reuse one compiled
@@ -244,11 +309,11 @@ def compiled(policy, cfg: EpisodeConfig, params_axes: Any = None):
 def _compiled(policy, cfg: EpisodeConfig, axes: tuple):
     treedef, leaves = axes
 
-    def one(mx, field, lane, key, noise, params):
-        return episode(mx, field, lane, key, noise, policy, params, cfg)
+    def batch(mx, fields, lanes, keys, noise, params):
+        return episodes(mx, fields, lanes, keys, noise, policy, params, cfg,
+                        jax.tree.unflatten(treedef, leaves))
 
-    in_axes = (None, 0, 0, 0, 0, jax.tree.unflatten(treedef, leaves))
-    return jax.jit(jax.vmap(one, in_axes=in_axes))
+    return jax.jit(batch)
 
 
 def check_params(policy_params: Any, params_axes: Any, batch: int) -> None:
@@ -334,7 +399,7 @@ def rollout_args(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array,
 def rollout(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array, policy,
             policy_params: Any, ep_cfg: EpisodeConfig, params_axes: Any = None,
             noise: sim.PoseNoise | None = None) -> Log:
-    """B episodes in one compiled call: jit(vmap(scan)).
+    """B episodes in one compiled call (`compiled`).
 
     mx: MJX model of the fields' static shape (sim.make_model); fields: Field with a leading
     [B] axis (all valid); lanes: int32 [B] lane per field, or None for each field's
