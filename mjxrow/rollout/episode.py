@@ -4,8 +4,9 @@ for evaluation.
 `episode(...)` runs ONE world for `cfg.n_steps` control steps in a `lax.scan` (pure, not
 jitted); `episodes(...)` runs B of them with the same numbers (the loop over control steps
 outside, the step vmapped inside: traced once); `rollout(...)` jits it over B fields and keys,
-once per (policy, static config, policy-params axes): fields, lanes, keys, per-episode start-pose noise and the policy's
-params (per episode or shared, `params_axes`) are traced arrays, so new FieldParams, gains,
+once per (policy, static config, policy-params axes): fields, lanes, keys, per-episode
+start-pose noise and the policy's params (per episode or shared, `params_axes`) are traced
+arrays, so new FieldParams, gains,
 noise or segmenter weights never retrace. `TRACES` counts the traces. Perception policies
 (render → segment → SegZeros) come from `closed_loop`.
 
