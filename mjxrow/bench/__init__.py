@@ -36,6 +36,7 @@ def device_name() -> str:
 
 
 LOCK_ENV = "MJXROW_BENCH_LOCK"
+XLA_FLAGS = os.environ.get("XLA_FLAGS", "").strip()  # as given (before runtime.cpu_devices)
 
 
 @contextlib.contextmanager
@@ -76,8 +77,8 @@ def record(rows: list[dict], path: str | Path = "benchmarks.jsonl") -> None:
     (and $XLA_FLAGS where set: they change compile and run times)."""
     base = {"date": datetime.date.today().isoformat(), "device": device_name(),
             "command": "python -m mjxrow.bench " + " ".join(sys.argv[1:])}
-    if os.environ.get("XLA_FLAGS", "").strip():
-        base["xla_flags"] = os.environ["XLA_FLAGS"].strip()
+    if XLA_FLAGS:
+        base["xla_flags"] = XLA_FLAGS
     with open(path, "a") as f:
         for row in rows:
             f.write(json.dumps({**base, **row}) + "\n")

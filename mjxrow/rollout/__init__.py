@@ -1,2 +1,2 @@
-"""Batched closed-loop episodes: `episode` (the one jit(vmap(scan))), `metrics` (per-episode
-navigation metrics and their aggregation)."""
+"""Batched closed-loop episodes: `episode` (the one jitted batch of episodes), `metrics`
+(per-episode navigation metrics and their aggregation)."""

@@ -2,7 +2,7 @@
 
     built = build(runs)                 # RunConfigs sharing their static values (one compile)
     batch = built.batch([(run, episode_index), ...])
-    log = built.rollout(batch)          # jit(vmap(scan)), sharded over the local devices
+    log = built.rollout(batch)          # jit(episodes), sharded over the local devices
     metrics = built.summarise(log)
 
 `build` fits the static field shape, makes the MJX model, the policy (a controller from the
