@@ -126,11 +126,14 @@ def _policy(controller: str, shape: F.FieldShape, intr, segmenter, rcfg,
         return render.plant_table(field, shape)  # the field's plants, once per episode
 
     def perceive(p: PerceptionParams, obs: control.Obs, key: jax.Array):
-        frame = render.render(obs.field, shape, obs.cam_pos, obs.cam_rot, intr, p.cond,
-                              key if sensor_noise else None, rcfg, table=obs.aux)
+        with jax.named_scope("cl_render"):  # the scopes name the stages in profiles
+            frame = render.render(obs.field, shape, obs.cam_pos, obs.cam_rot, intr, p.cond,
+                                  key if sensor_noise else None, rcfg, table=obs.aux)
         if not learned:
             return frame.mask, frame.depth
-        mask = seg_model.predict_mask(segmenter, p.variables, frame.rgb[None], p.threshold)[0]
+        with jax.named_scope("cl_segment"):
+            mask = seg_model.predict_mask(segmenter, p.variables, frame.rgb[None],
+                                          p.threshold)[0]
         return mask, frame.depth
 
     return control.with_perception(c, perceive, prepare)

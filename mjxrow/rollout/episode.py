@@ -171,16 +171,19 @@ def _step(ctx: dict, policy_params: Any, carry: tuple, t: jax.Array, policy: con
     cam_pos, cam_rot = sim.camera_pose(s)
     obs = control.Obs(pose=sim.pose(s), lane_y=ctx["lane_y"], lane_end_x=goal[0], goal=goal,
                       cam_pos=cam_pos, cam_rot=cam_rot, field=field, aux=ctx["aux"])
-    ps_new, cmd = policy(policy_params, ps, obs, jax.random.fold_in(ctx["k_policy"], t))
+    with jax.named_scope("cl_policy"):  # the scopes name the stages in profiles
+        ps_new, cmd = policy(policy_params, ps, obs, jax.random.fold_in(ctx["k_policy"], t))
     cmd = jnp.asarray(cmd, jnp.float32)
     if cmd.shape != CMD_SHAPE:
         raise ValueError(f"policy: the command must be float [2] = (v [m/s], omega [rad/s]), "
                          f"got shape {cmd.shape}")
-    s_new = sim.step(m, s, cmd, scfg)
+    with jax.named_scope("cl_physics"):
+        s_new = sim.step(m, s, cmd, scfg)
     bad = sim.is_bad(s_new, scfg) | ~jnp.all(jnp.isfinite(cmd))
     p = sim.pose(s_new)
     check = (t + 1) % cfg.stuck_window == 0
-    reason = end_reason(m, s_new, bad, t, anchor, goal, field, half, cfg)
+    with jax.named_scope("cl_events"):
+        reason = end_reason(m, s_new, bad, t, anchor, goal, field, half, cfg)
     event = jnp.where(done, M.RUNNING, reason).astype(jnp.int32)
     keep_old = done | bad
     s_next = _select(keep_old, s, s_new)
