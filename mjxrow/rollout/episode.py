@@ -231,7 +231,7 @@ def episodes(mx, fields: F.Field, lanes: jax.Array, keys: jax.Array, noise: sim.
              params_axes: Any = None) -> Log:
     """A batch of episodes: `vmap(episode)` (the same numbers), written as a loop over the
     control steps of the whole batch with the step vmapped inside it, so that JAX traces the
-    step once and never batches the loops afterwards (a third of the tracing time).
+    step once and never batches the loops afterwards (half the tracing time).
     fields, lanes, keys, noise: [B]; params_axes: as `compiled`. Returns the Log [B]."""
     global TRACES
     TRACES += 1
