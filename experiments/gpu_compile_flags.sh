@@ -34,7 +34,7 @@ for v in "${variants[@]}"; do
   grep -E "^B=" "$out/$v.log" | tee -a "$out/summary.txt"
 done
 for v in "${variants[@]}"; do  # the compiler's stage times of the closed-loop program
-  grep -E "(RunHloPasses|RunBackend) for jit_one |tracing one for|conversion jit\(one\)|compilation of jit\(one\)" \
+  grep -E "(RunHloPasses|RunBackend) for jit_batch |tracing batch for|conversion jit\(batch\)|compilation of jit\(batch\)" \
     "$out/$v.log" | sed -E "s/^.*(GpuCompiler::|Finished )/$v: /; s/ \(cumul.*//" | tee -a "$out/summary.txt"
 done
 tail -n +$((lines0 + 1)) "$jsonl" > "$out/benchmarks.jsonl"
