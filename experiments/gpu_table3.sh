@@ -43,7 +43,8 @@ parallel, {b - a:.1f} s wall (compilation included); assembling the page {c - b:
 blocks without a result: {sys.argv[5] or \"none\"}')" "$t0" "$t1" "$t2" \
   "$(( ${#controllers[@]} * ${#presets[@]} ))" "$failed" | tee "$work/logs/summary.txt"
 grep -h "^| .* | ours\|^| .* | paper" "$out/table3.md" | head -40
-tar -czf "$out/table3.tgz" -C "$work" --exclude=cache --exclude=cells t3 logs
+runs=t3; [ "${SMOKE:-0}" = 1 ] && runs=t3_smoke  # --smoke runs into OUT_smoke
+tar -czf "$out/table3.tgz" -C "$work" --exclude=cache --exclude=cells "$runs" logs
 
 if [ -n "${TTR_STEPS:-}" ]; then
   mkdir -p "$work/ttr"
