@@ -21,6 +21,11 @@ declare -A flags=(
   [cmd]="--xla_gpu_enable_command_buffer=+WHILE"
   [noat]="--xla_gpu_autotune_level=0"
 )
+for v in "${variants[@]}"; do
+  if [ -z "${flags[$v]+set}" ]; then
+    echo "gpu_compile_flags.sh: unknown variant '$v' (one of: ${!flags[*]})" >&2; exit 2
+  fi
+done
 export XLA_PYTHON_CLIENT_PREALLOCATE=false
 jsonl="$PWD/benchmarks.jsonl"; lines0=$(wc -l < "$jsonl")
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee "$out/device.txt"
