@@ -35,6 +35,7 @@ from mjxrow import crops
 from mjxrow import field as F
 from mjxrow import render as RD
 from mjxrow.bench import render as BR
+from mjxrow.physics.robot import RobotConfig
 
 REFERENCE = RD.RenderConfig(tile=1, row_blocks=16, block_keep=64, keep=64, deep_keep=0,
                             terrain_steps=128, terrain_refine=10, shadow_row_blocks=8,
@@ -42,7 +43,8 @@ REFERENCE = RD.RenderConfig(tile=1, row_blocks=16, block_keep=64, keep=64, deep_
 
 
 VIEWS = ("dataset", "along", "headland")
-CAM_HEIGHT, CAM_PITCH = 0.40, np.deg2rad(-10.0)  # the robot's camera (RobotConfig defaults)
+_ROBOT = RobotConfig()  # the robot's camera: its height and pitch
+CAM_HEIGHT, CAM_PITCH = _ROBOT.cam_height, np.deg2rad(_ROBOT.cam_pitch_deg)
 MIN_PLANT_SHARE = 0.05  # per-frame IoU only where plants cover this share of the reference
 
 

@@ -77,6 +77,12 @@ def worlds(preset: str, b: int, seed: int = 0):
     return shape, fields, pos, rot, conds
 
 
+def auto_chunk(res: int, b: int, chunk: int = 0) -> int:
+    """Frames per vmapped chunk: `chunk`, or (0) the largest power of two keeping the rays of a
+    chunk of res × res images at most MAX_RAYS; never more than the batch `b`."""
+    return min(b, chunk or max(1, 1 << ((MAX_RAYS // (res * res)).bit_length() - 1)))
+
+
 def batched_render(shape: F.FieldShape, intr: RD.Intrinsics, cfg: RD.RenderConfig, b: int,
                    chunk: int, shared_field: bool = False):
     """jit of render over [B] worlds: one vmap, or lax.map over chunks of `chunk` frames.
@@ -113,8 +119,7 @@ def run(args: argparse.Namespace) -> list[dict]:
             inputs += (tables(fields, shape),)
         for res in args.res:
             intr = RD.Intrinsics(res, res)
-            auto = 1 << ((MAX_RAYS // (res * res)).bit_length() - 1)
-            chunk = min(b, args.chunk or max(1, auto))
+            chunk = auto_chunk(res, b, args.chunk)
             fn = batched_render(shape, intr, cfg, b, chunk)
             t = time_call(fn, *inputs, repeats=args.repeats)
             used = RD.resolve(cfg, shape.crop, intr)

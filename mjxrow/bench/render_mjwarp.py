@@ -229,8 +229,7 @@ def run(args: argparse.Namespace) -> list[dict]:
 
             intr = RD.Intrinsics(res, res, robot.cam_fovy)
             cfg = RD.RenderConfig(shadows=shadows)
-            auto = 1 << ((BR.MAX_RAYS // (res * res)).bit_length() - 1)
-            chunk = min(b, max(1, auto))
+            chunk = BR.auto_chunk(res, b)
             ours_fn = BR.batched_render(ep.shape, intr, cfg, b, chunk, shared_field=True)
             inputs = (field, jnp.asarray(pos), jnp.asarray(rot), conds)
             t_o = time_call(ours_fn, *inputs, repeats=args.repeats)

@@ -268,9 +268,8 @@ def _trace_plants(shape, tab, sweep, oc, d, t_far, cfg):
             # plants entered before the cut beyond the first `keep`
             score = jnp.where(rest > 0, rest + jnp.sum(entry < cut[:, None], 1), 0)
             score, sel = jax.lax.top_k(score.astype(jnp.float32), n_deep)
-            sweep = (o[sel], cc[sel], g[sel], tau[sel])
-            t2, plant2, k2 = _deep_pass(tab, P, sweep, d[sel], t_min[sel], u[sel],
-                                        score > 0, oc, cfg)
+            t2, plant2, k2 = _deep_pass(tab, P, (o[sel], cc[sel], g[sel], tau[sel]), d[sel],
+                                        t_min[sel], u[sel], score > 0, oc, cfg)
             better = t2 < t[sel]
             t = t.at[sel].set(jnp.where(better, t2, t[sel]))
             plant = plant.at[sel].set(jnp.where(better, plant2, plant[sel]))

@@ -236,10 +236,9 @@ def episodes(mx, fields: F.Field, lanes: jax.Array, keys: jax.Array, noise: sim.
     global TRACES
     TRACES += 1
     p_axes = jax.tree.unflatten(*canonical_axes(params_axes))
-    world = functools.partial(_world, policy=policy, cfg=cfg)
     ctx_axes = dict(m=sim.model_axes(mx), field=0, lane_y=0, goal=0, aux=0, k_policy=0, half=0)
     ctx, carry, p0 = jax.vmap(
-        lambda f, ln, k, nz, pp: world(mx, f, ln, k, nz, policy_params=pp),
+        lambda f, ln, k, nz, pp: _world(mx, f, ln, k, nz, policy, pp, cfg),
         in_axes=(0, 0, 0, 0, p_axes), out_axes=(ctx_axes, 0, 0))(
             fields, lanes, keys, noise, policy_params)
     step = jax.vmap(functools.partial(_step, policy=policy, cfg=cfg),
