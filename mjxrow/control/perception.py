@@ -139,6 +139,90 @@ def _policy(controller: str, shape: F.FieldShape, intr, segmenter, rcfg,
     return control.with_perception(c, perceive, prepare)
 
 
+@struct.dataclass
+class MixParams:
+    """Params of one episode of a `mixed_policy` (add a [B] axis where batched)."""
+
+    index: jax.Array  # int32 [], the variant whose command drives this episode
+    perception: PerceptionParams | None  # None when no variant reads a mask
+    controllers: tuple  # every variant's controller params (only `index`'s is used)
+
+
+def mix_axes(n: int, sees: bool) -> MixParams:
+    """vmap axes of a `mixed_policy`'s params with `n` variants (`sees`: one reads a mask):
+    the segmenter's weights shared, everything else per episode."""
+    return MixParams(index=0, perception=PARAMS_AXES[0] if sees else None,
+                     controllers=(0,) * n)
+
+
+def mixed_policy(variants: tuple[tuple[str, str | None], ...], shape: F.FieldShape, intr,
+                 segmenter=None, render_cfg=None, sensor_noise: bool = False
+                 ) -> control.Policy:
+    """One policy for episodes of several controllers: `variants` is a tuple of (controller
+    name, mask source or None for a controller that reads no mask); each episode's
+    `MixParams.index` says whose command drives it. Every step renders the frame once (if
+    any variant reads a mask), segments it once (if any reads the learned mask), and runs
+    every variant's controller; the episode's own command is selected. So episodes of
+    several controllers share one compiled program, each paying for all of their stages.
+    `segmenter`: the SegNet module of the "learned" variants (their weights are traced, in
+    `MixParams.perception.variables`). Cached like `perception_policy`."""
+    from mjxrow import render
+
+    variants = tuple((str(n), s) for n, s in variants)
+    for name, source in variants:
+        c = control.get(name)
+        if c.needs_mask != (source is not None):
+            why = "reads a mask: give its source" if c.needs_mask else \
+                "reads no mask: give None as its source"
+            raise ValueError(f"mixed_policy: controller {name!r} {why}")
+        if source is not None and source not in SOURCES:
+            raise ValueError(f"mixed_policy: unknown source {source!r}; expected one of "
+                             f"{SOURCES}")
+    if (segmenter is None) == any(s == "learned" for _, s in variants):
+        raise ValueError("mixed_policy: a segmenter module is needed exactly when a variant "
+                         "reads the learned mask")
+    return _mixed(variants, shape, intr, segmenter, render_cfg or render.RenderConfig(),
+                  bool(sensor_noise))
+
+
+@functools.lru_cache(maxsize=32)
+def _mixed(variants, shape, intr, segmenter, rcfg, sensor_noise) -> control.Policy:
+    from mjxrow import render
+    from mjxrow.seg import model as seg_model
+
+    cs = [control.get(n) for n, _ in variants]
+    sees = any(s is not None for _, s in variants)
+
+    def init(p: MixParams):
+        return tuple(c.init(cp) for c, cp in zip(cs, p.controllers, strict=True))
+
+    def prepare(p: MixParams, field: F.Field):
+        return render.plant_table(field, shape)
+
+    def act(p: MixParams, state, obs: control.Obs, key: jax.Array):
+        masks, depth = {}, None
+        if sees:
+            with jax.named_scope("cl_render"):
+                frame = render.render(obs.field, shape, obs.cam_pos, obs.cam_rot, intr,
+                                      p.perception.cond, key if sensor_noise else None, rcfg,
+                                      table=obs.aux)
+            masks["ground_truth"], depth = frame.mask, frame.depth
+            if segmenter is not None:
+                with jax.named_scope("cl_segment"):
+                    masks["learned"] = seg_model.predict_mask(
+                        segmenter, p.perception.variables, frame.rgb[None],
+                        p.perception.threshold)[0]
+        new, cmds = [], []
+        for c, (_, source), cp, st in zip(cs, variants, p.controllers, state, strict=True):
+            o = obs if source is None else obs.replace(mask=masks[source], depth=depth)
+            st, cmd = c.act(cp, st, o)
+            new.append(st)
+            cmds.append(jnp.asarray(cmd, jnp.float32))
+        return tuple(new), jnp.stack(cmds)[p.index]
+
+    return control.Policy(init, act, prepare if sees else None)
+
+
 def load_segmenter(checkpoint: str, crop: str):
     """(module, variables) of a checkpoint (seg.checkpoint.load): a crop name or directory;
     '' means the crop's shipped one."""

@@ -122,6 +122,11 @@ class Built:
     # some of it is code outside the mjxrow package): names the traced program kept by
     # `runtime.exported`
     key: str = ""
+    # a mixed group (runs of several controllers, `build`): every run's `variant_key`, in the
+    # order of the policy's variants, and each variant's controller params for the episodes
+    # it does not drive
+    variants: tuple = ()
+    fillers: tuple = ()
 
     @property
     def devices(self) -> int:
@@ -138,6 +143,13 @@ class Built:
     def policy_params(self, run: RunConfig) -> Any:
         """One run's policy params (one episode: no batch axis)."""
         cparams = run.controller_params()
+        if self.variants:  # a mixed group: this run's variant drives, the others ride along
+            i = self.variants.index(run.variant_key())
+            ctrl = self.fillers[:i] + (cparams,) + self.fillers[i + 1:]
+            p = run.perception
+            perc = None if self.base is None else perception.perception_params(
+                p.condition, p.threshold, self.base.variables)
+            return perception.MixParams(jnp.int32(i), perc, ctrl)
         if self.base is None:
             return cparams
         p = run.perception
@@ -227,13 +239,19 @@ def build(runs: RunConfig | Sequence[RunConfig], shape: F.FieldShape | None = No
           devices: Sequence[Any] | None = None) -> Built:
     """Assemble a group of runs that share every static value (their `static_key`): the
     field shape (fitted to all of them unless given), the MJX model, the policy and the axes
-    of its params, the device mesh (all local devices unless given)."""
+    of its params, the device mesh (all local devices unless given).
+
+    Runs that differ only in their controller and mask source (equal `share_key`) make one
+    mixed group: one program in which every episode runs every controller's stages and is
+    driven by its own (`perception.mixed_policy`): one compile instead of one per controller,
+    at the cost of each episode paying for all of them."""
     runs = [runs] if isinstance(runs, RunConfig) else list(runs)
     first = runs[0]
-    keys = {r.static_key() for r in runs}
-    if len(keys) > 1:
-        raise ValueError("build: the runs differ in static values; group them first "
-                         "(RunConfig.static_key)")
+    if len({r.static_key() for r in runs}) > 1:
+        if len({r.share_key() for r in runs}) > 1:
+            raise ValueError("build: the runs differ in static values besides the controller "
+                             "and the mask source; group them first (RunConfig.static_key)")
+        return _build_mixed(runs, shape, devices)
     shape = shape or fit_shape(runs)
     ep = first.episode.static()
     mj, mx = sim.make_model(shape, ep.sim, first.robot_config())
@@ -248,14 +266,53 @@ def build(runs: RunConfig | Sequence[RunConfig], shape: F.FieldShape | None = No
         axes = perception.PARAMS_AXES
     else:
         policy, axes = control.as_policy(c), 0
-    mesh = jax.sharding.Mesh(np.array(list(devices or jax.devices())), ("batch",))
-    mx = runtime.put(mx, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))
+    mesh, mx = _mesh(mx, devices)
     module = None
     if c.needs_mask and first.perception.source == "learned":
         module, _ = perception.load_segmenter(first.checkpoint_path(), first.preset)
     key = program_key(first, shape, ep, sim.model_xml(shape, ep.sim, first.robot_config()),
                       module)
     return Built(first, shape, ep, mj, mx, policy, axes, base, mesh, key=key)
+
+
+def _mesh(mx, devices):
+    mesh = jax.sharding.Mesh(np.array(list(devices or jax.devices())), ("batch",))
+    return mesh, runtime.put(mx, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))
+
+
+def _build_mixed(runs: list[RunConfig], shape: F.FieldShape | None, devices) -> Built:
+    """`build` for runs of several controllers (equal share keys): one variant per distinct
+    `variant_key`, its first run standing for it."""
+    reps: dict[tuple, RunConfig] = {}
+    for r in runs:
+        reps.setdefault(r.variant_key(), r)
+    variants, learned = [], None
+    for r in reps.values():
+        c = control.get(r.controller.name)
+        if getattr(c, "make_policy", None) is not None:
+            raise ValueError(f"build: controller {c.name!r} renders its own images; it cannot "
+                             "share a program with other controllers (controller.name)")
+        source = r.perception.source if c.needs_mask else None
+        variants.append((c.name, source))
+        if source == "learned":
+            learned = learned or r
+    first = runs[0]
+    shape = shape or fit_shape(runs)
+    ep = first.episode.static()
+    mj, mx = sim.make_model(shape, ep.sim, first.robot_config())
+    module = variables = None
+    if learned is not None:
+        module, variables = perception.load_segmenter(learned.checkpoint_path(), first.preset)
+    policy = perception.mixed_policy(tuple(variants), shape, first.camera, module,
+                                     first.render)
+    sees = any(s is not None for _, s in variants)
+    base = perception.perception_params(variables=variables) if sees else None
+    mesh, mx = _mesh(mx, devices)
+    key = program_key(list(reps.values()), shape, ep,
+                      sim.model_xml(shape, ep.sim, first.robot_config()), module)
+    return Built(first, shape, ep, mj, mx, policy, perception.mix_axes(len(reps), sees), base,
+                 mesh, key=key, variants=tuple(reps),
+                 fillers=tuple(r.controller_params() for r in reps.values()))
 
 
 class _Foreign(Exception):
@@ -283,18 +340,21 @@ def _stable(x: Any) -> str:
     return repr(x)
 
 
-def program_key(run: RunConfig, shape: F.FieldShape, episode: E.EpisodeConfig, model_xml: str,
-                segmenter: Any = None) -> str:
+def program_key(run: RunConfig | Sequence[RunConfig], shape: F.FieldShape,
+                episode: E.EpisodeConfig, model_xml: str, segmenter: Any = None) -> str:
     """What fixes a group's closed-loop program, as text: the run's static values, the field
     shape, the static episode config, the MJX model, the controller and the crop as
-    registered, the segmenter's architecture. '' when the controller is code from outside the
-    mjxrow package (then the program is traced every run)."""
+    registered, the segmenter's architecture; for a mixed group (a list of runs, one per
+    variant) every variant's static values and controller. '' when a controller is code from
+    outside the mjxrow package (then the program is traced every run)."""
     from mjxrow import crops
 
+    runs = [run] if isinstance(run, RunConfig) else list(run)
     try:
-        parts = (repr(run.static_key()), repr(shape), repr(episode), model_xml,
-                 _stable(control.get(run.controller.name)), _stable(crops.get(shape.crop)),
-                 repr(segmenter))
+        statics = " | ".join(repr(r.static_key()) for r in runs)
+        ctrls = " | ".join(_stable(control.get(r.controller.name)) for r in runs)
+        parts = (statics, repr(shape), repr(episode), model_xml, ctrls,
+                 _stable(crops.get(shape.crop)), repr(segmenter))
     except _Foreign:
         return ""
     return "\n".join(parts)

@@ -277,6 +277,20 @@ class RunConfig:
         return (self.preset,) + tuple((k, self.get(k)) for k, key in self.keys().items()
                                       if key.static)
 
+    def variant_key(self) -> tuple:
+        """The static values of what decides the commands: `controller.*` and, for a mask
+        controller, `perception.source`."""
+        sees = control.get(self.controller.name).needs_mask
+        return tuple(x for x in self.static_key()[1:]
+                     if x[0].startswith("controller.") or (sees and x[0] == "perception.source"))
+
+    def share_key(self) -> tuple:
+        """The static values but the controller's and the mask source: runs with equal share
+        keys can run in one program whose episodes each pick their controller
+        (`rollout.build`, `control.perception.mixed_policy`)."""
+        return tuple(x for x in self.static_key() if not isinstance(x, tuple) or not (
+            x[0].startswith("controller.") or x[0] == "perception.source"))
+
     def intrinsics(self) -> Intrinsics:
         return self.camera
 

@@ -62,6 +62,10 @@ class SweepConfig:
     batch_size: int = _k(256, "episodes per jitted call (padded to a multiple of the device "
                          "count)", "count", "positive")
     out: str = _k("runs/sweep", "output directory (the CLI's --out wins)", kind=str)
+    mix_controllers: bool = _k(False, "cells that differ only in `controller.*` and "
+                               "`perception.source` run in one compiled program: one compile "
+                               "instead of one per controller, but every episode pays for "
+                               "every controller's stages (render, segmenter)", kind=bool)
     values: tuple[tuple[str, Any], ...] = ()
     axis_order: tuple[str, ...] = ()
     base_dir: str = "."
@@ -79,7 +83,7 @@ class SweepConfig:
         raise AttributeError(section)
 
 
-TOP_KEYS = ("name", "preset", "seeds", "seed", "batch_size", "out")
+TOP_KEYS = ("name", "preset", "seeds", "seed", "batch_size", "out", "mix_controllers")
 NOT_AXES = {"name", "seeds", "seed", "batch_size", "out"}
 PRESET_DOC = "base crop preset (FieldParams defaults, plant model, shipped checkpoint)"
 
@@ -217,7 +221,7 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
                                                                   choices=crops.names()), True)
         elif key in TOP_KEYS:
             m = meta[key]
-            kind = "str" if m["kind"] is str else "int"
+            kind = {str: "str", bool: "bool"}.get(m["kind"], "int")
             top[key] = _value(key, v, lambda p, x, m=m, kind=kind: _scalar(
                 p, x, kind, choices=m["choices"], check=m["check"]), False)
             try:
@@ -500,6 +504,17 @@ def check(cfg: SweepConfig) -> None:
             key = next((k for k in keys if k in given), keys[0])
             raise ConfigError(f"field.{key}: gives {size:,} {what} in a field, beyond the "
                               f"bound of {bound:,} (mjxrow/rollout/limits.py)")
+    if cfg.mix_controllers:
+        variants: dict[tuple, set] = {}
+        for cell in cells:
+            variants.setdefault(cell.cfg.share_key(), set()).add(cell.cfg.variant_key())
+        for cell in cells:
+            c = control.get(cell.cfg.controller.name)
+            if getattr(c, "make_policy", None) is not None and \
+                    len(variants[cell.cfg.share_key()]) > 1:
+                raise ConfigError(f"mix_controllers: controller {c.name!r} renders its own "
+                                  "images and cannot share a program with other controllers; "
+                                  f"set mix_controllers: false{_where(cell.point)}")
     for cell in cells:
         c = cell.cfg
         where = _where(cell.point)
@@ -545,7 +560,7 @@ def reference_markdown() -> str:
             lines.append(f"| `preset` | {kinds} | `zucchini` | yes | {PRESET_DOC} |")
             continue
         m = meta[k]
-        kind = {int: "integer", str: "string"}[m["kind"]]
+        kind = {int: "integer", str: "string", bool: "boolean"}[m["kind"]]
         unit = f" [{m['unit']}]" if m["unit"] else ""
         d = dataclasses.fields(SweepConfig)[[f.name for f in dataclasses.fields(
             SweepConfig)].index(k)].default

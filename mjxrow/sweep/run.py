@@ -80,11 +80,13 @@ def group_shape(cells: list[C.Cell]) -> F.FieldShape:
 
 
 def plan(cfg: C.SweepConfig, done: set[str] = frozenset()) -> list[Group]:
-    """Group the cells by static values, fit one field shape per group, hash every cell, and
-    list the episodes of the cells whose hash is not in `done`."""
+    """Group the cells by static values (with `mix_controllers`, by those but the
+    controller's and the mask source: `RunConfig.share_key`), fit one field shape per group,
+    hash every cell, and list the episodes of the cells whose hash is not in `done`."""
     by_key: dict[tuple, list[C.Cell]] = {}
     for cell in C.expand(cfg):
-        by_key.setdefault(C.static_key(cell.cfg), []).append(cell)
+        key = cell.cfg.share_key() if cfg.mix_controllers else C.static_key(cell.cfg)
+        by_key.setdefault(key, []).append(cell)
     groups = []
     for gi, cells in enumerate(by_key.values()):
         shape = group_shape(cells)
@@ -170,16 +172,28 @@ def evaluate_group(group: Group, cfg: C.SweepConfig,
     by_cell = {c.index: c.cfg for c in group.cells}
     built = B.build(list(by_cell.values()), group.shape)
     size = built.padded(min(cfg.batch_size, len(group.episodes)))
+    return evaluate_episodes(built, [(by_cell[c], c, e) for c, e in group.episodes], size,
+                             on_batch_done)
+
+
+def evaluate_episodes(built: B.Built, items: list[tuple[C.RunConfig, int, int]], size: int,
+                      on_batch_done: Callable[[pd.DataFrame], None] | None = None
+                      ) -> pd.DataFrame:
+    """Run `items` ((run, cell index, episode index) triples of runs `built` was built for)
+    in batches of `size` (the last one padded), calling `on_batch_done(rows)` after each.
+    Rows in the order of `items`: cell, episode, lane and every metric of
+    `metrics.summarise` (reason as its name)."""
     out = []
-    for start in range(0, len(group.episodes), size):
-        real = list(group.episodes[start:start + size])
-        batch = built.batch([(by_cell[c], e) for c, e in real], size)
+    for start in range(0, len(items), size):
+        real = list(items[start:start + size])
+        batch = built.batch([(r, e) for r, _, e in real], size)
         met = built.summarise(built.rollout(batch), len(real))
-        rows = pd.DataFrame({"cell": [c for c, _ in real], "episode": [e for _, e in real],
+        rows = pd.DataFrame({"cell": [c for _, c, _ in real], "episode": [e for *_, e in real],
                              "lane": R.to_host(batch.lanes)[:len(real)],
                              **{k: (np.asarray(M.REASONS)[v] if k == "reason" else v)
                                 for k, v in met.items() if np.ndim(v) == 1}})
-        on_batch_done(rows)
+        if on_batch_done is not None:
+            on_batch_done(rows)
         out.append(rows)
     return pd.concat(out, ignore_index=True)
 

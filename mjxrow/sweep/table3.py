@@ -5,7 +5,7 @@ ground-truth plant mask, and SegZeros on the learned segmenter's mask (shipped c
 
     python experiments/table3_navigation.py [--episodes 100] [--presets zucchini ...]
         [--controllers oracle segzeros_gt segzeros_learned policy] [--out runs/table3]
-        [--image 64] [--batch-size 256] [--smoke]
+        [--image 64] [--batch-size 256] [--separate] [--smoke]
 
 Scenario (the paper's Table 3): every preset at its default geometry (Table 1 values; typical
 ones for the vineyard), a 20 m path inside the row with the goal at the row's end, control at
@@ -14,7 +14,11 @@ ones for the vineyard), a 20 m path inside the row with the goal at the row's en
 replaces its preset axis by one preset at a time and sets the controller and perception source.
 
 Each (controller, preset) pair is one sweep (`mjxrow.sweep.run`) into
-`OUT/<controller>/<preset>/`: per-episode `results.csv`, `summary.csv`, `report.md`, and one
+`OUT/<controller>/<preset>/`. The blocks of one preset run in one compiled program
+(`SharedBlocks`: every episode runs the renderer, the segmenter and every controller, and
+is driven by its own; the learned policy keeps its own program), so the table compiles one
+program per preset instead of one per block; `--separate` gives each block its own. Each
+block writes per-episode `results.csv`, `summary.csv`, `report.md`, and one
 file per finished cell, so an interrupted run resumes where it stopped and a finished one is
 only re-assembled. The markdown table goes to `OUT/table3.md` and, except with `--smoke`, to
 `docs/table3.md` (`--doc`), and is printed.
@@ -45,6 +49,7 @@ import yaml
 from tqdm.auto import tqdm
 
 from mjxrow import crops, runtime
+from mjxrow.rollout import build as B
 from mjxrow.rollout import metrics as M
 from mjxrow.sweep import config as C
 
@@ -257,34 +262,93 @@ def document(stats: dict[tuple[str, str], dict], presets: list[str], controllers
 # Driver
 
 
-def block_timing(folder: Path, cell_hash: str, ran: int, wall: float, device: str) -> str:
+def block_timing(folder: Path, cell_hash: str, ran: int, wall: float, device: str,
+                 shared: str = "") -> str:
     """One line on a block's run time. A run that ran episodes records it in
     `folder/timing_<cell_hash>.json`; a resumed run (nothing left to run) reports that record,
-    so the page keeps the time of the run that produced its numbers."""
+    so the page keeps the time of the run that produced its numbers. `shared`: how the block
+    shared its program (then `ran` and `wall` are those of all the blocks in it)."""
     path = folder / f"timing_{cell_hash}.json"
     if ran:
         rec = {"episodes": ran, "wall_s": round(wall, 1), "device": device,
-               "date": datetime.datetime.now().isoformat(timespec="seconds")}
+               "date": datetime.datetime.now().isoformat(timespec="seconds"), "shared": shared}
         path.write_text(json.dumps(rec) + "\n")
-        return f"{ran} episodes in {wall:.1f} s on {device}"
+        return f"{ran} episodes in {wall:.1f} s on {device}" + (f" ({shared})" if shared
+                                                                 else "")
     if path.is_file():
         rec = json.loads(path.read_text())
+        how = f"{rec['shared']}; " if rec.get("shared") else ""
         return (f"{rec['episodes']} episodes in {rec['wall_s']:.1f} s on {rec['device']} "
-                f"({rec['date']}; reused now)")
+                f"({how}{rec['date']}; reused now)")
     return "finished cells reused (no timing recorded)"
+
+
+def mixable(controller: str) -> bool:
+    """Whether a CONTROLLERS entry can share a program with the others (rollout.build's mixed
+    groups): not the learned policy, which renders its own images."""
+    from mjxrow import control
+
+    name = CONTROLLERS[controller][1]["controller"]["name"]
+    return getattr(control.get(name), "make_policy", None) is None
+
+
+class SharedBlocks:
+    """sweep.run's evaluator for the blocks of one preset that share a program: the first
+    block asked runs the unfinished episodes of all of them in one mixed program
+    (rollout.build: every episode runs every controller's stages and is driven by its own);
+    each block then takes its own rows. Blocks whose groups would differ in field shape run
+    one by one instead. `blocks`: the blocks' sweep configs and folders, by config name."""
+
+    def __init__(self, blocks: dict[str, tuple[C.SweepConfig, Path]]):
+        self.blocks = blocks
+        self.rows: dict[str, pd.DataFrame] | None = None
+        self.episodes = 0
+
+    def __call__(self, group, cfg: C.SweepConfig, on_batch_done) -> pd.DataFrame:
+        if self.rows is None:
+            self.rows = self._evaluate_all()
+        rows = self.rows.pop(cfg.name)
+        on_batch_done(rows)
+        return rows
+
+    def _evaluate_all(self) -> dict[str, pd.DataFrame]:
+        from mjxrow.sweep import cells as CF
+        from mjxrow.sweep import run as S
+
+        groups = {}
+        for name, (cfg, folder) in self.blocks.items():
+            done = sorted(CF.finished_cells(folder / "cells", cfg.seeds)) \
+                if runtime.writer() else []
+            groups[name] = [g for g in S.plan(cfg, set(runtime.agree(done))) if g.episodes]
+        flat = [(name, g) for name, gs in groups.items() for g in gs]
+        self.episodes = sum(len(g.episodes) for _, g in flat)
+        if len({g.shape for _, g in flat}) != 1:  # nothing to run, or shapes that differ
+            return {name: pd.concat([S.evaluate_group(g, self.blocks[name][0], lambda r: None)
+                                     for g in gs] or [pd.DataFrame()], ignore_index=True)
+                    for name, gs in groups.items()}
+        runs = {(name, c.index): c.cfg for name, g in flat for c in g.cells}
+        built = B.build(list(runs.values()), flat[0][1].shape)
+        items = [(name, runs[(name, c)], c, e) for name, g in flat for c, e in g.episodes]
+        size = built.padded(min(sum(cfg.batch_size for cfg, _ in self.blocks.values()),
+                                len(items)))
+        rows = S.evaluate_episodes(built, [it[1:] for it in items], size)
+        tags = pd.Series([it[0] for it in items])
+        return {name: rows[(tags == name).to_numpy()].reset_index(drop=True)
+                for name in self.blocks}
 
 
 def run_table(presets: list[str], controllers: list[str], episodes: int, out: str | Path,
               image: int | None = None, batch_size: int = 256, seed: int = 0,
               smoke: bool = False, base: dict | None = None, evaluate=None,
-              progress: bool = True, command: str = "",
-              hard_stop: bool = False) -> tuple[str, dict]:
+              progress: bool = True, command: str = "", hard_stop: bool = False,
+              share: bool = True) -> tuple[str, dict]:
     """Run (or resume) every (controller, preset) block into OUT/<controller>/<preset>/ and
     assemble the markdown page. `evaluate`: sweep.run's evaluator (None: the real one; tests
-    inject a fake). Returns (markdown, stats by (controller, preset))."""
+    inject a fake). With `share` (and the real evaluator) the blocks of a preset run in one
+    program (`SharedBlocks`; the learned policy keeps its own). Returns (markdown, stats by
+    (controller, preset))."""
     import jax
 
-    from mjxrow.rollout import build as B
     from mjxrow.sweep import run as S
 
     watch, programs0 = runtime.Stopwatch(), B.program_count()
@@ -294,30 +358,49 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
     device = f"{len(devs)} × {devs[0].device_kind}"
     stats: dict[tuple[str, str], dict] = {}
     left_out, timings = [], []
-    blocks = [(c, p) for c in controllers for p in presets]
-    bar = tqdm(blocks, desc="table3 blocks", unit="block", disable=not progress, position=0)
-    cfg = None
+    todo: list[tuple[str, str]] = []
+    for p in presets:
+        for c in controllers:
+            if c == "segzeros_learned" and (why := checkpoint_missing(p)) is not None:
+                msg = f"{CONTROLLERS[c][0]} on {p}: no segmenter checkpoint: {why}"
+                left_out.append(msg)
+                tqdm.write(f"skipped: {msg}", file=sys.stderr)
+            else:
+                todo.append((c, p))
+    configs = {b: build_config(*b, episodes, image, base, batch_size, seed, smoke)
+               for b in todo}
+    shared: dict[tuple[str, str], SharedBlocks] = {}
+    if share and evaluate is None:
+        for p in presets:
+            mine = [(c, q) for c, q in todo if q == p and mixable(c)]
+            if len(mine) > 1:
+                ev = SharedBlocks({configs[b].name: (configs[b], out / b[0] / b[1])
+                                   for b in mine})
+                shared.update({b: ev for b in mine})
+    bar = tqdm(todo, desc="table3 blocks", unit="block", disable=not progress, position=0)
+    cfg, done = None, []
     for c, p in bar:
         bar.set_postfix_str(f"{c} / {p}")
-        if c == "segzeros_learned" and (why := checkpoint_missing(p)) is not None:
-            msg = f"{CONTROLLERS[c][0]} on {p}: no segmenter checkpoint: {why}"
-            left_out.append(msg)
-            tqdm.write(f"skipped: {msg}", file=sys.stderr)
-            continue
-        cfg = build_config(c, p, episodes, image, base, batch_size, seed, smoke)
+        cfg = configs[(c, p)]
         t0 = time.perf_counter()
-        res = S.run(cfg, out / c / p, evaluate=evaluate, progress=progress, command=command,
-                    hard_stop=hard_stop)  # Ctrl-C in a block: its finished cells kept, exit 130
-        wall = time.perf_counter() - t0
-        if not runtime.writer():  # several processes: process 0 reads and writes
-            continue
-        results = pd.read_csv(res["files"]["results"])
-        stats[(c, p)] = block_stats(results)
-        timings.append(f"{p}, {CONTROLLERS[c][0]}: " + block_timing(
-            out / c / p, res["groups"][0].hashes[0], res["ran"], wall, device))
+        res = S.run(cfg, out / c / p, evaluate=shared.get((c, p), evaluate), progress=progress,
+                    command=command, hard_stop=hard_stop)  # Ctrl-C: finished cells kept
+        if runtime.writer():  # several processes: process 0 reads and writes
+            stats[(c, p)] = block_stats(pd.read_csv(res["files"]["results"]))
+            done.append(((c, p), res["groups"][0].hashes[0], res["ran"],
+                         time.perf_counter() - t0))
+    for b, cell_hash, ran, wall in done:  # blocks that shared a program: its time, once
+        ev, note = shared.get(b), ""
+        if ev is not None:
+            mates = [x for x, e in shared.items() if e is ev]
+            note = "one program with " + ", ".join(CONTROLLERS[x[0]][0] for x in mates)
+            wall = sum(w for x, _, _, w in done if x in mates)
+            ran = ev.episodes if ran else 0
+        timings.append(f"{b[1]}, {CONTROLLERS[b[0]][0]}: " + block_timing(
+            out / b[0] / b[1], cell_hash, ran, wall, device, note))
     bar.close()
     if runtime.writer():
-        print(f"{len(blocks)} blocks, {B.program_count() - programs0} closed-loop programs; "
+        print(f"{len(todo)} blocks, {B.program_count() - programs0} closed-loop programs; "
               f"{watch.line()}", file=sys.stderr)
     for c in CONTROLLERS:
         if c not in controllers:
@@ -369,6 +452,9 @@ def main(argv: list[str] | None = None) -> int:
                    "docs/table3.md; with --smoke: none)")
     p.add_argument("--smoke", action="store_true",
                    help="tiny check: 2 episodes, 16 × 16 images, 1.5 m paths in 6 m rows")
+    p.add_argument("--separate", action="store_true",
+                   help="one program per block (default: the controllers of a preset share "
+                   "one program, every episode running all their stages)")
     p.add_argument("--no-progress", action="store_true")
     runtime.add_args(p)  # --cache-dir, --no-cache, --coordinator, ...
     args = p.parse_args(argv)
@@ -386,7 +472,7 @@ def main(argv: list[str] | None = None) -> int:
         md, stats = run_table(args.presets, args.controllers, args.episodes, out, args.image,
                               args.batch_size, args.seed, args.smoke, base,
                               progress=not args.no_progress, command=command.strip(),
-                              hard_stop=True)
+                              hard_stop=True, share=not args.separate)
     except C.ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
