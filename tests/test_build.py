@@ -7,6 +7,7 @@ import pytest
 
 from mjxrow.rollout import build as B
 from mjxrow.rollout import cli
+from mjxrow.rollout import metrics as M
 from mjxrow.sweep import config as C
 from mjxrow.sweep import run as S
 
@@ -53,3 +54,32 @@ def test_build_refuses_mixed_static_values():
     cfg = C.from_dict({**TINY, "camera": {"width": [16, 24], "height": 16}})
     with pytest.raises(ValueError, match="static values"):
         B.build([c.cfg for c in C.expand(cfg)])
+
+
+def _close(a, b) -> bool:
+    a, b = np.asarray(a), np.asarray(b)
+    if a.dtype.kind not in "fc":
+        return bool((a == b).all())
+    return bool(np.allclose(a, b, rtol=1e-5, atol=1e-7, equal_nan=True))
+
+
+def test_a_mixed_group_runs_each_episode_with_its_own_controller(runs):
+    _, oracle, sweep, _ = runs
+    seg = C.expand(C.from_dict({**TINY, "controller": {"name": "segzeros"}}))[0].cfg
+    mixed = B.build([oracle, seg])
+    assert len(mixed.variants) == 2 and B.build(oracle).variants == ()
+    items = [(seg, e) for e in range(3)] + [(oracle, e) for e in range(3)]
+    batch = mixed.batch(items)
+    got = mixed.summarise(mixed.rollout(batch), 6)
+    alone = B.build(seg)
+    want = alone.summarise(alone.rollout(alone.batch([(seg, e) for e in range(3)])), 3)
+    for m in ("success", "reason", "cha", "mae", "omega_std", "time"):
+        assert _close(got[m][:3], want[m]), m  # SegZeros as in its own program
+        mine = np.asarray(M.REASONS)[got[m][3:]] if m == "reason" else got[m][3:]
+        assert _close(mine, sweep[m].to_numpy()), m  # the oracle as in the sweep
+    # the controllers really differ here, so the selection is what made them match
+    assert not _close(got["omega_std"][:3], got["omega_std"][3:])
+    # a run of another static value cannot join
+    wide = C.expand(C.from_dict({**TINY, "camera": {"width": 24, "height": 16}}))[0].cfg
+    with pytest.raises(ValueError, match="besides the controller"):
+        B.build([oracle, seg, wide])

@@ -152,6 +152,21 @@ def test_groups_by_static_values(tmp_path):
     assert len(S.plan(C.from_dict({**BASE, "field": {}, "preset": ["zucchini", "pear"]}))) == 2
 
 
+def test_mix_controllers_puts_a_controller_axis_in_one_group():
+    raw = {**BASE, "controller": {"name": ["oracle", "segzeros"]},
+           "perception": {"source": ["ground_truth", "learned"]}}
+    assert len(S.plan(C.from_dict(raw))) == 3  # oracle (either source), SegZeros × 2 sources
+    groups = S.plan(C.from_dict({**raw, "mix_controllers": True}))
+    assert [len(g.cells) for g in groups] == [4]
+    # other static values still split the groups
+    wide = {**raw, "mix_controllers": True, "camera": {"width": [16, 24]}}
+    assert [len(g.cells) for g in S.plan(C.from_dict(wide))] == [4, 4]
+    with pytest.raises(C.ConfigError, match="mix_controllers: expected true or false"):
+        C.from_dict({**BASE, "mix_controllers": 1})
+    with pytest.raises(C.ConfigError, match="mix_controllers: controller 'policy' renders"):
+        C.from_dict({"mix_controllers": True, "controller": {"name": ["oracle", "policy"]}})
+
+
 def test_one_axis_gives_line_plots_and_categorical_axes_work(tmp_path):
     raw = {**BASE, "field": {"terrain_dh": [0.1, 0.2, 0.3]}}
     run(tmp_path / "line", raw, figures=True)

@@ -1,6 +1,6 @@
 """mjxrow.sweep.table3: configs of the blocks, statistics and the markdown table on
 hand-made results, resumable runs with a fake evaluator, blocks left out without a
-checkpoint, CLI errors. No episode is simulated here (the --smoke run does that)."""
+checkpoint, CLI errors; one tiny real run: the blocks of a preset share one program."""
 
 import math
 
@@ -101,6 +101,23 @@ def test_run_table_resumes_and_leaves_out_missing_checkpoints(tmp_path, monkeypa
     assert [line for line in again.splitlines() if line.startswith("| ")] == table
 
 
+def test_the_blocks_of_a_preset_share_one_program(tmp_path):
+    from mjxrow.rollout import build as B
+
+    n0 = B.program_count()
+    args = (["lettuce"], ["oracle", "segzeros_gt"], 2, tmp_path / "runs")
+    md, stats = T3.run_table(*args, smoke=True, progress=False)
+    assert B.program_count() - n0 == 1
+    assert set(stats) == {("oracle", "lettuce"), ("segzeros_gt", "lettuce")}
+    for c, name in (("oracle", "oracle"), ("segzeros_gt", "segzeros")):
+        res = pd.read_csv(tmp_path / "runs" / c / "lettuce" / "results.csv")
+        assert len(res) == 2 and set(res["controller.name"]) == {name}
+    assert "- lettuce, oracle pure pursuit: 4 episodes in " in md
+    assert "(one program with oracle pure pursuit, SegZeros, ground-truth mask)" in md
+    again, _ = T3.run_table(*args, smoke=True, progress=False)
+    assert B.program_count() - n0 == 1 and "reused now" in again
+
+
 def test_cli_bad_base_yaml_exits_2(tmp_path, capsys):
     bad = tmp_path / "bad.yaml"
     bad.write_text("episode:\n  path_lenght: 20\n")
@@ -109,3 +126,29 @@ def test_cli_bad_base_yaml_exits_2(tmp_path, capsys):
     assert code == 2
     assert "episode.path_lenght: unknown key; did you mean sim.path_length?" in \
         capsys.readouterr().err
+
+
+def test_compare_pages_counts_disjoint_intervals(tmp_path, capsys):
+    import importlib.util
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("compare_table3",
+                                                  root / "experiments" / "compare_table3.py")
+    cmp = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(cmp)
+    page = (root / "docs" / "table3.md").read_text()
+    n, bad = cmp.compare(page, page)
+    rows = [line for line in page.splitlines() if "| ours:" in line]
+    assert n == 6 * len(rows) and not bad  # success, CHA, MAE, MSE, ω std, time per row
+    row = next(line for line in rows if line.startswith("| lettuce | ours: oracle"))
+    cells = row.split(" | ")
+    cells[5] = "9.0000 [8.9000, 9.1000]"  # the MAE moved far away
+    moved = page.replace(row, " | ".join(cells))
+    n2, bad = cmp.compare(page, moved)
+    assert n2 == n and len(bad) == 1 and bad[0].startswith("lettuce, oracle pure pursuit, MAE")
+    (tmp_path / "a.md").write_text(page)
+    (tmp_path / "b.md").write_text(moved)
+    assert cmp.main([str(tmp_path / "a.md"), str(tmp_path / "b.md")]) == 1
+    assert cmp.main([str(tmp_path / "a.md"), str(tmp_path / "a.md")]) == 0
+    assert f"{n} of {n} intervals overlap" in capsys.readouterr().out
