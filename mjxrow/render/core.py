@@ -140,6 +140,15 @@ def default_tile(intr: Intrinsics) -> int:
     return int(np.clip(side, 4, 16))
 
 
+def _settle() -> bool:
+    """Whether the shading keeps its per-pixel terms in memory (`geom.materialise`) before the
+    colour channels and the image's layout use them. XLA fuses the whole shading into each
+    consumer element, so without it a pixel's textures, occlusion and sky are computed once per
+    channel, three times. On the CPU keeping them is 5-12 % faster per closed-loop step
+    (BENCHMARKS.md); on a GPU the default fusion stays."""
+    return jax.default_backend() == "cpu"
+
+
 def default_kernel(tile: int) -> str:
     """Pallas kernels on a GPU (for power-of-two pixels per tile), else the XLA reduction on
     accelerators and the scan on CPU. The environment variable MJXROW_RENDER_KERNEL (one of
@@ -418,6 +427,9 @@ def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax
                      0.0, 1.0)
     ao = jnp.where(cls == PLANT, 0.45 + 0.55 * jnp.sqrt(rel_h), _ground_occlusion(tab, p))
     sun = jnp.maximum(ndl, 0.0) + jnp.where(cls == PLANT, 0.3 * jnp.maximum(-ndl, 0.0), 0.0)
+    settle = _settle()
+    if settle:  # the per-pixel terms once into memory, not once per colour channel
+        albedo, ao, sun, vis = G.materialise((albedo, ao, sun, vis))
     light = ao[:, None] * cond.ambient + (vis * sun)[:, None] * cond.sun_rgb
     radiance = albedo * light
     fog = 1.0 - jnp.exp(-t / cond.haze)
@@ -429,6 +441,8 @@ def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax
         k_exp, k_noise, k_wb = jax.random.split(key, 3)
         exposure = exposure * jnp.exp(0.15 * jax.random.normal(k_exp, ()))
         radiance = radiance * (1.0 + 0.03 * jax.random.normal(k_wb, (3,)))
+    if settle:
+        radiance = G.materialise(radiance)
     to_image = functools.partial(_image, tiles=tiles, intr=intr)
     img = to_image(jnp.clip(radiance * exposure, 0.0, 1.0) ** (1.0 / 2.2))  # [H, W, 3]
     if key is not None:
