@@ -155,12 +155,14 @@ def test_groups_by_static_values(tmp_path):
 def test_mix_controllers_puts_a_controller_axis_in_one_group():
     raw = {**BASE, "controller": {"name": ["oracle", "segzeros"]},
            "perception": {"source": ["ground_truth", "learned"]}}
-    assert len(S.plan(C.from_dict(raw))) == 3  # oracle (either source), SegZeros × 2 sources
+    assert len(S.plan(C.from_dict(raw))) == 4  # every (controller, source): its own group
     groups = S.plan(C.from_dict({**raw, "mix_controllers": True}))
-    assert [len(g.cells) for g in groups] == [4]
+    assert [len(g.cells) for g in groups] == [16]  # 4 fields × 2 controllers × 2 sources
+    built_variants = {g.cell(c).cfg.variant_key() for g in groups for c, _ in g.episodes}
+    assert len(built_variants) == 3  # the oracle reads no mask: its source does not count
     # other static values still split the groups
     wide = {**raw, "mix_controllers": True, "camera": {"width": [16, 24]}}
-    assert [len(g.cells) for g in S.plan(C.from_dict(wide))] == [4, 4]
+    assert [len(g.cells) for g in S.plan(C.from_dict(wide))] == [16, 16]
     with pytest.raises(C.ConfigError, match="mix_controllers: expected true or false"):
         C.from_dict({**BASE, "mix_controllers": 1})
     with pytest.raises(C.ConfigError, match="mix_controllers: controller 'policy' renders"):
