@@ -43,10 +43,9 @@ def compare(a: str, b: str) -> tuple[int, list[str]]:
     """(intervals compared, one line per pair that does not overlap)."""
     ia, ib = intervals(a), intervals(b)
     both = sorted(set(ia) & set(ib))
-    bad = [f"{crop}, {ctrl}, {col}: {ia[k][0]:g} [{ia[k][1]:g}, {ia[k][2]:g}] against "
+    bad = [", ".join(k) + f": {ia[k][0]:g} [{ia[k][1]:g}, {ia[k][2]:g}] against "
            f"{ib[k][0]:g} [{ib[k][1]:g}, {ib[k][2]:g}]"
-           for k in both for crop, ctrl, col in [k]
-           if ia[k][2] < ib[k][1] or ib[k][2] < ia[k][1]]
+           for k in both if ia[k][2] < ib[k][1] or ib[k][2] < ia[k][1]]
     return len(both), bad
 
 

@@ -117,26 +117,34 @@ def perception_policy(controller: str, shape: F.FieldShape, intr, source: str = 
 def _policy(controller: str, shape: F.FieldShape, intr, segmenter, rcfg,
             sensor_noise: bool) -> control.Policy:
     from mjxrow import render
-    from mjxrow.seg import model as seg_model
 
     c = control.get(controller)
-    learned = segmenter is not None
 
     def prepare(p: PerceptionParams, field: F.Field):
         return render.plant_table(field, shape)  # the field's plants, once per episode
 
     def perceive(p: PerceptionParams, obs: control.Obs, key: jax.Array):
-        with jax.named_scope("cl_render"):  # the scopes name the stages in profiles
-            frame = render.render(obs.field, shape, obs.cam_pos, obs.cam_rot, intr, p.cond,
-                                  key if sensor_noise else None, rcfg, table=obs.aux)
-        if not learned:
-            return frame.mask, frame.depth
-        with jax.named_scope("cl_segment"):
-            mask = seg_model.predict_mask(segmenter, p.variables, frame.rgb[None],
-                                          p.threshold)[0]
-        return mask, frame.depth
+        frame, mask = _look(p, obs, key, shape, intr, segmenter, rcfg, sensor_noise)
+        return (frame.mask if mask is None else mask), frame.depth
 
     return control.with_perception(c, perceive, prepare)
+
+
+def _look(p: PerceptionParams, obs: control.Obs, key: jax.Array, shape, intr, segmenter, rcfg,
+          sensor_noise: bool):
+    """One step's camera frame of the robot's field, and the segmenter's mask of it (None
+    without a segmenter)."""
+    from mjxrow import render
+    from mjxrow.seg import model as seg_model
+
+    with jax.named_scope("cl_render"):  # the scopes name the stages in profiles
+        frame = render.render(obs.field, shape, obs.cam_pos, obs.cam_rot, intr, p.cond,
+                              key if sensor_noise else None, rcfg, table=obs.aux)
+    if segmenter is None:
+        return frame, None
+    with jax.named_scope("cl_segment"):
+        return frame, seg_model.predict_mask(segmenter, p.variables, frame.rgb[None],
+                                             p.threshold)[0]
 
 
 @struct.dataclass
@@ -188,7 +196,6 @@ def mixed_policy(variants: tuple[tuple[str, str | None], ...], shape: F.FieldSha
 @functools.lru_cache(maxsize=32)
 def _mixed(variants, shape, intr, segmenter, rcfg, sensor_noise) -> control.Policy:
     from mjxrow import render
-    from mjxrow.seg import model as seg_model
 
     cs = [control.get(n) for n, _ in variants]
     sees = any(s is not None for _, s in variants)
@@ -202,16 +209,9 @@ def _mixed(variants, shape, intr, segmenter, rcfg, sensor_noise) -> control.Poli
     def act(p: MixParams, state, obs: control.Obs, key: jax.Array):
         masks, depth = {}, None
         if sees:
-            with jax.named_scope("cl_render"):
-                frame = render.render(obs.field, shape, obs.cam_pos, obs.cam_rot, intr,
-                                      p.perception.cond, key if sensor_noise else None, rcfg,
-                                      table=obs.aux)
-            masks["ground_truth"], depth = frame.mask, frame.depth
-            if segmenter is not None:
-                with jax.named_scope("cl_segment"):
-                    masks["learned"] = seg_model.predict_mask(
-                        segmenter, p.perception.variables, frame.rgb[None],
-                        p.perception.threshold)[0]
+            frame, learned = _look(p.perception, obs, key, shape, intr, segmenter, rcfg,
+                                   sensor_noise)
+            masks, depth = {"ground_truth": frame.mask, "learned": learned}, frame.depth
         new, cmds = [], []
         for c, (_, source), cp, st in zip(cs, variants, p.controllers, state, strict=True):
             o = obs if source is None else obs.replace(mask=masks[source], depth=depth)

@@ -246,73 +246,58 @@ def build(runs: RunConfig | Sequence[RunConfig], shape: F.FieldShape | None = No
     driven by its own (`perception.mixed_policy`): one compile instead of one per controller,
     at the cost of each episode paying for all of them."""
     runs = [runs] if isinstance(runs, RunConfig) else list(runs)
+    if len({r.share_key() for r in runs}) > 1:
+        raise ValueError("build: the runs differ in static values besides the controller "
+                         "and the mask source; group them first (RunConfig.static_key)")
+    reps: dict[tuple, RunConfig] = {}  # one run per variant (controller and mask source)
+    for r in runs:
+        reps.setdefault(r.variant_key(), r)
     first = runs[0]
-    if len({r.static_key() for r in runs}) > 1:
-        if len({r.share_key() for r in runs}) > 1:
-            raise ValueError("build: the runs differ in static values besides the controller "
-                             "and the mask source; group them first (RunConfig.static_key)")
-        return _build_mixed(runs, shape, devices)
     shape = shape or fit_shape(runs)
     ep = first.episode.static()
     mj, mx = sim.make_model(shape, ep.sim, first.robot_config())
-    c = control.get(first.controller.name)
-    base = None
-    if c.needs_mask:
-        policy, base = perception.make(c.name, shape, first.camera, first.perception.source,
-                                       first.checkpoint_path(), render_cfg=first.render)
-        axes = perception.PARAMS_AXES
-    elif getattr(c, "make_policy", None) is not None:  # renders its own image (control.policy)
-        policy, base = c.make_policy(first, shape)
-        axes = perception.PARAMS_AXES
-    else:
-        policy, axes = control.as_policy(c), 0
-    mesh, mx = _mesh(mx, devices)
-    module = None
-    if c.needs_mask and first.perception.source == "learned":
-        module, _ = perception.load_segmenter(first.checkpoint_path(), first.preset)
-    key = program_key(first, shape, ep, sim.model_xml(shape, ep.sim, first.robot_config()),
-                      module)
-    return Built(first, shape, ep, mj, mx, policy, axes, base, mesh, key=key)
-
-
-def _mesh(mx, devices):
+    policy, axes, base, module = _policy(list(reps.values()), shape)
     mesh = jax.sharding.Mesh(np.array(list(devices or jax.devices())), ("batch",))
-    return mesh, runtime.put(mx, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))
+    mx = runtime.put(mx, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))
+    key = program_key(list(reps.values()), shape, ep,
+                      sim.model_xml(shape, ep.sim, first.robot_config()), module)
+    mixed = len(reps) > 1
+    return Built(first, shape, ep, mj, mx, policy, axes, base, mesh, key=key,
+                 variants=tuple(reps) if mixed else (),
+                 fillers=tuple(r.controller_params() for r in reps.values()) if mixed else ())
 
 
-def _build_mixed(runs: list[RunConfig], shape: F.FieldShape | None, devices) -> Built:
-    """`build` for runs of several controllers (equal share keys): one variant per distinct
-    `variant_key`, its first run standing for it."""
-    reps: dict[tuple, RunConfig] = {}
-    for r in runs:
-        reps.setdefault(r.variant_key(), r)
+def _policy(reps: list[RunConfig], shape: F.FieldShape):
+    """(policy, params axes, base params, segmenter module or None) of a group whose variants
+    `reps` stand for (one run each; several: a mixed policy). The segmenter is loaded once."""
+    first = reps[0]
+    own = getattr(control.get(first.controller.name), "make_policy", None)
+    if len(reps) == 1 and own is not None:  # renders its own image (control.policy)
+        policy, base = own(first, shape)
+        return policy, perception.PARAMS_AXES, base, None
     variants, learned = [], None
-    for r in reps.values():
+    for r in reps:
         c = control.get(r.controller.name)
         if getattr(c, "make_policy", None) is not None:
             raise ValueError(f"build: controller {c.name!r} renders its own images; it cannot "
                              "share a program with other controllers (controller.name)")
         source = r.perception.source if c.needs_mask else None
         variants.append((c.name, source))
-        if source == "learned":
-            learned = learned or r
-    first = runs[0]
-    shape = shape or fit_shape(runs)
-    ep = first.episode.static()
-    mj, mx = sim.make_model(shape, ep.sim, first.robot_config())
+        learned = learned or (r if source == "learned" else None)
     module = variables = None
     if learned is not None:
         module, variables = perception.load_segmenter(learned.checkpoint_path(), first.preset)
-    policy = perception.mixed_policy(tuple(variants), shape, first.camera, module,
-                                     first.render)
     sees = any(s is not None for _, s in variants)
     base = perception.perception_params(variables=variables) if sees else None
-    mesh, mx = _mesh(mx, devices)
-    key = program_key(list(reps.values()), shape, ep,
-                      sim.model_xml(shape, ep.sim, first.robot_config()), module)
-    return Built(first, shape, ep, mj, mx, policy, perception.mix_axes(len(reps), sees), base,
-                 mesh, key=key, variants=tuple(reps),
-                 fillers=tuple(r.controller_params() for r in reps.values()))
+    if len(reps) > 1:
+        policy = perception.mixed_policy(tuple(variants), shape, first.camera, module,
+                                         first.render)
+        return policy, perception.mix_axes(len(reps), sees), base, module
+    if not sees:
+        return control.as_policy(variants[0][0]), 0, None, None
+    policy = perception.perception_policy(variants[0][0], shape, first.camera, variants[0][1],
+                                          module, first.render)
+    return policy, perception.PARAMS_AXES, base, module
 
 
 class _Foreign(Exception):

@@ -84,7 +84,7 @@ class SweepConfig:
 
 
 TOP_KEYS = ("name", "preset", "seeds", "seed", "batch_size", "out", "mix_controllers")
-NOT_AXES = {"name", "seeds", "seed", "batch_size", "out"}
+NOT_AXES = {"name", "seeds", "seed", "batch_size", "out", "mix_controllers"}
 PRESET_DOC = "base crop preset (FieldParams defaults, plant model, shipped checkpoint)"
 
 # --smoke: a quick check of the whole pipeline on tiny problems.

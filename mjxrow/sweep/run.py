@@ -97,6 +97,13 @@ def plan(cfg: C.SweepConfig, done: set[str] = frozenset()) -> list[Group]:
     return groups
 
 
+def pending(cfg: C.SweepConfig, out: Path, report: bool = False) -> list[Group]:
+    """`plan` against the cells already finished in `out/cells` (process 0 reads them, every
+    process gets its answer; `report`: as `finished_cells`, only under the folder's lock)."""
+    done = sorted(finished_cells(out / "cells", cfg.seeds, report=report)) if R.writer() else []
+    return plan(cfg, set(R.agree(done)))
+
+
 # ---------------------------------------------------------------------------------------------
 # Files
 
@@ -321,8 +328,7 @@ FACTS = "run.json"  # the facts (date, command, device, timings) of the last run
 def _run(cfg: C.SweepConfig, out: Path, evaluate: Evaluator, progress: bool, command: str,
          figures: bool, stop: interrupt.HardStop | None) -> dict[str, Any]:
     watch = R.Stopwatch()
-    done = sorted(finished_cells(out / "cells", cfg.seeds, report=True)) if R.writer() else []
-    groups = plan(cfg, set(R.agree(done)))
+    groups = pending(cfg, out, report=True)
     n_cells = sum(len(g.cells) for g in groups)
     total, todo = n_cells * cfg.seeds, sum(len(g.episodes) for g in groups)
     skipped = (total - todo) // cfg.seeds

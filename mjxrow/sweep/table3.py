@@ -312,20 +312,15 @@ class SharedBlocks:
         return rows
 
     def _evaluate_all(self) -> dict[str, pd.DataFrame]:
-        from mjxrow.sweep import cells as CF
         from mjxrow.sweep import run as S
 
-        groups = {}
-        for name, (cfg, folder) in self.blocks.items():
-            done = sorted(CF.finished_cells(folder / "cells", cfg.seeds)) \
-                if runtime.writer() else []
-            groups[name] = [g for g in S.plan(cfg, set(runtime.agree(done))) if g.episodes]
-        flat = [(name, g) for name, gs in groups.items() for g in gs]
+        flat = [(name, g) for name, (cfg, folder) in self.blocks.items()
+                for g in S.pending(cfg, folder) if g.episodes]
         self.episodes = sum(len(g.episodes) for _, g in flat)
-        if len({g.shape for _, g in flat}) != 1:  # nothing to run, or shapes that differ
-            return {name: pd.concat([S.evaluate_group(g, self.blocks[name][0], lambda r: None)
-                                     for g in gs] or [pd.DataFrame()], ignore_index=True)
-                    for name, gs in groups.items()}
+        if len({g.shape for _, g in flat}) > 1:  # fields of other shapes: one by one
+            rows = {name: S.evaluate_group(g, self.blocks[name][0], lambda r: None)
+                    for name, g in flat}
+            return {name: rows.get(name, pd.DataFrame()) for name in self.blocks}
         runs = {(name, c.index): c.cfg for name, g in flat for c in g.cells}
         built = B.build(list(runs.values()), flat[0][1].shape)
         items = [(name, runs[(name, c)], c, e) for name, g in flat for c, e in g.episodes]
