@@ -44,7 +44,7 @@ sweep_one() {  # sweep_one DEVICES N
 import json, re, sys
 n, rc, t0, t1, log = sys.argv[1:]
 rec = {"step": "sweep", "gpus": int(n), "rc": int(rc), "wall_s": round(float(t1) - float(t0), 2)}
-m = re.findall(r"time: ([\d.]+) s = compile ([\d.]+) s .*?\+ run ([\d.]+) s \+ write ([\d.]+) s",
+m = re.findall(r"time: ([\d.]+) s = (?:start-up [\d.]+ s \+ )?compile ([\d.]+) s .*?\+ run ([\d.]+) s \+ write ([\d.]+) s",
                open(log, errors="replace").read())
 if m:
     tot, comp, run, write = m[-1]

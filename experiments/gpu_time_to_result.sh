@@ -75,12 +75,13 @@ import json, re, sys
 name, rc, t0, t1, log = sys.argv[1:]
 rec = {"step": name, "rc": int(rc), "wall_s": round(float(t1) - float(t0), 2)}
 text = open(log, errors="replace").read()
-m = re.findall(r"time: ([\d.]+) s = compile ([\d.]+) s \(.*?; (\d+) XLA programs"
+m = re.findall(r"time: ([\d.]+) s = (?:start-up ([\d.]+) s \+ )?compile ([\d.]+) s \(.*?; (\d+) XLA programs"
                r"(?:, cache (\d+) hits, (\d+) misses)?\) \+ run ([\d.]+) s \+ write ([\d.]+) s",
                text)
 if m:
-    tot, comp, progs, hits, misses, run, write = m[-1]
-    rec.update(inside_s=float(tot), compile_s=float(comp), run_s=float(run),
+    tot, start, comp, progs, hits, misses, run, write = m[-1]
+    rec.update(inside_s=float(tot), startup_s=float(start or 0), compile_s=float(comp),
+               run_s=float(run),
                write_s=float(write), xla_programs=int(progs), cache_hits=int(hits or 0),
                cache_misses=int(misses or 0))
 m = re.findall(r"(\d+) blocks, (\d+) closed-loop programs", text)
@@ -131,13 +132,14 @@ def rows(name):
 def f(x, fmt="{:.1f}"):
     return "" if x is None else fmt.format(x)
 print((out / "device.txt").read_text().strip().splitlines()[0])
-print("\n| step | rc | wall [s] | compile [s] | run [s] | write [s] | XLA programs | cache hits |"
-      " closed-loop programs |\n|---|---|---|---|---|---|---|---|---|")
+print("\n| step | rc | wall [s] | start-up [s] | compile [s] | run [s] | write [s] | XLA programs |"
+      " cache hits | closed-loop programs |\n|---|---|---|---|---|---|---|---|---|---|")
 for r in rows("ttr.jsonl"):
     if r.get("skipped"):
-        print(f"| {r['step']} | skipped ({r['left_s']} s left) | | | | | | | |")
+        print(f"| {r['step']} | skipped ({r['left_s']} s left) | | | | | | | | |")
         continue
-    print(f"| {r['step']} | {r['rc']} | {f(r['wall_s'])} | {f(r.get('compile_s'))} | "
+    print(f"| {r['step']} | {r['rc']} | {f(r['wall_s'])} | {f(r.get('startup_s'))} | "
+          f"{f(r.get('compile_s'))} | "
           f"{f(r.get('run_s'))} | {f(r.get('write_s'))} | {r.get('xla_programs', '')} | "
           f"{r.get('cache_hits', '')} | {r.get('closed_loop_programs', '')} |")
 print("\n| closed loop | B | control steps/s | episodes/min | compile [s] | median run [s] |"

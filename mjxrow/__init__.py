@@ -5,6 +5,9 @@ One module per stage of the data flow: `field` → `worlds` (exports) / `sim` (p
 """
 
 import os as _os
+import time as _time
+
+STARTED = _time.time()  # when a command first imported the package: the start of its start-up
 
 # XLA's C++ warnings (on GPUs, the autotuner's "Delay kernel timed out" timer lines) are not the
 # user's business; errors still show. An explicit TF_CPP_MIN_LOG_LEVEL wins.

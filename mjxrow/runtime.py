@@ -418,9 +418,12 @@ def union_seconds(spans: list[tuple[float, float]], since: float = float("-inf")
 class Stopwatch:
     """Wall time since creation split into compile (tracing, lowering to MLIR, XLA
     compilation or loading from the cache: the union of JAX's compile spans, in seconds),
-    write (time spent inside `writing()`) and run (the rest)."""
+    write (time spent inside `writing()`) and run (the rest). `started`: an earlier time
+    (a command's `mjxrow.STARTED`) from which the seconds up to creation count as start-up
+    (imports, configuration checks) and into the total."""
 
     t0: float = dataclasses.field(default_factory=time.time)
+    started: float | None = None
     write_s: float = 0.0
     counts0: dict = dataclasses.field(default_factory=lambda: dict(_COUNTS))
 
@@ -436,8 +439,9 @@ class Stopwatch:
             self.write_s += time.perf_counter() - t
 
     def split(self) -> dict[str, float]:
-        """{'total', 'compile', 'trace', 'lower', 'xla', 'run', 'write'} seconds, the XLA
-        programs compiled or loaded ('programs') and the cache hits / misses since creation."""
+        """{'total', 'startup', 'compile', 'trace', 'lower', 'xla', 'run', 'write'} seconds,
+        the XLA programs compiled or loaded ('programs') and the cache hits / misses since
+        creation."""
         total = time.time() - self.t0
         every = [s for v in _SPANS.values() for s in v]
         out = {"total": total, "compile": union_seconds(every, self.t0),
@@ -445,6 +449,8 @@ class Stopwatch:
                   for k in ("trace", "lower", "compile")},
                "write": self.write_s}
         out["run"] = max(total - out["compile"] - out["write"], 0.0)
+        out["startup"] = max(self.t0 - self.started, 0.0) if self.started is not None else 0.0
+        out["total"] += out["startup"]
         out["programs"] = sum(1 for a, _ in _SPANS.get("compile", []) if a >= self.t0)
         for k in ("cache_hits", "cache_misses"):
             out[k] = _COUNTS.get(k, 0) - self.counts0.get(k, 0)
@@ -455,6 +461,7 @@ class Stopwatch:
         cache = f"; {s['programs']} XLA programs"
         if s["cache_hits"] or s["cache_misses"]:
             cache += f", cache {s['cache_hits']} hits, {s['cache_misses']} misses"
-        return (f"time: {s['total']:.1f} s = compile {s['compile']:.1f} s (trace "
+        start = f"start-up {s['startup']:.1f} s + " if self.started is not None else ""
+        return (f"time: {s['total']:.1f} s = {start}compile {s['compile']:.1f} s (trace "
                 f"{s['trace']:.1f}, lower {s['lower']:.1f}, XLA or cache load {s['xla']:.1f}"
                 f"{cache}) + run {s['run']:.1f} s + write {s['write']:.1f} s")

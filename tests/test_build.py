@@ -83,3 +83,43 @@ def test_a_mixed_group_runs_each_episode_with_its_own_controller(runs):
     wide = C.expand(C.from_dict({**TINY, "camera": {"width": 24, "height": 16}}))[0].cfg
     with pytest.raises(ValueError, match="besides the controller"):
         B.build([oracle, seg, wide])
+
+
+def _compiled(fn) -> list[str]:
+    """Names of the XLA programs `fn()` compiles with JAX's in-memory caches emptied."""
+    import logging
+
+    import jax
+
+    seen: list[str] = []
+
+    class Catch(logging.Handler):
+        def emit(self, record):
+            msg = record.getMessage()
+            if msg.startswith("Compiling "):
+                seen.append(msg.split()[1])
+
+    log = logging.getLogger("jax")
+    handler, level = Catch(), log.level
+    log.addHandler(handler)
+    log.setLevel(logging.WARNING)
+    jax.clear_caches()
+    try:
+        with jax.log_compiles(True):
+            fn()
+    finally:
+        log.removeHandler(handler)
+        log.setLevel(level)
+    return seen
+
+
+def test_checks_and_batch_assembly_compile_only_their_programs():
+    """The configuration checks run on the host, and a batch's keys, fields and lanes take one
+    program each: no program per small array operation (each costs a compile or a cache
+    load, which on a GPU is tenths of a second)."""
+    cfg = C.from_dict({**TINY, "field": {**TINY["field"], "d_rr": [2.0, 2.2]}})
+    assert _compiled(lambda: C.check(cfg)) == []
+    runs = [c.cfg for c in C.expand(cfg)]
+    built = B.build(runs[0])
+    names = _compiled(lambda: built.batch([(runs[0], 0), (runs[0], 1)], size=2))
+    assert len(names) == 3 and "jit(gen)" in names, names

@@ -4,6 +4,7 @@ across two processes, placement and gathering in one process, the compile clock.
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -92,6 +93,15 @@ def test_stopwatch_splits_compile_run_write():
     assert s["run"] == pytest.approx(s["total"] - 0.03 - s["write"], abs=1e-6)
     assert s["run"] >= 0.03 - 1e-6
     assert watch.line().startswith("time: ")
+
+
+def test_stopwatch_counts_the_start_up_before_it():
+    watch = R.Stopwatch(started=time.time() - 2.0)
+    s = watch.split()
+    assert s["startup"] == pytest.approx(2.0, abs=0.05)
+    assert s["total"] == pytest.approx(2.0 + s["compile"] + s["run"] + s["write"], abs=0.01)
+    assert re.match(r"time: 2\.\d s = start-up 2\.0 s \+ compile ", watch.line()), watch.line()
+    assert "start-up" not in R.Stopwatch().line() and R.Stopwatch().split()["startup"] == 0.0
 
 
 def test_put_and_to_host_in_one_process():

@@ -8,6 +8,7 @@ from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from mjxrow.control.base import Controller, Obs, register
@@ -24,7 +25,7 @@ def oracle_params(lookahead: float = 1.0, v_max: float = 0.5, omega_max: float =
                   ) -> OracleParams:
     if lookahead <= 0:
         raise ValueError(f"lookahead: must be positive, got {lookahead}")
-    f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    f = lambda x: np.asarray(x, np.float32)  # noqa: E731 (host: stacked per batch on the host)
     return OracleParams(lookahead=f(lookahead), v_max=f(v_max), omega_max=f(omega_max))
 
 

@@ -23,6 +23,7 @@ from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from mjxrow import control
@@ -82,7 +83,7 @@ def perception_params(condition: Any = "sunny", threshold: float = 0.7,
         condition = render.conditions(condition)
     if not 0.0 <= float(threshold) <= 1.0:
         raise ValueError(f"threshold: must lie in [0, 1], got {threshold}")
-    return PerceptionParams(cond=condition, threshold=jnp.float32(threshold),
+    return PerceptionParams(cond=condition, threshold=np.float32(threshold),
                             variables=variables)
 
 

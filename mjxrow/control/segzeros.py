@@ -12,6 +12,7 @@ from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from mjxrow.control.base import Controller, Obs, register, wrap_angle
@@ -106,7 +107,7 @@ def seg_params(method: str = "zeros", variant: str = "paper", *, v_max: float = 
         raise ValueError("image_hw: needed (height, width) to buffer masks when n_frames > 1")
     if smooth < 1 or smooth % 2 == 0:
         raise ValueError(f"smooth: must be a positive odd width, got {smooth}")
-    f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    f = lambda x: np.asarray(x, np.float32)  # noqa: E731 (host: stacked per batch on the host)
     return SegParams(v_max=f(v_max), omega_gain=f(omega_gain), v_limit=f(v_limit),
                      omega_limit=f(omega_limit), min_run=f(min_run), end_frac=f(end_frac),
                      min_count=f(min_count), ema_alpha=f(ema_alpha), depth_max=f(depth_max),

@@ -112,9 +112,10 @@ class Field:
 STONE, BRANCH = 0, 1
 
 
-def make_params(preset: str = "zucchini", **overrides: Any) -> FieldParams:
+def make_params(preset: str = "zucchini", *, host: bool = False, **overrides: Any) -> FieldParams:
     """FieldParams of a crop's preset (`mjxrow.crops.get(preset).preset`) with `overrides`
-    (name → number, or array for a batch)."""
+    (name → number, or array for a batch). `host`: numpy arrays, for checks on the host that
+    should run no device program (`checks`, `fit_shape` and `validate` take either)."""
     if preset not in crops.CROPS:
         raise ValueError(f"preset: unknown preset {preset!r}; expected one of {crops.names()}")
     unknown = sorted(set(overrides) - set(PARAM_NAMES))
@@ -127,41 +128,51 @@ def make_params(preset: str = "zucchini", **overrides: Any) -> FieldParams:
     missing = [k for k in PARAM_NAMES if k not in values]
     if missing:
         raise ValueError(f"{missing[0]}: crop {preset!r}'s preset has no value for it")
-    return FieldParams(**{k: jnp.asarray(values[k], jnp.float32) for k in PARAM_NAMES})
+    xp = np if host else jnp
+    return FieldParams(**{k: xp.asarray(values[k], xp.float32) for k in PARAM_NAMES})
 
 
 def stack_params(params: list[FieldParams]) -> FieldParams:
-    """[FieldParams] → one FieldParams with a leading [B] axis."""
-    return jax.tree.map(lambda *xs: jnp.stack(xs), *params)
+    """[FieldParams] → one FieldParams with a leading [B] axis (numpy if all are numpy)."""
+    return jax.tree.map(lambda *xs: _xp(*xs).stack(xs), *params)
+
+
+def _xp(*xs: Any):
+    """The array namespace for `xs`: numpy when all are host arrays or numbers (so the checks
+    of a sweep's cells run on the host, not as a device program per operation), else jnp."""
+    host = all(isinstance(x, (np.ndarray, np.generic, int, float)) for x in xs)
+    return np if host else jnp
 
 
 # ---------------------------------------------------------------------------------------------
-# Layout (pure jnp; shared by generate, validate and the static shape fitter)
+# Layout (jnp, or numpy for host params; shared by generate, validate and the shape fitter)
 
 
 def _scaled(p: FieldParams) -> dict[str, jax.Array]:
+    xp = _xp(*jax.tree.leaves(p))
     s = p.scale
     lengths = ("d_rr", "d_RR", "d_pp", "row_length", "terrain_length", "terrain_width",
                "plant_length", "plant_width", "plant_height", "terrain_dh", "terrain_scale",
                "plant_jitter")
     out = {k: getattr(p, k) for k in PARAM_NAMES}
     out.update({k: getattr(p, k) * s for k in lengths})
-    out["rows_per_group"] = jnp.maximum(jnp.round(p.rows_per_group), 1.0)
+    out["rows_per_group"] = xp.maximum(xp.round(p.rows_per_group), 1.0)
     return out
 
 
 def _layout(q: dict[str, jax.Array]) -> dict[str, jax.Array]:
     """Counts implied by scaled params: groups, rows, plants per row, obstacles."""
+    xp = _xp(*q.values())
     rpg = q["rows_per_group"]
     group_w = (rpg - 1.0) * q["d_rr"]
     pitch = group_w + q["d_RR"]
     usable = q["terrain_width"] - 2.0 * HEADLAND - group_w
-    n_groups = jnp.where(usable >= 0, jnp.floor(usable / pitch + 1e-6) + 1.0, 0.0)
+    n_groups = xp.where(usable >= 0, xp.floor(usable / pitch + 1e-6) + 1.0, 0.0)
     n_rows = n_groups * rpg
-    n_plants = jnp.floor(q["row_length"] / q["d_pp"] + 1e-6) + 1.0
-    lane_area = q["row_length"] * jnp.maximum(n_rows - 1.0, 0.0) * (pitch / rpg) / 100.0
-    n_stones = jnp.round(q["stone_density"] * lane_area)
-    n_branches = jnp.round(q["branch_density"] * lane_area)
+    n_plants = xp.floor(q["row_length"] / q["d_pp"] + 1e-6) + 1.0
+    lane_area = q["row_length"] * xp.maximum(n_rows - 1.0, 0.0) * (pitch / rpg) / 100.0
+    n_stones = xp.round(q["stone_density"] * lane_area)
+    n_branches = xp.round(q["branch_density"] * lane_area)
     return dict(n_groups=n_groups, n_rows=n_rows, n_plants=n_plants, pitch=pitch,
                 group_w=group_w, n_stones=n_stones, n_branches=n_branches)
 
@@ -170,6 +181,7 @@ def checks(params: FieldParams, shape: FieldShape) -> dict[str, tuple[jax.Array,
     """Each impossible-field condition: name → (ok: bool array, reason). Traced-friendly."""
     q = _scaled(params)
     lay = _layout(q)
+    xp = _xp(*q.values())
     lengths = ("d_rr", "d_RR", "d_pp", "row_length", "terrain_length", "terrain_width",
                "plant_length", "plant_width", "plant_height", "terrain_scale", "scale")
     out: dict[str, tuple[jax.Array, str]] = {}
@@ -182,7 +194,7 @@ def checks(params: FieldParams, shape: FieldShape) -> dict[str, tuple[jax.Array,
     multi_row = q["rows_per_group"] > 1
     out["plant_width"] = (
         (q["plant_width"] > 0)
-        & (jnp.where(multi_row, q["plant_width"] < q["d_rr"], True))
+        & (xp.where(multi_row, q["plant_width"] < q["d_rr"], True))
         & (q["plant_width"] < q["d_RR"]),
         "plants are wider than their row spacing (d_rr or d_RR)",
     )
@@ -205,10 +217,10 @@ def checks(params: FieldParams, shape: FieldShape) -> dict[str, tuple[jax.Array,
         lay["n_stones"] + lay["n_branches"] <= shape.obstacle_slots,
         f"more obstacles than the shape allows (obstacle_slots={shape.obstacle_slots})",
     )
-    free_in = jnp.where(multi_row, q["d_rr"] - q["plant_width"], -1.0)
+    free_in = xp.where(multi_row, q["d_rr"] - q["plant_width"], -1.0)
     free_between = q["d_RR"] - q["plant_width"]
     out["robot_lane"] = (
-        jnp.maximum(free_in, free_between) >= ROBOT_WIDTH + LANE_CLEARANCE,
+        xp.maximum(free_in, free_between) >= ROBOT_WIDTH + LANE_CLEARANCE,
         f"no lane is wide enough for the robot ({ROBOT_WIDTH} m + {LANE_CLEARANCE} m clearance)",
     )
     return out

@@ -168,7 +168,7 @@ class PoseNoise:
 
 
 def pose_noise(lateral_std: float = 0.0, heading_std: float = 0.0) -> PoseNoise:
-    return PoseNoise(jnp.float32(lateral_std), jnp.float32(heading_std))
+    return PoseNoise(np.float32(lateral_std), np.float32(heading_std))
 
 
 @struct.dataclass

@@ -58,25 +58,26 @@ def conditions(name: str, key: jax.Array | None = None) -> Conditions:
     if name not in _TABLE:
         raise ValueError(f"condition: unknown condition {name!r}; expected one of {CONDITIONS}")
     (e_lo, e_hi), sun, amb, zen, hor, cloud, haze, noise = _TABLE[name]
-    if key is None:
+    if key is None:  # host values (numpy float32): no device program per operation
         az, el = np.deg2rad(_SUN_AZIMUTH_DEG), np.deg2rad(0.5 * (e_lo + e_hi))
-        j3 = lambda: jnp.ones(3)  # noqa: E731
-        jitter = jnp.ones(())
-        soil = leaf = jnp.ones(3)
-        exposure = jnp.ones(())
-    else:
-        ks = jax.random.split(key, 9)
-        az = jax.random.uniform(ks[0], (), maxval=2 * jnp.pi)
-        el = jnp.deg2rad(jax.random.uniform(ks[1], (), minval=e_lo, maxval=e_hi))
-        it = iter(jax.random.split(ks[2], 3))
-        j3 = lambda: 1.0 + 0.05 * jax.random.normal(next(it), (3,))  # noqa: E731
-        jitter = jnp.exp(0.25 * jax.random.normal(ks[3], ()))
-        # soil: darker/wetter .. lighter/drier, redder .. greyer; leaves: yellower .. bluer
-        soil = jnp.exp(0.22 * jax.random.normal(ks[4], ())) * (
-            1.0 + jnp.array([0.08, 0.0, -0.08]) * jax.random.normal(ks[5], ()))
-        leaf = jnp.exp(0.12 * jax.random.normal(ks[6], ())) * (
-            1.0 + jnp.array([0.15, 0.02, -0.10]) * jax.random.normal(ks[7], ()))
-        exposure = jnp.exp(0.10 * jax.random.normal(ks[8], ()))
+        h = lambda x: np.asarray(x, np.float32)  # noqa: E731
+        return Conditions(
+            sun_dir=h([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)]),
+            sun_rgb=h(sun), ambient=h(amb), sky_zenith=h(zen), sky_horizon=h(hor),
+            cloud=h(cloud), haze=h(haze), soil_tint=h(np.ones(3)), leaf_tint=h(np.ones(3)),
+            exposure=h(1.0), noise=h(noise))
+    ks = jax.random.split(key, 9)
+    az = jax.random.uniform(ks[0], (), maxval=2 * jnp.pi)
+    el = jnp.deg2rad(jax.random.uniform(ks[1], (), minval=e_lo, maxval=e_hi))
+    it = iter(jax.random.split(ks[2], 3))
+    j3 = lambda: 1.0 + 0.05 * jax.random.normal(next(it), (3,))  # noqa: E731
+    jitter = jnp.exp(0.25 * jax.random.normal(ks[3], ()))
+    # soil: darker/wetter .. lighter/drier, redder .. greyer; leaves: yellower .. bluer
+    soil = jnp.exp(0.22 * jax.random.normal(ks[4], ())) * (
+        1.0 + jnp.array([0.08, 0.0, -0.08]) * jax.random.normal(ks[5], ()))
+    leaf = jnp.exp(0.12 * jax.random.normal(ks[6], ())) * (
+        1.0 + jnp.array([0.15, 0.02, -0.10]) * jax.random.normal(ks[7], ()))
+    exposure = jnp.exp(0.10 * jax.random.normal(ks[8], ()))
     sun_dir = jnp.stack([jnp.cos(el) * jnp.cos(az), jnp.cos(el) * jnp.sin(az), jnp.sin(el)])
     sky_j = j3()  # one tint for the whole sky keeps its hue plausible
     return Conditions(

@@ -42,14 +42,40 @@ from mjxrow.rollout.metrics import Log
 def episode_keys(seed: int, episodes: Sequence[int] | np.ndarray) -> jax.Array:
     """PRNG keys [N] of episodes `episodes` (indices within a run): fold_in(key(seed), i).
     The same for every cell of a sweep (common random numbers) and independent of batching."""
-    base = jax.random.key(seed)
-    return jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.asarray(episodes, jnp.uint32))
+    return _keys_fn()(int(seed), np.asarray(episodes, np.uint32))
 
 
 def split_keys(keys: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Episode keys [N] → (field keys [N], rollout keys [N])."""
     k = jax.vmap(jax.random.split)(keys)
     return k[:, 0], k[:, 1]
+
+
+def batch_keys(seeds: Sequence[int], episodes: Sequence[int]) -> tuple[jax.Array, jax.Array]:
+    """(field keys [N], rollout keys [N]) of episode `episodes[n]` of a run of seed
+    `seeds[n]`: split_keys of episode_keys, in one program per batch size when the seeds are
+    equal (a sweep's are)."""
+    if len(set(seeds)) == 1:
+        return _split_fn()(int(seeds[0]), np.asarray(episodes, np.uint32))
+    return split_keys(jnp.concatenate([episode_keys(s, [e])
+                                       for s, e in zip(seeds, episodes, strict=True)]))
+
+
+def _fold(seed: int, episodes: jax.Array) -> jax.Array:
+    base = jax.random.key(seed)
+    return jax.vmap(lambda i: jax.random.fold_in(base, i))(episodes)
+
+
+@functools.lru_cache(maxsize=1)
+def _keys_fn():
+    """jit: (seed (static), episodes uint32 [N]) → episode keys [N], one program per N."""
+    return jax.jit(_fold, static_argnums=0)
+
+
+@functools.lru_cache(maxsize=1)
+def _split_fn():
+    """jit: (seed (static), episodes [N]) → split_keys of the episode keys."""
+    return jax.jit(lambda seed, i: split_keys(_fold(seed, i)), static_argnums=0)
 
 
 @functools.lru_cache(maxsize=1)
@@ -78,13 +104,13 @@ def generate_fn():
 
 
 def stack(trees: Sequence[Any]) -> Any:
-    """Pytrees → one pytree with a leading [N] axis (leaves as jnp arrays)."""
-    return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *trees)
+    """Pytrees → one pytree with a leading [N] axis (E.stack_leaves: numpy for host leaves)."""
+    return jax.tree.map(lambda *xs: E.stack_leaves(xs), *trees)
 
 
 def fit_shape(runs: Sequence[RunConfig]) -> F.FieldShape:
     """The static FieldShape that holds every run's field (rounded up by field.fit_shape)."""
-    params = F.stack_params([r.field_params() for r in runs])
+    params = F.stack_params([r.field_params(host=True) for r in runs])
     return F.fit_shape(params, runs[0].preset)
 
 
@@ -149,7 +175,7 @@ class Built:
             p = run.perception
             perc = None if self.base is None else perception.perception_params(
                 p.condition, p.threshold, self.base.variables)
-            return perception.MixParams(jnp.int32(i), perc, ctrl)
+            return perception.MixParams(np.int32(i), perc, ctrl)
         if self.base is None:
             return cparams
         p = run.perception
@@ -183,10 +209,9 @@ class Built:
         for i, (run, _) in enumerate(full):
             by_run.setdefault(run, []).append(i)
         runs = list(by_run)
-        cache = {r: (r.field_params(), self.policy_params(r), r.episode.noise) for r in runs}
-        keys = jnp.concatenate([episode_keys(r.seed, [e]) for r, e in full]) \
-            if len(runs) > 1 else episode_keys(runs[0].seed, [e for _, e in full])
-        fkeys, rkeys = split_keys(keys)
+        cache = {r: (r.field_params(host=True), self.policy_params(r), r.episode.noise)
+                 for r in runs}
+        fkeys, rkeys = batch_keys([r.seed for r, _ in full], [e for _, e in full])
         fparams = put(stack([cache[r][0] for r, _ in full]))
         sim_cfg = self.episode.sim
         fields = generate_fn()(fparams, self.shape, put(fkeys), sim_cfg.path_length)

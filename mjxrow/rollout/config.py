@@ -245,8 +245,9 @@ class RunConfig:
         over = {k: v for k, v in self.field.items() if v is not None}
         return {**crops.get(self.preset).preset, **over}
 
-    def field_params(self) -> F.FieldParams:
-        return F.make_params(self.preset, **self.field_values())
+    def field_params(self, host: bool = False) -> F.FieldParams:
+        """The run's FieldParams; `host`: numpy arrays (field.make_params)."""
+        return F.make_params(self.preset, host=host, **self.field_values())
 
     def get(self, dotted: str) -> Any:
         if dotted in ("preset", "seed"):

@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import jax
@@ -348,23 +349,33 @@ def stack_params(trees: list, params_axes: Any = 0) -> Any:
     for i, axis in enumerate(leaves):
         parts = [c[i] for c in cut]
         out.append(parts[0] if axis is None else jax.tree.map(
-            lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *parts))
+            lambda *xs: stack_leaves(xs), *parts))
     return treedef.unflatten(out)
 
 
+def stack_leaves(xs: Sequence[Any]) -> Any:
+    """Leaves → one array with a leading [N] axis: numpy when all are host values (numbers,
+    numpy), so that a batch's parameters reach the device in one transfer with no program
+    compiled for the stacking; jnp otherwise (device arrays, PRNG keys)."""
+    if all(isinstance(x, (np.ndarray, np.generic, bool, int, float)) for x in xs):
+        return np.stack([np.asarray(x) for x in xs])
+    return jnp.stack([jnp.asarray(x) for x in xs])
+
+
 def batch_noise(noise: sim.PoseNoise | None, batch: int) -> sim.PoseNoise:
-    """Start-pose noise of every episode: float32 [batch] stds, from scalars (the same for
-    all), [batch] arrays or None (no noise). ValueError for negative or non-finite stds."""
+    """Start-pose noise of every episode: float32 [batch] stds (host arrays), from scalars
+    (the same for all), [batch] arrays or None (no noise). ValueError for negative or
+    non-finite stds."""
     noise = noise if noise is not None else sim.pose_noise()
     out = {}
     for name in ("lateral_std", "heading_std"):
-        x = jnp.asarray(getattr(noise, name), jnp.float32)
+        x = np.asarray(getattr(noise, name), np.float32)
         if x.ndim > 1 or (x.ndim == 1 and x.shape[0] != batch):
             raise ValueError(f"noise.{name}: expected a scalar or shape ({batch},), got "
                              f"{x.shape}")
-        if not np.all(np.isfinite(np.asarray(x)) & (np.asarray(x) >= 0)):
+        if not np.all(np.isfinite(x) & (x >= 0)):
             raise ValueError(f"noise.{name}: must be finite and non-negative, got {x}")
-        out[name] = jnp.broadcast_to(x, (batch,))
+        out[name] = np.broadcast_to(x, (batch,)).copy()
     return sim.PoseNoise(**out)
 
 

@@ -123,8 +123,8 @@ def load(crop_or_path: str | Path) -> tuple[SegNet, dict]:
     cfg = read_config(path)
     module = module_from_config(cfg["model"])
     stored = jnp.dtype(cfg.get("weights_dtype", "float32"))
-    target = jax.eval_shape(lambda k: module.init(k, jnp.zeros((1, 64, 64, 3), jnp.uint8)),
-                            jax.random.key(0))
+    target = jax.eval_shape(lambda: module.init(jax.random.key(0),  # shapes only: no program
+                                                jnp.zeros((1, 64, 64, 3), jnp.uint8)))
     target = {k: target[k] for k in ("params", "batch_stats") if k in target}
     target = jax.tree.map(lambda s: jax.ShapeDtypeStruct(s.shape, stored)
                           if jnp.issubdtype(s.dtype, jnp.floating) else s, target)

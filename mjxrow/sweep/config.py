@@ -445,7 +445,7 @@ def _blame(cfg: RunConfig, name: str, shape: F.FieldShape) -> str:
     preset = crops.get(cfg.preset).preset
     for k in given:
         values = {**cfg.field_values(), k: preset[k]}
-        ok, _ = F.checks(F.make_params(cfg.preset, **values), shape)[name]
+        ok, _ = F.checks(F.make_params(cfg.preset, host=True, **values), shape)[name]
         if bool(np.all(np.asarray(ok))):
             return f"field.{k}"
     return key
@@ -471,7 +471,8 @@ def check(cfg: SweepConfig) -> None:
     against each cell's field (physics.sim.check_params). Raises ConfigError naming the dotted
     key and the cell."""
     cells = expand(cfg)
-    params = F.stack_params([F.make_params(c.cfg.preset, **c.cfg.field_values()) for c in cells])
+    params = F.stack_params([F.make_params(c.cfg.preset, host=True, **c.cfg.field_values())
+                             for c in cells])
     roomy = F.FieldShape(crop="zucchini", max_rows=10**9, max_plants_per_row=10**9,
                          obstacle_slots=10**9)
     for name, (ok, reason) in F.checks(params, roomy).items():
@@ -529,7 +530,7 @@ def check(cfg: SweepConfig) -> None:
             raise ConfigError(f"camera.width: segmin needs at least controller.smooth + 4 = "
                               f"{c.controller.smooth + 4} columns, got {c.camera.width}{where}")
         try:  # the lane kind and the physics patch's height range (sim.check_params)
-            sim.check_params(c.field_params(), c.sim)
+            sim.check_params(c.field_params(host=True), c.sim)
         except ValueError as e:
             raise ConfigError(f"{e}{where}") from None
         fv = c.field_values()

@@ -39,6 +39,7 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
+import mjxrow
 from mjxrow import field as F
 from mjxrow import files as FS
 from mjxrow import interrupt
@@ -303,14 +304,16 @@ def _ticking(bar, enabled: bool):
 
 def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
         progress: bool = True, command: str = "", figures: bool = True,
-        hard_stop: bool = False) -> dict[str, Any]:
+        hard_stop: bool = False, started: float | None = None) -> dict[str, Any]:
     """Run every unfinished cell of `cfg`, persisting each as it finishes, then write the
     outputs (without `figures`: no PNGs and no report). Returns {'groups', 'ran', 'skipped',
     'files'}. Holds `out/.lock` (files.OutLock): a second run into `out` gets OutputError.
 
     On Ctrl-C or SIGTERM the finished cells are kept and results.csv and summary.csv hold them;
     then KeyboardInterrupt propagates, or, with `hard_stop` (the CLI), the process ends at once
-    with exit code 130, whatever it was doing, compilation included (interrupt.HardStop)."""
+    with exit code 130, whatever it was doing, compilation included (interrupt.HardStop).
+    `started`: when the command started (`mjxrow.STARTED`); the time line then counts the
+    start-up (imports, configuration checks) too."""
     evaluate = evaluate or evaluate_group
     out = Path(out)
     if R.writer():  # several processes: process 0 writes, locks and decides what is finished
@@ -319,15 +322,16 @@ def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
         if R.writer():
             stack.enter_context(FS.OutLock(out))
         stop = stack.enter_context(interrupt.HardStop()) if hard_stop else None
-        return _run(cfg, out, evaluate, progress, command, figures, stop)
+        return _run(cfg, out, evaluate, progress, command, figures, stop, started)
 
 
 FACTS = "run.json"  # the facts (date, command, device, timings) of the last run that ran episodes
 
 
 def _run(cfg: C.SweepConfig, out: Path, evaluate: Evaluator, progress: bool, command: str,
-         figures: bool, stop: interrupt.HardStop | None) -> dict[str, Any]:
-    watch = R.Stopwatch()
+         figures: bool, stop: interrupt.HardStop | None,
+         started: float | None = None) -> dict[str, Any]:
+    watch = R.Stopwatch(started=started)
     groups = pending(cfg, out, report=True)
     n_cells = sum(len(g.cells) for g in groups)
     total, todo = n_cells * cfg.seeds, sum(len(g.episodes) for g in groups)
@@ -380,6 +384,8 @@ def _run(cfg: C.SweepConfig, out: Path, evaluate: Evaluator, progress: bool, com
     split = watch.split()
     info["time"] = (f"compile {split['compile']:.1f} s, run {split['run']:.1f} s, write cells "
                     f"{split['write']:.1f} s")
+    if started is not None:
+        info["time"] = f"start-up {split['startup']:.1f} s, " + info["time"]
     files: dict[str, Any] = {}
     if R.writer():
         with lock, watch.writing():
@@ -457,7 +463,8 @@ def main(argv: list[str] | None = None) -> int:
         print(line, file=sys.stderr)
     command = "python -m mjxrow.sweep " + " ".join(argv if argv is not None else sys.argv[1:])
     try:
-        res = run(cfg, out, progress=not args.no_progress, command=command, hard_stop=True)
+        res = run(cfg, out, progress=not args.no_progress, command=command, hard_stop=True,
+                  started=mjxrow.STARTED)
     except FS.OutputError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
