@@ -82,3 +82,21 @@ def test_summary_gives_n_per_metric_and_leaves_excluded_out():
     assert row["n"] == 4 and row["mae_n"] == 3 and row["time_n"] == 2 and row["success_n"] == 4
     assert row["mae"] == pytest.approx(0.2) and row["excluded"] == pytest.approx(0.25)
     assert row["mae_lo"] >= 0.0
+
+
+def test_figures_drawn_in_worker_processes_equal_those_drawn_in_place(tmp_path):
+    """figure_pool's processes draw the same PNGs, pixel for pixel, as drawing in place."""
+    s = summary([[0.0, 1.0], [1.0, 1.0]])
+    axes, metrics = ["field.d_rr", "field.terrain_dh"], ["mae", "success", "v_mean"]
+    (tmp_path / "pool").mkdir()
+    (tmp_path / "here").mkdir()
+    with R.figure_pool(workers=2) as pool:
+        assert pool is not None
+        drawn = R.surfaces(s, axes, metrics, tmp_path / "pool", "t", pool=pool)
+    here = R.surfaces(s, axes, metrics, tmp_path / "here", "t")
+    assert list(drawn) == metrics == list(here)
+    for m in metrics:
+        assert drawn[m].parent == tmp_path / "pool"
+        assert np.array_equal(pixels(drawn[m]), pixels(here[m])), m
+    with R.figure_pool(enabled=False, workers=2) as pool:
+        assert pool is None

@@ -142,11 +142,13 @@ sys.exit(S.main(sys.argv[1:]))
 """
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_interrupt_during_compilation_exits_130_and_keeps_cells(tmp_path, sig):
+@pytest.mark.parametrize("sig, workers", [(signal.SIGINT, "0"), (signal.SIGTERM, "0"),
+                                          (signal.SIGINT, "2")])
+def test_interrupt_during_compilation_exits_130_and_keeps_cells(tmp_path, sig, workers):
     """Two groups (camera.width is static): the first group's cells are written, the signal
     arrives while XLA compiles the second group's program. Exit 130 before the compilation
-    ends, no crash, the finished cells in cells/ and results.csv, no temp file, lock free."""
+    ends, no crash, the finished cells in cells/ and results.csv, no temp file, lock free.
+    With figure processes (MJXROW_FIGURE_WORKERS=2) they end too, leaving nothing behind."""
     raw = {**RAW, "seeds": 2, "field": {"d_rr": [1.6, 2.4]}, "camera": {"width": [8, 12]}}
     path = tmp_path / "s.yaml"
     path.write_text(yaml.safe_dump(raw, sort_keys=False))
@@ -154,7 +156,8 @@ def test_interrupt_during_compilation_exits_130_and_keeps_cells(tmp_path, sig):
     proc = subprocess.Popen(
         [sys.executable, "-c", HEAVY.format(ops=3000), str(path), "--out", str(out),
          "--no-progress"], stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-        env={**os.environ, "PYTHONPATH": str(ROOT)}, cwd=tmp_path)
+        env={**os.environ, "PYTHONPATH": str(ROOT), "MJXROW_FIGURE_WORKERS": workers},
+        cwd=tmp_path)
     lines = []
     deadline = time.monotonic() + 240
     for line in proc.stderr:
@@ -170,6 +173,7 @@ def test_interrupt_during_compilation_exits_130_and_keeps_cells(tmp_path, sig):
     assert "COMPILED" not in err, err  # it stopped inside the compilation
     assert time.monotonic() - t < 60
     assert "Traceback" not in err and "interrupted: 2 of 4 cells finished and kept" in err, err
+    assert "leaked" not in err and "Error" not in err, err
     results = pd.read_csv(out / "results.csv")
     assert sorted(results["cell"].unique()) == [0, 2] and len(results) == 4  # camera.width 8
     assert len(list((out / "cells").glob("*.csv"))) == 2

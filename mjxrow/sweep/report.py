@@ -9,7 +9,15 @@ results.csv and left out, so `m_n` < `n` says how many were left out.
 
 from __future__ import annotations
 
+import contextlib
+import multiprocessing
 import os
+import signal
+import threading
+import time
+from collections.abc import Iterator
+from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
@@ -227,20 +235,82 @@ def line(summary: pd.DataFrame, metric: str, x: str, path: str | Path, title: st
     return _save(fig, Path(path))
 
 
+def surface(summary: pd.DataFrame, axes: list[str], metric: str, path: Path,
+            title: str = "") -> Path | None:
+    """One metric's PNG: a heatmap over the first two axes (panels over the third; further
+    axes averaged), or a line plot with CI bands when one axis is swept; None without axes."""
+    if len(axes) >= 2:
+        return heatmap(summary, metric, axes[0], axes[1], path, title,
+                       facet=axes[2] if len(axes) > 2 else None)
+    if len(axes) == 1:
+        return line(summary, metric, axes[0], path, title)
+    return None
+
+
 def surfaces(summary: pd.DataFrame, axes: list[str], metrics: list[str], out_dir: str | Path,
-             title: str = "") -> dict[str, Path]:
-    """metric → PNG path: heatmaps over the first two axes (panels over the third; further axes
-    averaged), or line plots with CI bands when one axis is swept. Nothing without axes."""
+             title: str = "", pool: Executor | None = None) -> dict[str, Path]:
+    """metric → PNG path (`surface` of each metric), drawn side by side in `pool`'s
+    processes when one is given (figure_pool), else one after another."""
     out_dir = Path(out_dir)
-    files: dict[str, Path] = {}
-    for m in metrics:
-        p = out_dir / f"{m}.png"
-        if len(axes) >= 2:
-            files[m] = heatmap(summary, m, axes[0], axes[1], p, title,
-                               facet=axes[2] if len(axes) > 2 else None)
-        elif len(axes) == 1:
-            files[m] = line(summary, m, axes[0], p, title)
-    return files
+    paths = {m: out_dir / f"{m}.png" for m in metrics}
+    if pool is not None:
+        try:
+            jobs = {m: pool.submit(surface, summary, axes, m, p, title) for m, p in paths.items()}
+            done = {m: j.result() for m, j in jobs.items()}
+            return {m: p for m, p in done.items() if p is not None}
+        except BrokenProcessPool:  # a worker died (killed, out of memory): draw them here
+            pass
+    done = {m: surface(summary, axes, m, p, title) for m, p in paths.items()}
+    return {m: p for m, p in done.items() if p is not None}
+
+
+def figure_workers() -> int:
+    """Processes the sweep's figure_pool starts: `$MJXROW_FIGURE_WORKERS` if set (0: draw in
+    place), else up to 4, leaving two cores to the rest, and none on a host of fewer than 4
+    cores, where drawing in place costs less than starting them."""
+    env = os.environ.get("MJXROW_FIGURE_WORKERS")
+    if env is not None:
+        if not env.strip().isdigit():
+            raise ValueError(f"MJXROW_FIGURE_WORKERS: expected a whole number ≥ 0, got {env!r}")
+        return int(env)
+    n = os.cpu_count() or 1
+    return min(4, n - 2) if n >= 4 else 0
+
+
+@contextlib.contextmanager
+def figure_pool(enabled: bool = True, workers: int = 0) -> Iterator[Executor | None]:
+    """`workers` processes that draw a sweep's PNGs side by side (`surfaces(..., pool=...)`),
+    or None (disabled, or fewer than 2 workers). Entered at a sweep's start, they import
+    matplotlib and this module while the sweep compiles and runs. They are spawned: the
+    caller's main module must be a package's `__main__` or guarded by `if __name__ ==
+    "__main__":`. They never touch an accelerator (JAX is set to the CPU in them), ignore
+    Ctrl-C (the sweep handles it) and end when the sweep's process does, however it ends."""
+    n = workers
+    if not enabled or n < 2:
+        yield None
+        return
+    pool = ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_figure_worker, initargs=(os.getpid(),))
+    try:
+        for _ in range(n):  # start every process now, not at the first figure
+            pool.submit(time.sleep, 0)
+        yield pool
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _figure_worker(parent: int) -> None:
+    import jax
+
+    jax.config.update("jax_platforms", "cpu")
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def orphaned() -> None:  # the sweep ended without closing the pool (os._exit, a kill)
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(0)
+
+    threading.Thread(target=orphaned, daemon=True).start()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -355,9 +425,10 @@ def metric_columns(results: pd.DataFrame) -> list[str]:
 
 
 def write_outputs(results: pd.DataFrame, cfg: C.SweepConfig, out: Path, info: dict[str, Any],
-                  figures: bool = True) -> dict[str, Path]:
+                  figures: bool = True, pool: Executor | None = None) -> dict[str, Path]:
     """summary.csv and config.yaml from a results table (one row per episode); with `figures`
-    also one PNG per numeric metric and report.md. Every file written atomically."""
+    also one PNG per numeric metric (drawn in `pool`'s processes if given) and report.md.
+    Every file written atomically."""
     axes = list(cfg.axis_order)
     names = metric_columns(results)
     numeric = [m for m in names if m != "reason" and pd.api.types.is_numeric_dtype(results[m])]
@@ -368,7 +439,7 @@ def write_outputs(results: pd.DataFrame, cfg: C.SweepConfig, out: Path, info: di
     files = {"summary": out / "summary.csv", "config": out / "config.yaml"}
     if not figures:
         return files
-    images = surfaces(summary, axes, numeric, out, cfg.name)
+    images = surfaces(summary, axes, numeric, out, cfg.name, pool)
     report(out / "report.md", cfg.name, info, config_yaml, summary, axes, numeric, images,
            list(M.REASONS[1:]))
     return {**files, "report": out / "report.md", **images}

@@ -150,7 +150,7 @@ def cell_rows(group: Group, cell_index: int, rows: pd.DataFrame) -> pd.DataFrame
 
 
 def write_outputs(cfg: C.SweepConfig, groups: list[Group], out: Path, info: dict[str, Any],
-                  figures: bool = True) -> dict[str, Path]:
+                  figures: bool = True, pool: Any = None) -> dict[str, Path]:
     """results.csv rebuilt from this sweep's cell files, then summary.csv, config.yaml and
     (with `figures`) the PNGs and report.md (plots.write_outputs)."""
     frames = []
@@ -164,7 +164,7 @@ def write_outputs(cfg: C.SweepConfig, groups: list[Group], out: Path, info: dict
     results = pd.concat(frames, ignore_index=True).sort_values(["cell", "episode"])
     atomic_write_csv(out / "results.csv", results)
     return {"results": out / "results.csv", **plots.write_outputs(results, cfg, out, info,
-                                                                   figures)}
+                                                                   figures, pool)}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -304,7 +304,8 @@ def _ticking(bar, enabled: bool):
 
 def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
         progress: bool = True, command: str = "", figures: bool = True,
-        hard_stop: bool = False, started: float | None = None) -> dict[str, Any]:
+        hard_stop: bool = False, started: float | None = None,
+        figure_workers: int = 0) -> dict[str, Any]:
     """Run every unfinished cell of `cfg`, persisting each as it finishes, then write the
     outputs (without `figures`: no PNGs and no report). Returns {'groups', 'ran', 'skipped',
     'files'}. Holds `out/.lock` (files.OutLock): a second run into `out` gets OutputError.
@@ -313,7 +314,11 @@ def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
     then KeyboardInterrupt propagates, or, with `hard_stop` (the CLI), the process ends at once
     with exit code 130, whatever it was doing, compilation included (interrupt.HardStop).
     `started`: when the command started (`mjxrow.STARTED`); the time line then counts the
-    start-up (imports, configuration checks) too."""
+    start-up (imports, configuration checks) too. `figure_workers` ≥ 2: processes that draw
+    the PNGs side by side (report.figure_pool; started at once, so that their imports overlap
+    the sweep). They are spawned, and a spawned process imports the caller's main script
+    again: the CLI, whose main module is a package's, passes them; a script calling `run`
+    needs an `if __name__ == "__main__":` guard to pass them."""
     evaluate = evaluate or evaluate_group
     out = Path(out)
     if R.writer():  # several processes: process 0 writes, locks and decides what is finished
@@ -322,7 +327,8 @@ def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
         if R.writer():
             stack.enter_context(FS.OutLock(out))
         stop = stack.enter_context(interrupt.HardStop()) if hard_stop else None
-        return _run(cfg, out, evaluate, progress, command, figures, stop, started)
+        with plots.figure_pool(figures and R.writer(), figure_workers) as pool:
+            return _run(cfg, out, evaluate, progress, command, figures, stop, started, pool)
 
 
 FACTS = "run.json"  # the facts (date, command, device, timings) of the last run that ran episodes
@@ -330,7 +336,7 @@ FACTS = "run.json"  # the facts (date, command, device, timings) of the last run
 
 def _run(cfg: C.SweepConfig, out: Path, evaluate: Evaluator, progress: bool, command: str,
          figures: bool, stop: interrupt.HardStop | None,
-         started: float | None = None) -> dict[str, Any]:
+         started: float | None = None, pool: Any = None) -> dict[str, Any]:
     watch = R.Stopwatch(started=started)
     groups = pending(cfg, out, report=True)
     n_cells = sum(len(g.cells) for g in groups)
@@ -345,6 +351,8 @@ def _run(cfg: C.SweepConfig, out: Path, evaluate: Evaluator, progress: bool, com
 
     def flush() -> None:
         bar.close()
+        if pool is not None:  # the figure processes end first (no leaked semaphores on exit)
+            pool.shutdown(wait=True, cancel_futures=True)
         if R.writer():
             write_outputs(cfg, groups, out, info, figures=False)
         kept = len(finished_cells(out / "cells") & {h for g in groups for h in g.hashes})
@@ -390,7 +398,7 @@ def _run(cfg: C.SweepConfig, out: Path, evaluate: Evaluator, progress: bool, com
     if R.writer():
         with lock, watch.writing():
             info = _facts(out, info, ran, todo)
-            files = write_outputs(cfg, groups, out, info, figures)
+            files = write_outputs(cfg, groups, out, info, figures, pool)
     return {"groups": groups, "ran": ran, "skipped": skipped, "files": files, "time": watch}
 
 
@@ -456,6 +464,7 @@ def main(argv: list[str] | None = None) -> int:
         est = EST.estimate(plan(cfg, finished_cells(cells, cfg.seeds)), cfg.seeds,
                            cfg.batch_size, _device_name())
         line = EST.check(est, args.force)
+        workers = plots.figure_workers()
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -464,7 +473,7 @@ def main(argv: list[str] | None = None) -> int:
     command = "python -m mjxrow.sweep " + " ".join(argv if argv is not None else sys.argv[1:])
     try:
         res = run(cfg, out, progress=not args.no_progress, command=command, hard_stop=True,
-                  started=mjxrow.STARTED)
+                  started=mjxrow.STARTED, figure_workers=workers)
     except FS.OutputError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
