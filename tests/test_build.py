@@ -123,3 +123,21 @@ def test_checks_and_batch_assembly_compile_only_their_programs():
     built = B.build(runs[0])
     names = _compiled(lambda: built.batch([(runs[0], 0), (runs[0], 1)], size=2))
     assert len(names) == 3 and "jit(gen)" in names, names
+
+
+@pytest.mark.parametrize("seed", [0, 7, 2**32 - 1, 2**40 + 3])
+def test_batch_keys_are_fold_in_of_the_seed_then_split(seed):
+    """One program for a batch's keys gives the keys of the definition: episode i of a run of
+    seed s: split(fold_in(key(s), i)); batches mixing seeds too."""
+    import jax
+
+    eps = [0, 1, 5, 99]
+    ref = [jax.random.split(jax.random.fold_in(jax.random.key(seed), i)) for i in eps]
+    kd = jax.random.key_data
+    for got in (B.batch_keys([seed] * 4, eps), B.batch_keys([seed, seed, seed, 3], eps)):
+        for n in range(3):
+            assert np.array_equal(kd(got[0][n]), kd(ref[n][0]))
+            assert np.array_equal(kd(got[1][n]), kd(ref[n][1]))
+    mixed = B.batch_keys([seed, seed, seed, 3], eps)
+    other = jax.random.split(jax.random.fold_in(jax.random.key(3), 99))
+    assert np.array_equal(kd(mixed[0][3]), kd(other[0]))
