@@ -6,7 +6,8 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-from mjxrow.sweep import report as R
+from mjxrow.sweep import figures as R
+from mjxrow.sweep import report
 
 
 def summary(success):
@@ -54,7 +55,7 @@ def test_colour_range_ignores_rounding_noise():
 def test_summary_markdown_counts_left_out_episodes():
     s = summary([[1.0, 1.0], [1.0, 1.0]])
     s.loc[0, "mae_n"] = 5
-    text = R.summary_markdown(s, ["field.d_rr", "field.terrain_dh"], ["mae"])
+    text = report.summary_markdown(s, ["field.d_rr", "field.terrain_dh"], ["mae"])
     assert "(n = 5 of 8)" in text and text.count("(n = ") == 1
 
 
@@ -76,7 +77,7 @@ def test_summary_gives_n_per_metric_and_leaves_excluded_out():
         "success": [True, True, False, False], "excluded": [False, False, False, True],
         "reason": ["goal", "goal", "collision", "flipped"],
         "mae": [0.1, 0.2, 0.3, np.nan], "time": [10.0, 12.0, np.nan, np.nan]})
-    s = R.summary_table(results, ["field.d_rr"], ["success", "excluded", "reason", "mae",
+    s = report.summary_table(results, ["field.d_rr"], ["success", "excluded", "reason", "mae",
                                                   "time"])
     row = s.iloc[0]
     assert row["n"] == 4 and row["mae_n"] == 3 and row["time_n"] == 2 and row["success_n"] == 4

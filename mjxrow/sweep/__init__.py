@@ -1,2 +1,3 @@
 """Sweeps: `config` (YAML schema), `run` (grid → groups → batches, resume, signals), `report`
-(tables, heatmaps, report.md). CLI: `python -m mjxrow.sweep SWEEP.yaml`."""
+(tables, report.md, output files), `figures` (the PNGs).
+CLI: `python -m mjxrow.sweep SWEEP.yaml`."""

@@ -49,6 +49,7 @@ from mjxrow.rollout import metrics as M
 from mjxrow.sweep import cells as CF
 from mjxrow.sweep import config as C
 from mjxrow.sweep import estimate as EST
+from mjxrow.sweep import figures as FG
 from mjxrow.sweep import report as plots
 
 Evaluator = Callable[["Group", C.SweepConfig, Callable[[pd.DataFrame], None]], pd.DataFrame]
@@ -315,7 +316,7 @@ def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
     with exit code 130, whatever it was doing, compilation included (interrupt.HardStop).
     `started`: when the command started (`mjxrow.STARTED`); the time line then counts the
     start-up (imports, configuration checks) too. `figure_workers` ≥ 2: processes that draw
-    the PNGs side by side (report.figure_pool; started at once, so that their imports overlap
+    the PNGs side by side (figures.figure_pool; started at once, so that their imports overlap
     the sweep). They are spawned, and a spawned process imports the caller's main script
     again: the CLI, whose main module is a package's, passes them; a script calling `run`
     needs an `if __name__ == "__main__":` guard to pass them."""
@@ -327,7 +328,7 @@ def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
         if R.writer():
             stack.enter_context(FS.OutLock(out))
         stop = stack.enter_context(interrupt.HardStop()) if hard_stop else None
-        with plots.figure_pool(figures and R.writer(), figure_workers) as pool:
+        with FG.figure_pool(figures and R.writer(), figure_workers) as pool:
             return _run(cfg, out, evaluate, progress, command, figures, stop, started, pool)
 
 
@@ -464,7 +465,7 @@ def main(argv: list[str] | None = None) -> int:
         est = EST.estimate(plan(cfg, finished_cells(cells, cfg.seeds)), cfg.seeds,
                            cfg.batch_size, _device_name())
         line = EST.check(est, args.force)
-        workers = plots.figure_workers()
+        workers = FG.figure_workers()
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
