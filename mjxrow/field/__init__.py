@@ -14,6 +14,7 @@ from mjxrow.field.params import (
     Field,
     FieldParams,
     FieldShape,
+    array_namespace,
     checks,
     fit_shape,
     make_params,
@@ -35,6 +36,6 @@ def __getattr__(name: str):
 
 
 __all__ = ["BRANCH", "HEADLAND", "LANE_CLEARANCE", "PARAM_NAMES", "ROBOT_WIDTH", "STONE",
-           "Field", "FieldParams", "FieldShape", "checks", "fit_shape", "generate",
-           "make_params", "preset_shape", "robot_lane", "stack_params", "terrain_axes",
+           "Field", "FieldParams", "FieldShape", "array_namespace", "checks", "fit_shape",
+           "generate", "make_params", "preset_shape", "robot_lane", "stack_params", "terrain_axes",
            "terrain_height", "validate"]

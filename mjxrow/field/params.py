@@ -134,12 +134,13 @@ def make_params(preset: str = "zucchini", *, host: bool = False, **overrides: An
 
 def stack_params(params: list[FieldParams]) -> FieldParams:
     """[FieldParams] → one FieldParams with a leading [B] axis (numpy if all are numpy)."""
-    return jax.tree.map(lambda *xs: _xp(*xs).stack(xs), *params)
+    return jax.tree.map(lambda *xs: array_namespace(*xs).stack(xs), *params)
 
 
-def _xp(*xs: Any):
-    """The array namespace for `xs`: numpy when all are host arrays or numbers (so the checks
-    of a sweep's cells run on the host, not as a device program per operation), else jnp."""
+def array_namespace(*xs: Any):
+    """The array namespace for `xs`: numpy when all are host arrays or numbers (so that host
+    work, such as the checks of a sweep's cells or stacking a batch's parameters, runs no
+    device program per operation), else jnp (device arrays, tracers, PRNG keys)."""
     host = all(isinstance(x, (np.ndarray, np.generic, int, float)) for x in xs)
     return np if host else jnp
 
@@ -149,7 +150,7 @@ def _xp(*xs: Any):
 
 
 def _scaled(p: FieldParams) -> dict[str, jax.Array]:
-    xp = _xp(*jax.tree.leaves(p))
+    xp = array_namespace(*jax.tree.leaves(p))
     s = p.scale
     lengths = ("d_rr", "d_RR", "d_pp", "row_length", "terrain_length", "terrain_width",
                "plant_length", "plant_width", "plant_height", "terrain_dh", "terrain_scale",
@@ -162,7 +163,7 @@ def _scaled(p: FieldParams) -> dict[str, jax.Array]:
 
 def _layout(q: dict[str, jax.Array]) -> dict[str, jax.Array]:
     """Counts implied by scaled params: groups, rows, plants per row, obstacles."""
-    xp = _xp(*q.values())
+    xp = array_namespace(*q.values())
     rpg = q["rows_per_group"]
     group_w = (rpg - 1.0) * q["d_rr"]
     pitch = group_w + q["d_RR"]
@@ -181,7 +182,7 @@ def checks(params: FieldParams, shape: FieldShape) -> dict[str, tuple[jax.Array,
     """Each impossible-field condition: name → (ok: bool array, reason). Traced-friendly."""
     q = _scaled(params)
     lay = _layout(q)
-    xp = _xp(*q.values())
+    xp = array_namespace(*q.values())
     lengths = ("d_rr", "d_RR", "d_pp", "row_length", "terrain_length", "terrain_width",
                "plant_length", "plant_width", "plant_height", "terrain_scale", "scale")
     out: dict[str, tuple[jax.Array, str]] = {}

@@ -356,10 +356,9 @@ def stack_params(trees: list, params_axes: Any = 0) -> Any:
 def stack_leaves(xs: Sequence[Any]) -> Any:
     """Leaves → one array with a leading [N] axis: numpy when all are host values (numbers,
     numpy), so that a batch's parameters reach the device in one transfer with no program
-    compiled for the stacking; jnp otherwise (device arrays, PRNG keys)."""
-    if all(isinstance(x, (np.ndarray, np.generic, bool, int, float)) for x in xs):
-        return np.stack([np.asarray(x) for x in xs])
-    return jnp.stack([jnp.asarray(x) for x in xs])
+    compiled for the stacking; jnp otherwise (field.array_namespace)."""
+    xp = F.array_namespace(*xs)
+    return xp.stack([xp.asarray(x) for x in xs])
 
 
 def batch_noise(noise: sim.PoseNoise | None, batch: int) -> sim.PoseNoise:

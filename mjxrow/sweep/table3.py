@@ -318,9 +318,11 @@ class SharedBlocks:
                 for g in S.pending(cfg, folder) if g.episodes]
         self.episodes = sum(len(g.episodes) for _, g in flat)
         if len({g.shape for _, g in flat}) > 1:  # fields of other shapes: one by one
-            rows = {name: S.evaluate_group(g, self.blocks[name][0], lambda r: None)
-                    for name, g in flat}
-            return {name: rows.get(name, pd.DataFrame()) for name in self.blocks}
+            parts: dict[str, list[pd.DataFrame]] = {name: [] for name in self.blocks}
+            for name, g in flat:
+                parts[name].append(S.evaluate_group(g, self.blocks[name][0], lambda r: None))
+            return {name: pd.concat(ps, ignore_index=True) if ps else pd.DataFrame()
+                    for name, ps in parts.items()}
         runs = {(name, c.index): c.cfg for name, g in flat for c in g.cells}
         built = B.build(list(runs.values()), flat[0][1].shape)
         items = [(name, runs[(name, c)], c, e) for name, g in flat for c, e in g.episodes]
