@@ -46,6 +46,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--controller", default="segzeros", choices=("segzeros", "segmin", "oracle"))
     p.add_argument("--seg-dtype", default="float32", choices=("float32", "bfloat16"),
                    help="the segmenter's compute dtype (weights stay float32)")
+    p.add_argument("--seg-impl", default="auto:auto", metavar="DW:PW",
+                   help="the segmenter's depthwise (auto, conv, shift) and 1x1 (auto, conv, "
+                        "dot) conv implementations")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="a key of the sweep YAML, e.g. --set sim.iterations=2 (repeatable)")
     p.add_argument("--repeats", type=int, default=3)
@@ -61,15 +64,29 @@ def run_config(args: argparse.Namespace) -> RunConfig:
     return C.expand(C.from_dict(raw, sets=args.set))[0].cfg
 
 
-def with_seg_dtype(built: B.Built, run: RunConfig, dtype: str) -> B.Built:
-    """`built` whose segmenter computes in `dtype` (its weights, shared params, unchanged)."""
-    if dtype == "float32" or built.base is None:
+def seg_impl(spec: str) -> dict[str, str]:
+    """`--seg-impl DW:PW` → SegNet attributes (ValueError naming a bad part)."""
+    from mjxrow.seg import model as M
+
+    dw, sep, pw = spec.partition(":")
+    if not sep or dw not in ("auto",) + M.DW_IMPLS or pw not in ("auto",) + M.PW_IMPLS:
+        raise ValueError(f"--seg-impl {spec!r}: expected DW:PW with DW one of auto, "
+                         f"{', '.join(M.DW_IMPLS)} and PW one of auto, {', '.join(M.PW_IMPLS)}")
+    return {"dw_impl": dw, "pw_impl": pw}
+
+
+def with_segmenter(built: B.Built, run: RunConfig, **changes: str) -> B.Built:
+    """`built` whose segmenter module has `changes` (compute dtype, conv implementations);
+    its weights, shared params, are unchanged."""
+    module, _ = (perception.load_segmenter(run.checkpoint_path(), run.preset)
+                 if built.base is not None else (None, None))
+    if module is None or all(getattr(module, k) == v for k, v in changes.items()):
         return built
-    module, _ = perception.load_segmenter(run.checkpoint_path(), run.preset)
     policy = perception.perception_policy(run.controller.name, built.shape, run.camera,
-                                          "learned", module.clone(dtype=dtype), run.render)
+                                          "learned", module.clone(**changes), run.render)
+    note = ", ".join(f"{k} {v}" for k, v in sorted(changes.items()))
     return dataclasses.replace(built, policy=policy, placed={},
-                               key=built.key and f"{built.key}\nsegmenter dtype {dtype}")
+                               key=built.key and f"{built.key}\nsegmenter {note}")
 
 
 def measure(built: B.Built, run: RunConfig, b: int, repeats: int) -> dict:
@@ -99,15 +116,21 @@ def run(args: argparse.Namespace) -> list[dict]:
         cfg = run_config(args)
     except C.ConfigError as e:
         raise SystemExit(f"bench closed_loop: {e}") from None
+    try:
+        impl = seg_impl(args.seg_impl)
+    except ValueError as e:
+        raise SystemExit(f"bench closed_loop: {e}") from None
     rows = []
     for b in args.batch:
-        built = with_seg_dtype(B.build(cfg), cfg, args.seg_dtype)
+        built = with_segmenter(B.build(cfg), cfg, dtype=args.seg_dtype, **impl)
         m = measure(built, cfg, built.padded(b), args.repeats)
         med = statistics.median(m["runs_s"])
         steps_s = b * cfg.episode.n_steps / med
         per_min = 60.0 * steps_s / args.episode_steps
         seg = "" if not (control.get(cfg.controller.name).needs_mask and
-                         cfg.perception.source == "learned") else f", segmenter {args.seg_dtype}"
+                         cfg.perception.source == "learned") else \
+            f", segmenter {args.seg_dtype}" + ("" if args.seg_impl == "auto:auto" else
+                                                f" {args.seg_impl}")
         config = (f"{cfg.preset}, {cfg.controller.name} on {cfg.perception.source} masks, "
                   f"{args.image}x{args.image} px, {cfg.episode.n_steps} control steps{seg}"
                   + "".join(f", {s}" for s in args.set))

@@ -33,6 +33,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"))
     p.add_argument("--dw-impl", default="auto", choices=("auto", "conv", "shift"),
                    help="depthwise conv implementation (auto: shift on CPU, conv elsewhere)")
+    p.add_argument("--pw-impl", default="auto", choices=("auto", "conv", "dot"),
+                   help="1x1 conv implementation (auto: conv)")
     p.add_argument("--ckpt", help="checkpoint folder or crop to time instead of random weights")
 
 
@@ -40,15 +42,17 @@ def _model(arch: str, width: float, size: int, args) -> tuple[M.SegNet, dict]:
     if args.ckpt:
         from mjxrow.seg import checkpoint as C
         module, variables = C.load(args.ckpt)
-        return module.clone(dtype=args.dtype, dw_impl=args.dw_impl), variables
-    return M.create(arch, width, 0, size, dtype=args.dtype, dw_impl=args.dw_impl)
+        return module.clone(dtype=args.dtype, dw_impl=args.dw_impl, pw_impl=args.pw_impl), variables
+    return M.create(arch, width, 0, size, dtype=args.dtype, dw_impl=args.dw_impl,
+                    pw_impl=args.pw_impl)
 
 
 def _config(module: M.SegNet, size: int) -> str:
-    impl = module.dw_impl if module.dw_impl != "auto" else \
-        ("shift" if jax.default_backend() == "cpu" else "conv")
+    back = "cpu" if jax.default_backend() == "cpu" else "other"
+    dw = module.dw_impl if module.dw_impl != "auto" else M.DW_AUTO[back]
+    pw = module.pw_impl if module.pw_impl != "auto" else M.PW_AUTO[back]
     return (f"MobileNetV3-{module.arch.capitalize()} w{module.width:g} + LR-ASPP, "
-            f"{size}x{size}, {module.dtype}, dw {impl}")
+            f"{size}x{size}, {module.dtype}, dw {dw}, 1x1 {pw}")
 
 
 def run(args: argparse.Namespace) -> list[dict]:

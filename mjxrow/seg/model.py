@@ -185,19 +185,56 @@ class DepthwiseConv(nn.Module):
         k, c = self.kernel_size, x.shape[-1]
         kernel = self.param("kernel", nn.initializers.lecun_normal(), (k, k, 1, c), jnp.float32)
         x, kernel = x.astype(self.dtype), kernel.astype(self.dtype)
-        impl = self.impl
-        if impl == "auto":
-            impl = "shift" if jax.default_backend() == "cpu" else "conv"
-        if impl == "shift":
+        if _resolve(self.impl, DW_IMPLS, DW_AUTO, "depthwise") == "shift":
             return depthwise_shift(x, kernel, self.stride, self.dilation)
-        if impl != "conv":
-            raise ValueError(f"depthwise: unknown implementation {impl!r}; expected auto, conv "
-                             "or shift")
         p = (k - 1) // 2 * self.dilation
         return jax.lax.conv_general_dilated(
             x, kernel, (self.stride, self.stride), ((p, p), (p, p)),
             rhs_dilation=(self.dilation, self.dilation),
             dimension_numbers=("NHWC", "HWIO", "NHWC"), feature_group_count=c)
+
+
+# implementations of the depthwise and the 1×1 convs; "auto" picks by backend
+DW_IMPLS, DW_AUTO = ("conv", "shift"), {"cpu": "shift", "other": "conv"}
+PW_IMPLS, PW_AUTO = ("conv", "dot"), {"cpu": "conv", "other": "conv"}
+
+
+def _resolve(impl: str, choices: tuple[str, ...], auto: dict[str, str], what: str) -> str:
+    """An implementation name; "auto" resolved by the default backend (`auto`)."""
+    if impl == "auto":
+        return auto["cpu" if jax.default_backend() == "cpu" else "other"]
+    if impl not in choices:
+        raise ValueError(f"{what}: unknown implementation {impl!r}; expected auto, "
+                         + " or ".join(choices))
+    return impl
+
+
+class Pointwise(nn.Module):
+    """1×1 conv with the parameters of `nn.Conv` (`kernel [1, 1, Cin, Cout]`, optional `bias`).
+
+    impl: "conv" (`lax.conv_general_dilated`), "dot" (a matrix product over the channel axis,
+    which XLA can fuse with its neighbours) or "auto"."""
+
+    features: int
+    use_bias: bool = False
+    impl: str = "auto"
+    dtype: Any = jnp.float32
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        cin = x.shape[-1]
+        kernel = self.param("kernel", nn.initializers.lecun_normal(),
+                            (1, 1, cin, self.features), jnp.float32)
+        x, kernel = x.astype(self.dtype), kernel.astype(self.dtype)
+        if _resolve(self.impl, PW_IMPLS, PW_AUTO, "pointwise") == "dot":
+            y = jax.lax.dot_general(x, kernel[0, 0], (((x.ndim - 1,), (0,)), ((), ())))
+        else:
+            y = jax.lax.conv_general_dilated(x, kernel, (1, 1), ((0, 0), (0, 0)),
+                                             dimension_numbers=("NHWC", "HWIO", "NHWC"))
+        if self.use_bias:
+            y = y + self.param("bias", nn.initializers.zeros, (self.features,),
+                               jnp.float32).astype(self.dtype)
+        return y
 
 
 class ConvBN(nn.Module):
@@ -214,12 +251,15 @@ class ConvBN(nn.Module):
     momentum: float = 0.9
     dtype: Any = jnp.float32
     dw_impl: str = "auto"
+    pw_impl: str = "auto"
 
     @nn.compact
     def __call__(self, x: jax.Array, train: bool) -> jax.Array:
         if self.depthwise:
             x = DepthwiseConv(self.kernel, self.stride, self.dilation, self.dw_impl, self.dtype,
                               name="conv")(x)
+        elif self.kernel == 1 and self.stride == 1:
+            x = Pointwise(self.features, impl=self.pw_impl, dtype=self.dtype, name="conv")(x)
         else:
             p = (self.kernel - 1) // 2 * self.dilation
             x = nn.Conv(self.features, (self.kernel, self.kernel), (self.stride, self.stride),
@@ -238,10 +278,12 @@ class Block(nn.Module):
     momentum: float = 0.9
     dtype: Any = jnp.float32
     dw_impl: str = "auto"
+    pw_impl: str = "auto"
 
     @nn.compact
     def __call__(self, x: jax.Array, train: bool) -> jax.Array:
-        ly, kw = self.layer, dict(momentum=self.momentum, dtype=self.dtype)
+        ly = self.layer
+        kw = dict(momentum=self.momentum, dtype=self.dtype, pw_impl=self.pw_impl)
         y = x
         if ly.exp != ly.cin:
             y = ConvBN(ly.exp, act=ly.act, name="expand", **kw)(y, train)
@@ -249,9 +291,9 @@ class Block(nn.Module):
                    dw_impl=self.dw_impl, name="dw", **kw)(y, train)
         if ly.se:
             s = jnp.mean(y, axis=(1, 2), keepdims=True)
-            s = jax.nn.relu(nn.Conv(ly.se, (1, 1), dtype=self.dtype, name="se_reduce")(s))
-            s = jax.nn.hard_sigmoid(nn.Conv(ly.exp, (1, 1), dtype=self.dtype,
-                                            name="se_expand")(s))
+            pw = dict(use_bias=True, impl=self.pw_impl, dtype=self.dtype)
+            s = jax.nn.relu(Pointwise(ly.se, name="se_reduce", **pw)(s))
+            s = jax.nn.hard_sigmoid(Pointwise(ly.exp, name="se_expand", **pw)(s))
             y = y * s
         y = ConvBN(ly.out, name="project", **kw)(y, train)
         return x + y if ly.residual else y
@@ -264,10 +306,11 @@ class MobileNetV3(nn.Module):
     momentum: float = 0.9
     dtype: Any = jnp.float32
     dw_impl: str = "auto"
+    pw_impl: str = "auto"
 
     @nn.compact
     def __call__(self, x: jax.Array, train: bool) -> tuple[jax.Array, jax.Array]:
-        kw = dict(momentum=self.momentum, dtype=self.dtype)
+        kw = dict(momentum=self.momentum, dtype=self.dtype, pw_impl=self.pw_impl)
         x = ConvBN(self.plan.stem, 3, 2, act="HS", name="stem", **kw)(x, train)
         low = x
         for i, layer in enumerate(self.plan.layers):
@@ -284,19 +327,20 @@ class LRASPP(nn.Module):
     channels: int = 128
     momentum: float = 0.9
     dtype: Any = jnp.float32
+    pw_impl: str = "auto"
 
     @nn.compact
     def __call__(self, low: jax.Array, high: jax.Array, train: bool) -> jax.Array:
         x = ConvBN(self.channels, act="RE", momentum=self.momentum, dtype=self.dtype,
-                   name="cbr")(high, train)
+                   pw_impl=self.pw_impl, name="cbr")(high, train)
         g = jnp.mean(high, axis=(1, 2), keepdims=True)
-        g = jax.nn.sigmoid(nn.Conv(self.channels, (1, 1), use_bias=False, dtype=self.dtype,
-                                   name="scale")(g))
+        pw = dict(impl=self.pw_impl, dtype=self.dtype)
+        g = jax.nn.sigmoid(Pointwise(self.channels, name="scale", **pw)(g))
         x = x * g
         b, h, w, _ = low.shape
         x = jax.image.resize(x, (b, h, w, x.shape[-1]), "bilinear")
-        return (nn.Conv(1, (1, 1), dtype=self.dtype, name="low_cls")(low)
-                + nn.Conv(1, (1, 1), dtype=self.dtype, name="high_cls")(x))
+        return (Pointwise(1, use_bias=True, name="low_cls", **pw)(low)
+                + Pointwise(1, use_bias=True, name="high_cls", **pw)(x))
 
 
 class SegNet(nn.Module):
@@ -315,6 +359,7 @@ class SegNet(nn.Module):
     momentum: float = 0.9
     dtype: str = "float32"  # compute dtype ("float32" or "bfloat16"); parameters stay float32
     dw_impl: str = "auto"  # depthwise conv: "auto" (shift on CPU, conv elsewhere), "conv", "shift"
+    pw_impl: str = "auto"  # 1×1 conv: "auto" (conv), "conv", "dot"
 
     def config(self) -> dict[str, Any]:
         """JSON-friendly attributes (`SegNet(**module.config())` rebuilds the module)."""
@@ -331,9 +376,9 @@ class SegNet(nn.Module):
         dt = jnp.dtype(self.dtype)
         x = (rgb.astype(jnp.float32) / 255.0 - jnp.array(MEAN)) / jnp.array(STD)
         kw = dict(momentum=self.momentum, dtype=dt)
-        low, high = MobileNetV3(self.resolved(), dw_impl=self.dw_impl, name="backbone",
-                                **kw)(x.astype(dt), train)
-        y = LRASPP(self.head_channels, name="head", **kw)(low, high, train)
+        low, high = MobileNetV3(self.resolved(), dw_impl=self.dw_impl, pw_impl=self.pw_impl,
+                                name="backbone", **kw)(x.astype(dt), train)
+        y = LRASPP(self.head_channels, pw_impl=self.pw_impl, name="head", **kw)(low, high, train)
         b, h, w, _ = rgb.shape
         y = jax.image.resize(y.astype(jnp.float32), (b, h, w, 1), "bilinear")
         return y[..., 0]
