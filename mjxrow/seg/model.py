@@ -169,10 +169,29 @@ def depthwise_shift(x: jax.Array, kernel: jax.Array, stride: int, dilation: int)
     return out
 
 
+def dilated_as_phases(x: jax.Array, dilation: int, conv) -> jax.Array:
+    """A stride-1 conv of dilation d as d² undilated convs on the input's phases.
+
+    Output pixel (q·d + r) of a dilated conv reads input pixels ≡ r (mod d) only, so the
+    input is split into its d × d phase images (padded with zeros to a multiple of d, which
+    the conv's own zero padding would have read), stacked on the batch axis, convolved by
+    `conv(x)` without dilation, and interleaved back. Same numbers as the dilated conv."""
+    d = dilation
+    b, h, w, c = x.shape
+    hp, wp = -(-h // d) * d, -(-w // d) * d
+    x = jnp.pad(x, ((0, 0), (0, hp - h), (0, wp - w), (0, 0)))
+    x = x.reshape(b, hp // d, d, wp // d, d, c).transpose(0, 2, 4, 1, 3, 5)
+    y = conv(x.reshape(b * d * d, hp // d, wp // d, c))
+    y = y.reshape(b, d, d, hp // d, wp // d, c).transpose(0, 3, 1, 4, 2, 5)
+    return y.reshape(b, hp, wp, c)[:, :h, :w]
+
+
 class DepthwiseConv(nn.Module):
     """Depthwise k×k conv without bias; parameter `kernel [k, k, 1, C]` exactly as `nn.Conv`.
 
-    impl: "conv" (grouped convolution), "shift" (`depthwise_shift`) or "auto" (shift on CPU)."""
+    impl: "conv" (grouped convolution), "shift" (`depthwise_shift`), "mixed" (shift for the
+    dilated convs, grouped convolution for the others), "phases" (grouped convolution, the
+    dilated ones as `dilated_as_phases`) or "auto" (`DW_AUTO` by backend)."""
 
     kernel_size: int
     stride: int = 1
@@ -185,17 +204,24 @@ class DepthwiseConv(nn.Module):
         k, c = self.kernel_size, x.shape[-1]
         kernel = self.param("kernel", nn.initializers.lecun_normal(), (k, k, 1, c), jnp.float32)
         x, kernel = x.astype(self.dtype), kernel.astype(self.dtype)
-        if _resolve(self.impl, DW_IMPLS, DW_AUTO, "depthwise") == "shift":
+        impl = _resolve(self.impl, DW_IMPLS, DW_AUTO, "depthwise")
+        dilated = self.dilation > 1
+        if impl == "shift" or (impl == "mixed" and dilated):
             return depthwise_shift(x, kernel, self.stride, self.dilation)
-        p = (k - 1) // 2 * self.dilation
-        return jax.lax.conv_general_dilated(
-            x, kernel, (self.stride, self.stride), ((p, p), (p, p)),
-            rhs_dilation=(self.dilation, self.dilation),
-            dimension_numbers=("NHWC", "HWIO", "NHWC"), feature_group_count=c)
+
+        def conv(x, d=1):
+            p = (k - 1) // 2 * d
+            return jax.lax.conv_general_dilated(
+                x, kernel, (self.stride, self.stride), ((p, p), (p, p)), rhs_dilation=(d, d),
+                dimension_numbers=("NHWC", "HWIO", "NHWC"), feature_group_count=c)
+
+        if impl == "phases" and dilated and self.stride == 1:
+            return dilated_as_phases(x, self.dilation, conv)
+        return conv(x, self.dilation)
 
 
 # implementations of the depthwise and the 1×1 convs; "auto" picks by backend
-DW_IMPLS, DW_AUTO = ("conv", "shift"), {"cpu": "shift", "other": "conv"}
+DW_IMPLS, DW_AUTO = ("conv", "shift", "mixed", "phases"), {"cpu": "shift", "other": "conv"}
 PW_IMPLS, PW_AUTO = ("conv", "dot"), {"cpu": "conv", "other": "conv"}
 
 
