@@ -50,7 +50,10 @@ def parse_sets(items: list[str]) -> dict:
             raise ValueError(f"--set {item!r}: expected KEY=VALUE with KEY one of "
                              f"{sorted(names)}")
         v = yaml.safe_load(val)
-        if v is not None and not isinstance(v, (bool, int, float)):
+        choices = RD.RenderConfig.CHOICES.get(key)
+        if choices and v not in choices + (None,):
+            raise ValueError(f"--set {item!r}: expected one of {', '.join(choices)} or null")
+        if not choices and v is not None and not isinstance(v, (bool, int, float)):
             raise ValueError(f"--set {item!r}: {val!r} is not a number, true, false or null")
         out[key] = v
     return out

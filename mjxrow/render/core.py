@@ -56,6 +56,7 @@ SHADOW_REACH = 60.0  # m, how far a shadow ray looks for a plant toward the sun
 # how the per-ray tests run: "scan" (XLA loops over groups of candidates; fastest on CPU),
 # "fused" (XLA, all candidates in one reduction), "pallas" (Triton kernels for the plant tests
 # and the terrain march; on CPU they run in Pallas' interpreter, for tests only)
+SETTLES = ("none", "barrier", "loop")  # RenderConfig.settle
 KERNELS = ("scan", "fused", "pallas")
 
 
@@ -99,10 +100,12 @@ class RenderConfig:
     obstacle_keep: int = 2  # of those, the ones per tile that its rays test (entered first)
     shadows: bool = True  # plants and obstacles cast sun shadows
     kernel: str | None = None  # how the per-ray tests run (KERNELS; None: `default_kernel`)
+    settle: str | None = None  # how the shading's per-pixel terms reach the colour channels
+    # (SETTLES; None: `default_settle`)
     near: float = 0.01  # m, nothing nearer the camera is drawn
     far: float = 150.0  # m, nothing further is drawn
 
-    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"kernel": KERNELS}
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"kernel": KERNELS, "settle": SETTLES}
 
     def __post_init__(self):
         for name in ("tile", "row_blocks", "block_keep", "keep", "deep_row_blocks",
@@ -121,6 +124,9 @@ class RenderConfig:
         if self.kernel is not None and self.kernel not in KERNELS:
             raise ValueError(f"render.kernel: one of {', '.join(KERNELS)} or None, got "
                              f"{self.kernel!r}")
+        if self.settle is not None and self.settle not in SETTLES:
+            raise ValueError(f"render.settle: one of {', '.join(SETTLES)} or None, got "
+                             f"{self.settle!r}")
         if not 0.0 < self.near < self.far:
             raise ValueError(f"render.near/far: need 0 < near < far, got {self.near}, {self.far}")
 
@@ -140,13 +146,22 @@ def default_tile(intr: Intrinsics) -> int:
     return int(np.clip(side, 4, 16))
 
 
-def _settle() -> bool:
-    """Whether the shading keeps its per-pixel terms in memory (`geom.materialise`) before the
-    colour channels and the image's layout use them. XLA fuses the whole shading into each
-    consumer element, so without it a pixel's textures, occlusion and sky are computed once per
-    channel, three times. On the CPU keeping them is 5-12 % faster per closed-loop step
-    (BENCHMARKS.md); on a GPU the default fusion stays."""
-    return jax.default_backend() == "cpu"
+def default_settle() -> str:
+    """How the shading's per-pixel terms (albedo, occlusion, sun, shadow; then the radiance)
+    reach the colour channels and the image's layout. XLA fuses the whole shading into each
+    consumer element, so left alone ("none") a pixel's textures, occlusion and sky are
+    computed once per channel, three times. "loop" keeps them in memory first
+    (`geom.materialise`): on the CPU 5-12 % faster per closed-loop step (BENCHMARKS.md).
+    "barrier" asks for the same with `lax.optimization_barrier`. GPUs: "none"."""
+    return "loop" if jax.default_backend() == "cpu" else "none"
+
+
+def _settle(tree, how: str):
+    if how == "loop":
+        return G.materialise(tree)
+    if how == "barrier":
+        return jax.lax.optimization_barrier(tree)
+    return tree
 
 
 def default_kernel(tile: int) -> str:
@@ -176,6 +191,8 @@ def resolve(cfg: RenderConfig, crop: str, intr: Intrinsics | None = None) -> Ren
         cfg = dataclasses.replace(cfg, tile=default_tile(intr) if intr is not None else 4)
     if cfg.kernel is None:
         cfg = dataclasses.replace(cfg, kernel=default_kernel(cfg.tile))
+    if cfg.settle is None:
+        cfg = dataclasses.replace(cfg, settle=default_settle())
     return cfg
 
 
@@ -427,9 +444,8 @@ def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax
                      0.0, 1.0)
     ao = jnp.where(cls == PLANT, 0.45 + 0.55 * jnp.sqrt(rel_h), _ground_occlusion(tab, p))
     sun = jnp.maximum(ndl, 0.0) + jnp.where(cls == PLANT, 0.3 * jnp.maximum(-ndl, 0.0), 0.0)
-    settle = _settle()
-    if settle:  # the per-pixel terms once into memory, not once per colour channel
-        albedo, ao, sun, vis = G.materialise((albedo, ao, sun, vis))
+    # the per-pixel terms once, not once per colour channel
+    albedo, ao, sun, vis = _settle((albedo, ao, sun, vis), cfg.settle)
     light = ao[:, None] * cond.ambient + (vis * sun)[:, None] * cond.sun_rgb
     radiance = albedo * light
     fog = 1.0 - jnp.exp(-t / cond.haze)
@@ -441,8 +457,7 @@ def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax
         k_exp, k_noise, k_wb = jax.random.split(key, 3)
         exposure = exposure * jnp.exp(0.15 * jax.random.normal(k_exp, ()))
         radiance = radiance * (1.0 + 0.03 * jax.random.normal(k_wb, (3,)))
-    if settle:
-        radiance = G.materialise(radiance)
+    radiance = _settle(radiance, cfg.settle)
     to_image = functools.partial(_image, tiles=tiles, intr=intr)
     img = to_image(jnp.clip(radiance * exposure, 0.0, 1.0) ** (1.0 / 2.2))  # [H, W, 3]
     if key is not None:

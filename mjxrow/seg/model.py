@@ -221,7 +221,7 @@ class DepthwiseConv(nn.Module):
 
 
 # implementations of the depthwise and the 1×1 convs; "auto" picks by backend
-DW_IMPLS, DW_AUTO = ("conv", "shift", "mixed", "phases"), {"cpu": "shift", "other": "conv"}
+DW_IMPLS, DW_AUTO = ("conv", "shift", "mixed", "phases"), {"cpu": "shift", "other": "phases"}
 PW_IMPLS, PW_AUTO = ("conv", "dot"), {"cpu": "conv", "other": "conv"}
 
 
