@@ -71,7 +71,8 @@ def main(argv: list[str] | None = None) -> None:
     x = jax.device_put(rgb)
     fns, compile_s, logits = {}, {}, {}
     for name, change in specs:
-        fn = jax.jit(lambda v, x, m=module.clone(**change): M.apply(m, v, x))
+        variant = module.clone(**change)
+        fn = jax.jit(lambda v, x, m=variant: M.apply(m, v, x))
         t0 = time.perf_counter()
         exe = fn.lower(variables, x).compile()
         compile_s[name] = time.perf_counter() - t0

@@ -278,6 +278,22 @@ def test_config_validates():
         RP.exact(None, jnp.zeros((2, 3), jnp.int32), jnp.zeros((2, 3)), (0.0,) * 3,
                  (0.0,) * 3, jnp.zeros((2, 9)), jnp.ones((2, 9)))
     assert dataclasses.replace(RD.DEFAULT_CONFIG, deep_keep=0).deep_keep == 0
+    with pytest.raises(ValueError, match="render.settle"):
+        RD.RenderConfig(settle="fuse")
+    assert RD.resolve(RD.DEFAULT_CONFIG, "pear").settle == "loop"  # the CPU's default
+    assert BR.parse_sets(["settle=barrier", "keep=8"]) == {"settle": "barrier", "keep": 8}
+    with pytest.raises(ValueError, match="'kernel=cuda'"):
+        BR.parse_sets(["kernel=cuda"])
+
+
+def test_settle_modes_draw_the_same_image():
+    shape, fields, pos, rot, conds = BR.worlds("zucchini", 2, 1)
+    intr = RD.Intrinsics(16, 16)
+    rgb = [np.asarray(jax.jit(jax.vmap(functools.partial(
+        RD.render, shape=shape, intr=intr, cfg=RD.RenderConfig(settle=mode))))(
+            fields, cam_pos=pos, cam_rot=rot, cond=conds).rgb)
+        for mode in RD.SETTLES]
+    assert all(np.array_equal(rgb[0], other) for other in rgb[1:])
 
 
 def test_obstacles_culled_per_tile_match_every_obstacle():

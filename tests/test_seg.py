@@ -108,6 +108,41 @@ def test_depthwise_shift_equals_grouped_conv():
         np.testing.assert_allclose(shift(x, kern, s, d), ref, atol=1e-5)
 
 
+def test_dilated_conv_as_phases_equals_dilated_conv():
+    rng = np.random.default_rng(2)
+    for (h, w), k, d in (((14, 14), 5, 2), ((13, 10), 3, 2), ((7, 11), 3, 3)):
+        x = jnp.asarray(rng.standard_normal((2, h, w, 4)), jnp.float32)
+        kern = jnp.asarray(rng.standard_normal((k, k, 1, 4)), jnp.float32)
+
+        def conv(x, d, k=k, kern=kern):
+            p = (k - 1) // 2 * d
+            return jax.lax.conv_general_dilated(x, kern, (1, 1), ((p, p), (p, p)),
+                                                rhs_dilation=(d, d),
+                                                dimension_numbers=("NHWC", "HWIO", "NHWC"),
+                                                feature_group_count=4)
+
+        got = M.dilated_as_phases(x, d, lambda y: conv(y, 1))
+        assert got.shape == (2, h, w, 4)
+        np.testing.assert_allclose(got, conv(x, d), atol=1e-5)
+
+
+def test_conv_implementations_agree_on_the_same_parameters():
+    """Every depthwise x 1x1 implementation computes the same logits from the same variables
+    (a checkpoint loads into any of them), dilated last stage included (output stride 8)."""
+    module, variables = M.create("tiny", 1.0, jax.random.key(3), (H, W), output_stride=8)
+    assert any(ly.dilation > 1 for ly in module.resolved().layers)
+    rgb, _ = blobs(2)
+    ref = M.apply(module.clone(dw_impl="conv", pw_impl="conv"), variables, rgb)
+    for dw, pw in itertools.product(M.DW_IMPLS, M.PW_IMPLS):
+        other = module.clone(dw_impl=dw, pw_impl=pw)
+        shapes = jax.tree.map(lambda a: a.shape, M.abstract_variables(other, (H, W)))
+        assert shapes == jax.tree.map(lambda a: a.shape, variables)
+        np.testing.assert_allclose(M.apply(other, variables, rgb), ref, atol=1e-4,
+                                   err_msg=f"{dw}:{pw}")
+    with pytest.raises(ValueError, match="depthwise: unknown implementation 'fft'"):
+        M.apply(module.clone(dw_impl="fft"), variables, rgb)
+
+
 def test_iou_and_bce_losses_hand_computed():
     # image 0: p = 0.5 everywhere, one plant pixel of 4: I = 0.5, U = 1 + 2 − 0.5 = 2.5
     # image 1: p = 0.75 everywhere, all plant: I = 3, U = 4 + 3 − 3 = 4

@@ -12,6 +12,7 @@ from mjxrow.render.core import (
     KERNELS,
     OBSTACLE,
     PLANT,
+    SETTLES,
     SKY,
     SKY_DEPTH,
     SOIL,
@@ -32,7 +33,8 @@ from mjxrow.render.core import (
     resolve,
 )
 
-__all__ = ["CONDITIONS", "DEFAULT_CONFIG", "KERNELS", "OBSTACLE", "PLANT", "SKY", "SKY_DEPTH",
+__all__ = ["CONDITIONS", "DEFAULT_CONFIG", "KERNELS", "OBSTACLE", "PLANT", "SETTLES", "SKY",
+           "SKY_DEPTH",
            "SOIL", "Conditions", "Frame", "Intrinsics", "PlantTable", "RenderConfig",
            "camera_rot", "condition_by_index", "conditions", "default_kernel", "default_tile",
            "geometry", "pixel_rays", "plant_table", "render", "resolve"]
