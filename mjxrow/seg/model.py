@@ -220,9 +220,12 @@ class DepthwiseConv(nn.Module):
         return conv(x, self.dilation)
 
 
-# implementations of the depthwise and the 1×1 convs; "auto" picks by backend
+# implementations of the depthwise and the 1×1 convs; "auto" picks by backend. On a GPU the
+# grouped convolutions of the dilated last stage were two thirds of the segmenter's time; as
+# phases the whole net runs 2× faster at 224 px. The 1×1 convs as matrix products: the same on
+# a GPU, 22 % faster on the CPU (BENCHMARKS.md, 2026-11-25 sixth round).
 DW_IMPLS, DW_AUTO = ("conv", "shift", "mixed", "phases"), {"cpu": "shift", "other": "phases"}
-PW_IMPLS, PW_AUTO = ("conv", "dot"), {"cpu": "conv", "other": "conv"}
+PW_IMPLS, PW_AUTO = ("conv", "dot"), {"cpu": "dot", "other": "dot"}
 
 
 def _resolve(impl: str, choices: tuple[str, ...], auto: dict[str, str], what: str) -> str:
@@ -384,8 +387,8 @@ class SegNet(nn.Module):
     head_channels: int = 128
     momentum: float = 0.9
     dtype: str = "float32"  # compute dtype ("float32" or "bfloat16"); parameters stay float32
-    dw_impl: str = "auto"  # depthwise conv: "auto" (shift on CPU, conv elsewhere), "conv", "shift"
-    pw_impl: str = "auto"  # 1×1 conv: "auto" (conv), "conv", "dot"
+    dw_impl: str = "auto"  # depthwise conv: "auto" (shift on CPU, phases elsewhere), DW_IMPLS
+    pw_impl: str = "auto"  # 1×1 conv: "auto" (dot), "conv", "dot"
 
     def config(self) -> dict[str, Any]:
         """JSON-friendly attributes (`SegNet(**module.config())` rebuilds the module)."""
