@@ -141,6 +141,12 @@ def test_conv_implementations_agree_on_the_same_parameters():
                                    err_msg=f"{dw}:{pw}")
     with pytest.raises(ValueError, match="depthwise: unknown implementation 'fft'"):
         M.apply(module.clone(dw_impl="fft"), variables, rgb)
+    from mjxrow.bench import closed_loop as CL
+
+    assert CL.seg_impl("phases:dot") == {"dw_impl": "phases", "pw_impl": "dot"}
+    for bad in ("phases", "phases:fft", "fft:dot"):
+        with pytest.raises(ValueError, match=f"--seg-impl '{bad}'"):
+            CL.seg_impl(bad)
 
 
 def test_iou_and_bce_losses_hand_computed():

@@ -47,8 +47,8 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seg-dtype", default="float32", choices=("float32", "bfloat16"),
                    help="the segmenter's compute dtype (weights stay float32)")
     p.add_argument("--seg-impl", default="auto:auto", metavar="DW:PW",
-                   help="the segmenter's depthwise (auto, conv, shift) and 1x1 (auto, conv, "
-                        "dot) conv implementations")
+                   help="the segmenter's depthwise (auto, conv, shift, mixed, phases) and 1x1 "
+                        "(auto, conv, dot) conv implementations")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="a key of the sweep YAML, e.g. --set sim.iterations=2 (repeatable)")
     p.add_argument("--repeats", type=int, default=3)

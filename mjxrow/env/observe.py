@@ -93,7 +93,7 @@ def _encoder(module):
     from mjxrow.seg import model as seg_model
 
     return seg_model.MobileNetV3(module.resolved(), dw_impl=module.dw_impl,
-                                 pw_impl=getattr(module, "pw_impl", "auto"),
+                                 pw_impl=module.pw_impl,
                                  momentum=module.momentum, dtype=jnp.dtype(module.dtype))
 
 

@@ -34,7 +34,6 @@ from mjxrow.render.core import (
 )
 
 __all__ = ["CONDITIONS", "DEFAULT_CONFIG", "KERNELS", "OBSTACLE", "PLANT", "SETTLES", "SKY",
-           "SKY_DEPTH",
-           "SOIL", "Conditions", "Frame", "Intrinsics", "PlantTable", "RenderConfig",
+           "SKY_DEPTH", "SOIL", "Conditions", "Frame", "Intrinsics", "PlantTable", "RenderConfig",
            "camera_rot", "condition_by_index", "conditions", "default_kernel", "default_tile",
            "geometry", "pixel_rays", "plant_table", "render", "resolve"]
