@@ -28,6 +28,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
 from mjxrow import bench  # noqa: E402
 from mjxrow.seg import checkpoint as ckpt  # noqa: E402
+from mjxrow.seg import convs as SC  # noqa: E402
 from mjxrow.seg import data as D  # noqa: E402
 from mjxrow.seg import model as M  # noqa: E402
 
@@ -39,9 +40,9 @@ DEFAULT = ("float32:conv:conv", "float32:conv:dot", "float32:mixed:dot", "float3
 def parse(spec: str) -> dict[str, str]:
     parts = spec.split(":")
     if (len(parts) != 3 or parts[0] not in ("float32", "bfloat16")
-            or parts[1] not in M.DW_IMPLS + ("auto",) or parts[2] not in M.PW_IMPLS + ("auto",)):
+            or parts[1] not in SC.DW_IMPLS + ("auto",) or parts[2] not in SC.PW_IMPLS + ("auto",)):
         raise SystemExit(f"--variants {spec!r}: expected DTYPE:DW:PW with DTYPE float32 or "
-                         f"bfloat16, DW one of {M.DW_IMPLS}, PW one of {M.PW_IMPLS}")
+                         f"bfloat16, DW one of {SC.DW_IMPLS}, PW one of {SC.PW_IMPLS}")
     return {"dtype": parts[0], "dw_impl": parts[1], "pw_impl": parts[2]}
 
 

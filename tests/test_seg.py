@@ -15,6 +15,7 @@ from PIL import Image
 
 from mjxrow import crops
 from mjxrow.seg import checkpoint as C
+from mjxrow.seg import convs as SC
 from mjxrow.seg import data as D
 from mjxrow.seg import eval as E
 from mjxrow.seg import model as M
@@ -97,7 +98,7 @@ def test_published_architecture_facts():
 def test_depthwise_shift_equals_grouped_conv():
     rng = np.random.default_rng(0)
     x = jnp.asarray(rng.standard_normal((2, 13, 16, 6)), jnp.float32)
-    shift = jax.jit(M.depthwise_shift, static_argnums=(2, 3))
+    shift = jax.jit(SC.depthwise_shift, static_argnums=(2, 3))
     for k, s, d in ((5, 2, 1), (3, 1, 2)):
         kern = jnp.asarray(rng.standard_normal((k, k, 1, 6)), jnp.float32)
         p = (k - 1) // 2 * d
@@ -121,7 +122,7 @@ def test_dilated_conv_as_phases_equals_dilated_conv():
                                                 dimension_numbers=("NHWC", "HWIO", "NHWC"),
                                                 feature_group_count=4)
 
-        got = M.dilated_as_phases(x, d, lambda y: conv(y, 1))
+        got = SC.dilated_as_phases(x, d, lambda y: conv(y, 1))
         assert got.shape == (2, h, w, 4)
         np.testing.assert_allclose(got, conv(x, d), atol=1e-5)
 
@@ -133,7 +134,7 @@ def test_conv_implementations_agree_on_the_same_parameters():
     assert any(ly.dilation > 1 for ly in module.resolved().layers)
     rgb, _ = blobs(2)
     ref = M.apply(module.clone(dw_impl="conv", pw_impl="conv"), variables, rgb)
-    for dw, pw in itertools.product(M.DW_IMPLS, M.PW_IMPLS):
+    for dw, pw in itertools.product(SC.DW_IMPLS, SC.PW_IMPLS):
         other = module.clone(dw_impl=dw, pw_impl=pw)
         shapes = jax.tree.map(lambda a: a.shape, M.abstract_variables(other, (H, W)))
         assert shapes == jax.tree.map(lambda a: a.shape, variables)

@@ -66,12 +66,12 @@ def run_config(args: argparse.Namespace) -> RunConfig:
 
 def seg_impl(spec: str) -> dict[str, str]:
     """`--seg-impl DW:PW` → SegNet attributes (ValueError naming a bad part)."""
-    from mjxrow.seg import model as M
+    from mjxrow.seg import convs as SC
 
     dw, sep, pw = spec.partition(":")
-    if not sep or dw not in ("auto",) + M.DW_IMPLS or pw not in ("auto",) + M.PW_IMPLS:
+    if not sep or dw not in ("auto",) + SC.DW_IMPLS or pw not in ("auto",) + SC.PW_IMPLS:
         raise ValueError(f"--seg-impl {spec!r}: expected DW:PW with DW one of auto, "
-                         f"{', '.join(M.DW_IMPLS)} and PW one of auto, {', '.join(M.PW_IMPLS)}")
+                         f"{', '.join(SC.DW_IMPLS)} and PW one of auto, {', '.join(SC.PW_IMPLS)}")
     return {"dw_impl": dw, "pw_impl": pw}
 
 

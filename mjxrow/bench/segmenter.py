@@ -14,6 +14,7 @@ import jax
 import numpy as np
 
 from mjxrow.bench import time_call
+from mjxrow.seg import convs as SC
 from mjxrow.seg import model as M
 
 SINGLE = ("small:1.0:224", "small:0.75:224", "small:0.5:224", "small:1.0:192", "small:1.0:160",
@@ -31,9 +32,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--batch", type=int, nargs="+", default=[256])
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"))
-    p.add_argument("--dw-impl", default="auto", choices=("auto",) + M.DW_IMPLS,
+    p.add_argument("--dw-impl", default="auto", choices=("auto",) + SC.DW_IMPLS,
                    help="depthwise conv implementation (auto: shift on CPU, phases elsewhere)")
-    p.add_argument("--pw-impl", default="auto", choices=("auto",) + M.PW_IMPLS,
+    p.add_argument("--pw-impl", default="auto", choices=("auto",) + SC.PW_IMPLS,
                    help="1x1 conv implementation (auto: dot)")
     p.add_argument("--ckpt", help="checkpoint folder or crop to time instead of random weights")
 
@@ -49,8 +50,8 @@ def _model(arch: str, width: float, size: int, args) -> tuple[M.SegNet, dict]:
 
 def _config(module: M.SegNet, size: int) -> str:
     back = "cpu" if jax.default_backend() == "cpu" else "other"
-    dw = module.dw_impl if module.dw_impl != "auto" else M.DW_AUTO[back]
-    pw = module.pw_impl if module.pw_impl != "auto" else M.PW_AUTO[back]
+    dw = module.dw_impl if module.dw_impl != "auto" else SC.DW_AUTO[back]
+    pw = module.pw_impl if module.pw_impl != "auto" else SC.PW_AUTO[back]
     return (f"MobileNetV3-{module.arch.capitalize()} w{module.width:g} + LR-ASPP, "
             f"{size}x{size}, {module.dtype}, dw {dw}, 1x1 {pw}")
 

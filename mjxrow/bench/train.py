@@ -14,6 +14,7 @@ import numpy as np
 
 from mjxrow.bench import time_call
 from mjxrow.field import CROPS
+from mjxrow.seg import convs as SC
 from mjxrow.seg import model as M
 from mjxrow.seg import train as T
 
@@ -27,7 +28,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--loss", default="iou", choices=tuple(T.LOSSES))
     p.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"))
-    p.add_argument("--dw-impl", default="auto", choices=("auto",) + M.DW_IMPLS)
+    p.add_argument("--dw-impl", default="auto", choices=("auto",) + SC.DW_IMPLS)
     p.add_argument("--on-the-fly", action="store_true", help="render each batch in the step")
     p.add_argument("--crop", default="zucchini", choices=(*CROPS, "all"))
 
