@@ -28,7 +28,10 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--loss", default="iou", choices=tuple(T.LOSSES))
     p.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"))
-    p.add_argument("--dw-impl", default="auto", choices=("auto",) + SC.DW_IMPLS)
+    p.add_argument("--dw-impl", default="auto", choices=("auto",) + SC.DW_IMPLS,
+                   help="depthwise conv implementation (auto: shift on CPU, phases elsewhere)")
+    p.add_argument("--pw-impl", default="auto", choices=("auto",) + SC.PW_IMPLS,
+                   help="1x1 conv implementation (auto: dot)")
     p.add_argument("--on-the-fly", action="store_true", help="render each batch in the step")
     p.add_argument("--crop", default="zucchini", choices=(*CROPS, "all"))
 
@@ -38,7 +41,7 @@ def run(args: argparse.Namespace) -> list[dict]:
     rng = np.random.default_rng(0)
     for size in args.size:
         module, variables = M.create(args.arch, args.width, 0, size, dtype=args.dtype,
-                                     dw_impl=args.dw_impl)
+                                     dw_impl=args.dw_impl, pw_impl=args.pw_impl)
         tx = T.make_optimizer(T.make_schedule(1e-3, 10_000, 100))
         for b in args.batch:
             state = T.init_state(variables, tx)
