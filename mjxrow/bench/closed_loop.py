@@ -78,9 +78,13 @@ def seg_impl(spec: str) -> dict[str, str]:
 def with_segmenter(built: B.Built, run: RunConfig, **changes: str) -> B.Built:
     """`built` whose segmenter module has `changes` (compute dtype, conv implementations);
     its weights, shared params, are unchanged."""
-    module, _ = (perception.load_segmenter(run.checkpoint_path(), run.preset)
-                 if built.base is not None else (None, None))
-    if module is None or all(getattr(module, k) == v for k, v in changes.items()):
+    if built.base is None:
+        return built
+    from mjxrow.seg import checkpoint as ckpt
+
+    module = ckpt.module_from_config(
+        ckpt.read_config(run.checkpoint_path() or run.preset)["model"])
+    if all(getattr(module, k) == v for k, v in changes.items()):
         return built
     policy = perception.perception_policy(run.controller.name, built.shape, run.camera,
                                           "learned", module.clone(**changes), run.render)

@@ -49,9 +49,7 @@ def _model(arch: str, width: float, size: int, args) -> tuple[M.SegNet, dict]:
 
 
 def _config(module: M.SegNet, size: int) -> str:
-    back = "cpu" if jax.default_backend() == "cpu" else "other"
-    dw = module.dw_impl if module.dw_impl != "auto" else SC.DW_AUTO[back]
-    pw = module.pw_impl if module.pw_impl != "auto" else SC.PW_AUTO[back]
+    dw, pw = SC.resolve(module.dw_impl, "depthwise"), SC.resolve(module.pw_impl, "pointwise")
     return (f"MobileNetV3-{module.arch.capitalize()} w{module.width:g} + LR-ASPP, "
             f"{size}x{size}, {module.dtype}, dw {dw}, 1x1 {pw}")
 

@@ -19,6 +19,7 @@ from mjxrow.field.params import (
     fit_shape,
     make_params,
     preset_shape,
+    stack_leaves,
     stack_params,
     validate,
 )
@@ -37,5 +38,5 @@ def __getattr__(name: str):
 
 __all__ = ["BRANCH", "HEADLAND", "LANE_CLEARANCE", "PARAM_NAMES", "ROBOT_WIDTH", "STONE",
            "Field", "FieldParams", "FieldShape", "array_namespace", "checks", "fit_shape",
-           "generate", "make_params", "preset_shape", "robot_lane", "stack_params", "terrain_axes",
-           "terrain_height", "validate"]
+           "generate", "make_params", "preset_shape", "robot_lane", "stack_leaves", "stack_params",
+           "terrain_axes", "terrain_height", "validate"]

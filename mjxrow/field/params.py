@@ -134,7 +134,15 @@ def make_params(preset: str = "zucchini", *, host: bool = False, **overrides: An
 
 def stack_params(params: list[FieldParams]) -> FieldParams:
     """[FieldParams] → one FieldParams with a leading [B] axis (numpy if all are numpy)."""
-    return jax.tree.map(lambda *xs: array_namespace(*xs).stack(xs), *params)
+    return jax.tree.map(lambda *xs: stack_leaves(xs), *params)
+
+
+def stack_leaves(xs: Any) -> Any:
+    """Leaves → one array with a leading [N] axis: numpy when all are host values (numbers,
+    numpy), so that a batch's parameters reach the device in one transfer with no program
+    compiled for the stacking; jnp otherwise (`array_namespace`)."""
+    xp = array_namespace(*xs)
+    return xp.stack([xp.asarray(x) for x in xs])
 
 
 def array_namespace(*xs: Any):

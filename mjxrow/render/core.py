@@ -56,8 +56,8 @@ SHADOW_REACH = 60.0  # m, how far a shadow ray looks for a plant toward the sun
 # how the per-ray tests run: "scan" (XLA loops over groups of candidates; fastest on CPU),
 # "fused" (XLA, all candidates in one reduction), "pallas" (Triton kernels for the plant tests
 # and the terrain march; on CPU they run in Pallas' interpreter, for tests only)
-SETTLES = ("none", "barrier", "loop")  # RenderConfig.settle
 KERNELS = ("scan", "fused", "pallas")
+SETTLES = ("none", "barrier", "loop")  # RenderConfig.settle (`default_settle`)
 
 
 @dataclasses.dataclass(frozen=True)

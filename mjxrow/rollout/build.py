@@ -53,12 +53,17 @@ def split_keys(keys: jax.Array) -> tuple[jax.Array, jax.Array]:
 
 def batch_keys(seeds: Sequence[int], episodes: Sequence[int]) -> tuple[jax.Array, jax.Array]:
     """(field keys [N], rollout keys [N]) of episode `episodes[n]` of a run of seed
-    `seeds[n]`: split_keys of episode_keys, in one program per batch size when the seeds are
-    equal (a sweep's are)."""
-    if len(set(seeds)) == 1:
-        return _split_fn()(int(seeds[0]), np.asarray(episodes, np.uint32))
-    return split_keys(jnp.concatenate([episode_keys(s, [e])
-                                       for s, e in zip(seeds, episodes, strict=True)]))
+    `seeds[n]`: split_keys of episode_keys, one call per distinct seed (a sweep has one)."""
+    seeds, episodes = np.asarray(seeds, np.int64), np.asarray(episodes, np.uint32)
+    if len(seeds) != len(episodes):
+        raise ValueError(f"batch_keys: {len(seeds)} seeds for {len(episodes)} episodes")
+    distinct = np.unique(seeds)
+    if len(distinct) == 1:
+        return _split_fn()(int(distinct[0]), episodes)
+    order = np.argsort(seeds, kind="stable")  # episodes grouped by seed, then put back
+    parts = [_split_fn()(int(s), episodes[order][seeds[order] == s]) for s in distinct]
+    back = np.argsort(order)
+    return tuple(jnp.concatenate([p[i] for p in parts])[back] for i in (0, 1))
 
 
 def _fold(seed: int, episodes: jax.Array) -> jax.Array:
@@ -78,7 +83,6 @@ def _split_fn():
     return jax.jit(lambda seed, i: split_keys(_fold(seed, i)), static_argnums=0)
 
 
-@functools.lru_cache(maxsize=1)
 @functools.lru_cache(maxsize=4)
 def lanes_fn(mode: str):
     """jit(vmap(field.robot_lane)) for one lane choice (`sim.lane`): fields [B] → int32 [B]."""
@@ -104,8 +108,9 @@ def generate_fn():
 
 
 def stack(trees: Sequence[Any]) -> Any:
-    """Pytrees → one pytree with a leading [N] axis (E.stack_leaves: numpy for host leaves)."""
-    return jax.tree.map(lambda *xs: E.stack_leaves(xs), *trees)
+    """Pytrees → one pytree with a leading [N] axis (field.stack_leaves: numpy for host
+    leaves)."""
+    return jax.tree.map(lambda *xs: F.stack_leaves(xs), *trees)
 
 
 def fit_shape(runs: Sequence[RunConfig]) -> F.FieldShape:

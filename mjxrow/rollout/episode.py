@@ -30,7 +30,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import jax
@@ -349,16 +348,8 @@ def stack_params(trees: list, params_axes: Any = 0) -> Any:
     for i, axis in enumerate(leaves):
         parts = [c[i] for c in cut]
         out.append(parts[0] if axis is None else jax.tree.map(
-            lambda *xs: stack_leaves(xs), *parts))
+            lambda *xs: F.stack_leaves(xs), *parts))
     return treedef.unflatten(out)
-
-
-def stack_leaves(xs: Sequence[Any]) -> Any:
-    """Leaves → one array with a leading [N] axis: numpy when all are host values (numbers,
-    numpy), so that a batch's parameters reach the device in one transfer with no program
-    compiled for the stacking; jnp otherwise (field.array_namespace)."""
-    xp = F.array_namespace(*xs)
-    return xp.stack([xp.asarray(x) for x in xs])
 
 
 def batch_noise(noise: sim.PoseNoise | None, batch: int) -> sim.PoseNoise:

@@ -84,7 +84,7 @@ class DepthwiseConv(nn.Module):
         k, c = self.kernel_size, x.shape[-1]
         kernel = self.param("kernel", nn.initializers.lecun_normal(), (k, k, 1, c), jnp.float32)
         x, kernel = x.astype(self.dtype), kernel.astype(self.dtype)
-        impl = _resolve(self.impl, DW_IMPLS, DW_AUTO, "depthwise")
+        impl = resolve(self.impl, "depthwise")
         dilated = self.dilation > 1
         if impl == "shift" or (impl == "mixed" and dilated):
             return depthwise_shift(x, kernel, self.stride, self.dilation)
@@ -100,8 +100,10 @@ class DepthwiseConv(nn.Module):
         return conv(x, self.dilation)
 
 
-def _resolve(impl: str, choices: tuple[str, ...], auto: dict[str, str], what: str) -> str:
-    """An implementation name; "auto" resolved by the default backend (`auto`)."""
+def resolve(impl: str, what: str) -> str:
+    """The implementation `impl` of the "depthwise" or "pointwise" conv names, "auto"
+    resolved by the default backend (`DW_AUTO`, `PW_AUTO`); ValueError for an unknown one."""
+    choices, auto = (DW_IMPLS, DW_AUTO) if what == "depthwise" else (PW_IMPLS, PW_AUTO)
     if impl == "auto":
         return auto["cpu" if jax.default_backend() == "cpu" else "other"]
     if impl not in choices:
@@ -127,7 +129,7 @@ class Pointwise(nn.Module):
         kernel = self.param("kernel", nn.initializers.lecun_normal(),
                             (1, 1, cin, self.features), jnp.float32)
         x, kernel = x.astype(self.dtype), kernel.astype(self.dtype)
-        if _resolve(self.impl, PW_IMPLS, PW_AUTO, "pointwise") == "dot":
+        if resolve(self.impl, "pointwise") == "dot":
             y = jax.lax.dot_general(x, kernel[0, 0], (((x.ndim - 1,), (0,)), ((), ())))
         else:
             y = jax.lax.conv_general_dilated(x, kernel, (1, 1), ((0, 0), (0, 0)),
