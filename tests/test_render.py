@@ -17,8 +17,10 @@ import pytest
 from mjxrow import crops
 from mjxrow import field as F
 from mjxrow import render as RD
+from mjxrow.crops import prims as PL
 from mjxrow.field import export as WD
 from mjxrow.render import geom as G
+from mjxrow.render import shade as S
 from mjxrow.render import terrain as T
 
 H, W = 48, 64
@@ -312,3 +314,97 @@ def test_terrain_eval_matches_field():
     h, _, _ = T.terrain_eval(fld.terrain, fld.terrain_size, x, y)
     ref = F.terrain_height(fld.terrain, fld.terrain_size, x, y)
     assert np.allclose(np.asarray(h), np.asarray(ref), atol=1e-5)
+
+
+# The textures as they were written first, one class at a time (every pixel evaluated every
+# class's noises): `shade.surfaces` evaluates six noise slots per pixel and must give the same.
+def _fbm2(x, y, octaves, seed):
+    total, amp, norm = 0.0, 1.0, 0.0
+    for o in range(octaves):
+        total = total + amp * S.value_noise2(x, y, seed + 17 * o)
+        norm += amp
+        x, y = 2.03 * x + 5.1, 2.03 * y - 3.7
+        amp *= 0.5
+    return total / norm
+
+
+def _reference_surfaces(crop, cls, material, p, local, phase, plant, k, is_branch, normal, d,
+                        cond):
+    lin = lambda rgb: jnp.asarray(rgb, jnp.float32) ** 2.2  # noqa: E731
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    patches = _fbm2(x * 0.45, y * 0.45, 3, seed=1)
+    clods = S.value_noise2(x * 9.0, y * 9.0, seed=2)
+    grit = S.value_noise2(x * 40.0, y * 40.0, seed=3)
+    f = (0.62 + 0.75 * patches) * (0.82 + 0.36 * clods) * (0.9 + 0.2 * grit)
+    warm = 1.0 + 0.10 * (patches - 0.5)[:, None] * jnp.array([1.0, 0.2, -0.8])
+    a_soil = lin((0.43, 0.32, 0.22)) * cond.soil_tint * f[:, None] * warm
+
+    spec = crops.get(crop)
+    base = lin(spec.palette)[material]
+    per_plant = 0.80 + 0.40 * phase
+    yellow = 1.0 + 0.18 * (phase - 0.5)[:, None] * jnp.array([1.0, 0.3, -1.0])
+    per_prim = 0.85 + 0.30 * S.hash01(plant, k, seed=5)
+    mottle = S.value_noise2(14.0 * (x + z), 14.0 * (y - 0.7 * z), seed=6)
+    u0, u1 = local[:, 0], local[:, 1]
+    midrib = jnp.exp(-((u1 / 0.07) ** 2)) * (u0 > -0.9)
+    lateral = jnp.clip((jnp.cos(2 * jnp.pi * (3.5 * u0 - 2.2 * jnp.abs(u1))) - 0.8) * 5, 0, 1)
+    veins = jnp.clip(midrib + 0.6 * lateral * (jnp.abs(u1) < 0.8), 0, 1)
+    rim = jnp.clip((u0 * u0 + u1 * u1 - 0.55) * 2.5, 0, 1)
+    f_leaf = (0.8 + 0.4 * mottle) * (1.0 + 0.45 * veins) * (1.0 - 0.25 * rim)
+    if spec.silver_leaf:
+        silver = jnp.clip((S.value_noise2(30 * x, 30 * y, seed=7) - 0.62) * 4, 0, 1)
+        f_leaf = f_leaf + 0.6 * silver
+    clumps = _fbm2(9.0 * (x + 0.5 * z), 9.0 * (y - 0.5 * z), 2, seed=9)
+    f_canopy = 0.55 + 0.9 * clumps * (0.8 + 0.4 * mottle)
+    f_trunk = 0.7 + 0.6 * S.value_noise2(40.0 * (x + y), 3.0 * z, seed=10)
+    fine = jnp.where(material == PL.LEAF, f_leaf,
+                     jnp.where(material == PL.CANOPY, f_canopy,
+                               jnp.where(material == PL.TRUNK, f_trunk, 0.8 + 0.4 * mottle)))
+    a_plant = base * cond.leaf_tint * yellow * (per_plant * per_prim * fine)[:, None]
+    s = 12.0
+    bump = jnp.stack([S.value_noise2(s * (x + z), s * y, seed=12),
+                      S.value_noise2(s * (y + z), s * x, seed=13),
+                      S.value_noise2(s * (x - y), s * z, seed=14)], -1) - 0.5
+    m = normal + jnp.where(material == PL.CANOPY, 1.1, 0.35)[:, None] * bump
+    bumped = m / jnp.maximum(jnp.linalg.norm(m, axis=-1, keepdims=True), 1e-6)
+
+    n_obst = 0.8 + 0.4 * S.value_noise2(25 * x + 3 * z, 25 * y, seed=8)
+    a_obst = jnp.where(is_branch[:, None], lin((0.42, 0.31, 0.20)),
+                       lin((0.55, 0.53, 0.50))) * n_obst[:, None]
+
+    h = jnp.maximum(d[:, 2], 0.03)
+    clouds = _fbm2(1.7 * (d[:, 0] / h), 1.7 * (d[:, 1] / h), 4, seed=11)
+    is_plant = (cls == S.PLANT)[:, None]
+    albedo = jnp.where(is_plant, a_plant,
+                       jnp.where((cls == S.OBSTACLE)[:, None], a_obst, a_soil))
+    return albedo, jnp.where(is_plant, bumped, normal), S._sky(d, cond, clouds)
+
+
+@pytest.mark.parametrize("crop", ["zucchini", "pear"])
+def test_surfaces_from_noise_slots_match_each_class_textures(crop):
+    n = 3000
+    ks = jax.random.split(jax.random.key(7), 9)
+    unit = lambda kk: (lambda v: v / jnp.linalg.norm(v, axis=-1, keepdims=True))(  # noqa: E731
+        jax.random.normal(kk, (n, 3)))
+    args = (jax.random.randint(ks[0], (n,), 0, 4),  # cls
+            jax.random.randint(ks[1], (n,), 0, 5),  # material
+            jax.random.uniform(ks[2], (n, 3), minval=-12.0, maxval=12.0),  # p
+            jax.random.uniform(ks[3], (n, 3), minval=-1.2, maxval=1.2),  # local
+            jax.random.uniform(ks[4], (n,)),  # phase
+            jax.random.randint(ks[5], (n,), 0, 400),  # plant
+            jax.random.randint(ks[6], (n,), 0, 30),  # k
+            jax.random.bernoulli(ks[7], 0.5, (n,)),  # is_branch
+            unit(ks[8]), unit(jax.random.fold_in(ks[8], 1)))  # normal, view direction
+    cond = RD.conditions("sunny", jax.random.key(3))
+    got = jax.jit(functools.partial(S.surfaces, crop))(*args, cond)
+    want = jax.jit(functools.partial(_reference_surfaces, crop))(*args, cond)
+    cls = np.asarray(args[0])
+    for name, g, w, rows in (("albedo", got[0], want[0], cls != S.SKY),
+                             ("normal", got[1], want[1], slice(None)),
+                             ("sky", got[2], want[2], cls == S.SKY)):
+        np.testing.assert_allclose(np.asarray(g)[rows], np.asarray(w)[rows], rtol=2e-6,
+                                   atol=1e-7, err_msg=name)
+    # and kept in memory (the CPU's `settle`), the same numbers
+    kept = jax.jit(functools.partial(S.surfaces, crop, keep=G.materialise))(*args, cond)
+    for g, w in zip(got, kept, strict=True):
+        np.testing.assert_allclose(np.asarray(g), np.asarray(w), rtol=2e-6, atol=1e-7)

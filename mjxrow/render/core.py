@@ -43,13 +43,21 @@ from mjxrow.render import shade as S
 from mjxrow.render import terrain as T
 from mjxrow.render import tiles as RT
 from mjxrow.render.geom import PlantTable, plant_table
-from mjxrow.render.shade import CONDITIONS, Conditions, condition_by_index, conditions
+from mjxrow.render.shade import (
+    CONDITIONS,
+    OBSTACLE,
+    PLANT,
+    SKY,
+    SOIL,
+    Conditions,
+    condition_by_index,
+    conditions,
+)
 
 __all__ = ["CONDITIONS", "DEFAULT_CONFIG", "Conditions", "Frame", "Intrinsics", "PlantTable",
            "RenderConfig", "SKY_DEPTH", "geometry", "plant_table",
            "camera_rot", "condition_by_index", "conditions", "render"]
 
-SKY, SOIL, PLANT, OBSTACLE = 0, 1, 2, 3
 INF = jnp.inf
 SKY_DEPTH = 1000.0  # m, depth of sky pixels (finite, larger than any field)
 SHADOW_REACH = 60.0  # m, how far a shadow ray looks for a plant toward the sun
@@ -429,15 +437,11 @@ def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax
         vis = (_shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, tiles[0] * tiles[1])
                if cfg.shadows else jnp.ones_like(t))
 
-    # albedo
     material = jnp.asarray(tab.material)[k]
     phase = tab.base[plant, 2]
-    a_plant = S.plant_albedo(shape.crop, material, p, local, phase, plant, k, cond)
-    normal = jnp.where((cls == PLANT)[:, None], S.leaf_normal(normal, p, material), normal)
-    a_soil = S.soil_albedo(p, cond)
-    a_obst = S.obstacle_albedo(is_branch, p)
-    albedo = jnp.where((cls == PLANT)[:, None], a_plant,
-                       jnp.where((cls == OBSTACLE)[:, None], a_obst, a_soil))
+    albedo, normal, sky = S.surfaces(shape.crop, cls, material, p, local, phase, plant, k,
+                                     is_branch, normal, d, cond,
+                                     keep=functools.partial(_settle, how=cfg.settle))
     # light: sky ambient (occluded near plants and under canopies) + sun (shadowed)
     ndl = jnp.sum(normal * cond.sun_dir, -1)
     rel_h = jnp.clip((p[:, 2] - tab.base[plant, 0]) / jnp.maximum(tab.base[plant, 1], 1e-3),
@@ -450,7 +454,7 @@ def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax
     radiance = albedo * light
     fog = 1.0 - jnp.exp(-t / cond.haze)
     radiance = radiance + (cond.sky_horizon - radiance) * fog[:, None]
-    radiance = jnp.where((cls == SKY)[:, None], S.sky(d, cond), radiance)
+    radiance = jnp.where((cls == SKY)[:, None], sky, radiance)
 
     exposure = cond.exposure
     if key is not None:

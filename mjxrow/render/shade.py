@@ -97,8 +97,11 @@ def condition_by_index(index: jax.Array, key: jax.Array | None = None) -> Condit
 # Value noise (integer hash; identical on CPU and GPU)
 
 
-def _hash(*ints: jax.Array, seed: int = 0) -> jax.Array:
-    h = jnp.uint32((0x9E3779B9 + 0x632BE5AB * seed) & 0xFFFFFFFF)
+def _hash(*ints: jax.Array, seed: int | jax.Array = 0) -> jax.Array:
+    if isinstance(seed, int):
+        h = jnp.uint32((0x9E3779B9 + 0x632BE5AB * seed) & 0xFFFFFFFF)
+    else:  # a seed per element: the same start state, modulo 2**32
+        h = jnp.uint32(0x9E3779B9) + jnp.uint32(0x632BE5AB) * jnp.asarray(seed).astype(jnp.uint32)
     for i, x in enumerate(ints):
         x = (x + (1 << 22)).astype(jnp.uint32)
         h = (h ^ (x * jnp.uint32((0x85EBCA77, 0xC2B2AE3D, 0x27D4EB2F)[i]))) * jnp.uint32(0x165667B1)
@@ -114,8 +117,9 @@ def hash01(*ints: jax.Array, seed: int = 0) -> jax.Array:
     return _hash(*(jnp.asarray(x, jnp.int32) for x in ints), seed=seed)
 
 
-def value_noise2(x: jax.Array, y: jax.Array, seed: int = 0) -> jax.Array:
-    """Smooth value noise in [0, 1) with unit lattice spacing."""
+def value_noise2(x: jax.Array, y: jax.Array, seed: int | jax.Array = 0) -> jax.Array:
+    """Smooth value noise in [0, 1) with unit lattice spacing (seed: an int, or an int array
+    of x's shape, a seed per element)."""
     fx, fy = jnp.floor(x), jnp.floor(y)
     ix, iy = fx.astype(jnp.int32), fy.astype(jnp.int32)
     u, v = x - fx, y - fy
@@ -123,17 +127,6 @@ def value_noise2(x: jax.Array, y: jax.Array, seed: int = 0) -> jax.Array:
     a, b = _hash(ix, iy, seed=seed), _hash(ix + 1, iy, seed=seed)
     c, d = _hash(ix, iy + 1, seed=seed), _hash(ix + 1, iy + 1, seed=seed)
     return a + (b - a) * u + (c - a) * v + (a - b - c + d) * u * v
-
-
-def fbm2(x: jax.Array, y: jax.Array, octaves: int, seed: int = 0) -> jax.Array:
-    """Sum of `octaves` value-noise octaves (lacunarity 2, gain 0.5), normalised to [0, 1)."""
-    total, amp, norm = 0.0, 1.0, 0.0
-    for o in range(octaves):
-        total = total + amp * value_noise2(x, y, seed + 17 * o)
-        norm += amp
-        x, y = 2.03 * x + 5.1, 2.03 * y - 3.7
-        amp *= 0.5
-    return total / norm
 
 
 # ---------------------------------------------------------------------------------------------
@@ -147,33 +140,109 @@ def _lin(rgb) -> jax.Array:
     return jnp.asarray(rgb, jnp.float32) ** 2.2
 
 
-def soil_albedo(p: jax.Array, cond: Conditions) -> jax.Array:
-    """Soil albedo (linear) at world points p [N, 3]: large damp/dry patches, clods, grit."""
-    x, y = p[:, 0], p[:, 1]
-    patches = fbm2(x * 0.45, y * 0.45, 3, seed=1)
-    clods = value_noise2(x * 9.0, y * 9.0, seed=2)
-    grit = value_noise2(x * 40.0, y * 40.0, seed=3)
+SKY, SOIL, PLANT, OBSTACLE = 0, 1, 2, 3  # pixel classes (`Frame.classes`)
+
+# Every pixel's textures come from NOISE_SLOTS value noises, evaluated once per pixel at the
+# lattice coordinates and seeds its class asks for: a plant its material's one or two (mottle
+# or bark; pale patches or the canopy's clumps, whose second octave takes a third slot) and
+# three for its bumped normal, soil five, sky four (clouds), obstacles one. Evaluating every
+# class's textures and then picking one would take 18 noises (72 hashes) a pixel, and XLA
+# would compute them once per colour channel; this takes 6 (24 hashes), kept in memory by
+# `surfaces`' `keep` before any colour is formed.
+NOISE_SLOTS = 6
+
+
+def _octaves(values) -> jax.Array:
+    """fBm of the octave noises `values` (gain 0.5), normalised to [0, 1)."""
+    total, amp, norm = 0.0, 1.0, 0.0
+    for v in values:
+        total = total + amp * v
+        norm += amp
+        amp *= 0.5
+    return total / norm
+
+
+def _octave_inputs(x, y, octaves: int, seed: int) -> list:
+    """(x, y, seed) of each of `octaves` value-noise octaves (lacunarity 2.03) from (x, y)."""
+    out = []
+    for o in range(octaves):
+        out.append((x, y, seed + 17 * o))
+        x, y = 2.03 * x + 5.1, 2.03 * y - 3.7
+    return out
+
+
+def _noise_inputs(crop: str, cls, material, p, d):
+    """Lattice coordinates and seeds of the NOISE_SLOTS noises of each pixel: three int/float
+    arrays [NOISE_SLOTS, N] (x, y, seed)."""
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    zero = jnp.zeros_like(x)
+    pad = (zero, zero, 0)
+
+    def pick(c, a, b):
+        return tuple(jnp.where(c, u, v) for u, v in zip(a, b, strict=True))
+
+    h = jnp.maximum(d[:, 2], 0.03)  # clouds on a plane 1 unit above: coordinates d_xy / d_z
+    sky = _octave_inputs(1.7 * (d[:, 0] / h), 1.7 * (d[:, 1] / h), 4, 11)
+    soil = _octave_inputs(x * 0.45, y * 0.45, 3, 1) + [(x * 9.0, y * 9.0, 2),
+                                                       (x * 40.0, y * 40.0, 3)]
+    obstacle = [(25 * x + 3 * z, 25 * y, 8)]
+    mottle = (14.0 * (x + z), 14.0 * (y - 0.7 * z), 6)
+    bark = (40.0 * (x + y), 3.0 * z, 10)
+    silver = (30 * x, 30 * y, 7) if crops.get(crop).silver_leaf else pad
+    clumps = _octave_inputs(9.0 * (x + 0.5 * z), 9.0 * (y - 0.5 * z), 2, 9)
+    s = 12.0
+    bumps = [(s * (x + z), s * y, 12), (s * (y + z), s * x, 13), (s * (x - y), s * z, 14)]
+    canopy = material == PL.CANOPY
+    plant = [pick(material == PL.TRUNK, bark, mottle), pick(canopy, clumps[0], silver),
+             pick(canopy, clumps[1], pad)] + bumps
+    by_class = {SKY: sky, SOIL: soil, PLANT: plant, OBSTACLE: obstacle}
+    slots = []
+    for i in range(NOISE_SLOTS):
+        out = pad
+        for c, inputs in by_class.items():
+            if i < len(inputs):
+                out = pick(cls == c, inputs[i], out)
+        slots.append(tuple(jnp.broadcast_to(jnp.asarray(u), x.shape) for u in out))
+    return tuple(jnp.stack(u) for u in zip(*slots, strict=True))
+
+
+def surfaces(crop: str, cls: jax.Array, material: jax.Array, p: jax.Array, local: jax.Array,
+             phase: jax.Array, plant: jax.Array, k: jax.Array, is_branch: jax.Array,
+             normal: jax.Array, d: jax.Array, cond: Conditions, keep=lambda x: x):
+    """Albedo (linear) [N, 3], shading normal [N, 3] and sky radiance [N, 3] of the pixels.
+
+    cls [N]: their class; p [N, 3] the hit points; for plant pixels material, plant, k [N] ints
+    (the primitive's material, plant and primitive index), local [N, 3] the point in the
+    primitive's frame, phase [N] the plant's phase; is_branch [N] for obstacle pixels; normal
+    [N, 3] the geometric normals; d [N, 3] the unit view directions. `keep(tree)` is applied to
+    the per-pixel noises before they reach the colour channels (`render.core._settle`).
+
+    - soil: large damp/dry patches, clods, grit;
+    - plants: the crop's material colour (`Crop.palette`), varied per plant (phase) and per
+      primitive, leaf veins (a pale midrib along the leaf's long axis and lateral veins), pale
+      patches on the blades of crops with `Crop.silver_leaf`, clumps of foliage on canopies,
+      bark streaks on trunks; normals perturbed by value noise (stronger on canopies);
+    - obstacles: stone or branch colour with a streaky noise;
+    - sky: zenith-horizon gradient, sun disk and glow, a cloud layer textured with value noise.
+    """
+    nx, ny, seed = _noise_inputs(crop, cls, material, p, d)
+    v = value_noise2(nx, ny, seed=seed)  # [NOISE_SLOTS, N]
+    per_prim = 0.85 + 0.30 * hash01(plant, k, seed=5)
+    v, per_prim = keep((v, per_prim))
+
+    # soil
+    patches, clods, grit = _octaves(v[0:3]), v[3], v[4]
     f = (0.62 + 0.75 * patches) * (0.82 + 0.36 * clods) * (0.9 + 0.2 * grit)
     warm = 1.0 + 0.10 * (patches - 0.5)[:, None] * jnp.array([1.0, 0.2, -0.8])
-    return _lin(_SOIL) * cond.soil_tint * f[:, None] * warm
+    a_soil = _lin(_SOIL) * cond.soil_tint * f[:, None] * warm
 
-
-def plant_albedo(crop: str, material: jax.Array, p: jax.Array, local: jax.Array,
-                 phase: jax.Array, plant: jax.Array, k: jax.Array,
-                 cond: Conditions) -> jax.Array:
-    """Plant albedo (linear) at hit points p [N, 3] (local [N, 3]: the point in its primitive's
-    frame): the crop's material colour (`Crop.palette`), varied per plant (phase [N]) and per
-    primitive (plant, k [N] ints), leaf veins (a pale midrib along the leaf's long axis and
-    lateral veins), pale patches on the blades of crops with `Crop.silver_leaf`, clumps of
-    foliage on canopies, bark streaks on trunks."""
+    # plants
     spec = crops.get(crop)
     pal = _lin(spec.palette)  # [5, 3]
     base = pal[material]
     per_plant = 0.80 + 0.40 * phase
     yellow = 1.0 + 0.18 * (phase - 0.5)[:, None] * jnp.array([1.0, 0.3, -1.0])
-    per_prim = 0.85 + 0.30 * hash01(plant, k, seed=5)
-    x, y, z = p[:, 0], p[:, 1], p[:, 2]
-    mottle = value_noise2(14.0 * (x + z), 14.0 * (y - 0.7 * z), seed=6)
+    mottle = bark = v[0]
     leaf = material == PL.LEAF
     u0, u1 = local[:, 0], local[:, 1]
     midrib = jnp.exp(-((u1 / 0.07) ** 2)) * (u0 > -0.9)
@@ -182,47 +251,34 @@ def plant_albedo(crop: str, material: jax.Array, p: jax.Array, local: jax.Array,
     rim = jnp.clip((u0 * u0 + u1 * u1 - 0.55) * 2.5, 0, 1)  # darker towards the blade's edge
     f_leaf = (0.8 + 0.4 * mottle) * (1.0 + 0.45 * veins) * (1.0 - 0.25 * rim)
     if spec.silver_leaf:  # pale mottled patches on the blades
-        silver = jnp.clip((value_noise2(30 * x, 30 * y, seed=7) - 0.62) * 4, 0, 1)
-        f_leaf = f_leaf + 0.6 * silver
-    clumps = fbm2(9.0 * (x + 0.5 * z), 9.0 * (y - 0.5 * z), 2, seed=9)
-    f_canopy = 0.55 + 0.9 * clumps * (0.8 + 0.4 * mottle)
-    bark = value_noise2(40.0 * (x + y), 3.0 * z, seed=10)
+        f_leaf = f_leaf + 0.6 * jnp.clip((v[1] - 0.62) * 4, 0, 1)
+    f_canopy = 0.55 + 0.9 * _octaves(v[1:3]) * (0.8 + 0.4 * mottle)
     f_trunk = 0.7 + 0.6 * bark
     fine = jnp.where(leaf, f_leaf, jnp.where(material == PL.CANOPY, f_canopy,
                                               jnp.where(material == PL.TRUNK, f_trunk,
                                                         0.8 + 0.4 * mottle)))
-    f = (per_plant * per_prim * fine)[:, None]
-    return base * cond.leaf_tint * yellow * f
-
-
-def leaf_normal(n: jax.Array, p: jax.Array, material: jax.Array) -> jax.Array:
-    """Normals n [N, 3] of plant surfaces perturbed by value noise (bumpy foliage, ruffled
-    leaves); stronger on canopies."""
-    s = 12.0
-    bump = jnp.stack([value_noise2(s * (p[:, 0] + p[:, 2]), s * p[:, 1], seed=12),
-                      value_noise2(s * (p[:, 1] + p[:, 2]), s * p[:, 0], seed=13),
-                      value_noise2(s * (p[:, 0] - p[:, 1]), s * p[:, 2], seed=14)], -1) - 0.5
+    a_plant = base * cond.leaf_tint * yellow * (per_plant * per_prim * fine)[:, None]
+    bump = jnp.stack([v[3], v[4], v[5]], -1) - 0.5
     amp = jnp.where(material == PL.CANOPY, 1.1, 0.35)[:, None]
-    m = n + amp * bump
-    return m / jnp.maximum(jnp.linalg.norm(m, axis=-1, keepdims=True), 1e-6)
+    m = normal + amp * bump
+    bumped = m / jnp.maximum(jnp.linalg.norm(m, axis=-1, keepdims=True), 1e-6)
+
+    # obstacles
+    n = 0.8 + 0.4 * v[0]
+    a_obst = jnp.where(is_branch[:, None], _lin(_BRANCH), _lin(_STONE)) * n[:, None]
+
+    is_plant = (cls == PLANT)[:, None]
+    albedo = jnp.where(is_plant, a_plant,
+                       jnp.where((cls == OBSTACLE)[:, None], a_obst, a_soil))
+    return albedo, jnp.where(is_plant, bumped, normal), _sky(d, cond, _octaves(v[0:4]))
 
 
-def obstacle_albedo(is_branch: jax.Array, p: jax.Array) -> jax.Array:
-    n = 0.8 + 0.4 * value_noise2(25 * p[:, 0] + 3 * p[:, 2], 25 * p[:, 1], seed=8)
-    return jnp.where(is_branch[:, None], _lin(_BRANCH), _lin(_STONE)) * n[:, None]
-
-
-def sky(d: jax.Array, cond: Conditions) -> jax.Array:
-    """Sky radiance (linear) for unit view directions d [N, 3]: zenith-horizon gradient, sun disk
-    and glow, a cloud layer textured with value noise."""
+def _sky(d: jax.Array, cond: Conditions, c: jax.Array) -> jax.Array:
+    """Sky radiance (linear) for unit view directions d [N, 3] with cloud noise c [N]."""
     up = jnp.clip(d[:, 2], 0.0, 1.0)
     grad = cond.sky_horizon + (cond.sky_zenith - cond.sky_horizon) * (up ** 0.45)[:, None]
     cos_sun = jnp.clip(jnp.sum(d * cond.sun_dir, -1), 0.0, 1.0)
     glow = (0.9 * cos_sun ** 900 + 0.12 * cos_sun ** 10)[:, None] * cond.sun_rgb
-    # clouds on a plane 1 unit above: coordinates d_xy / d_z
-    h = jnp.maximum(d[:, 2], 0.03)
-    cx, cy = d[:, 0] / h, d[:, 1] / h
-    c = fbm2(1.7 * cx, 1.7 * cy, 4, seed=11)
     cover = jnp.clip((c - (1.0 - cond.cloud)) * 3.0 + cond.cloud ** 3, 0.0, 1.0)
     cover = cover * jnp.clip(d[:, 2] * 6.0, 0.0, 1.0)
     cloud_rgb = (0.65 * cond.sky_horizon + 0.35 * cond.sun_rgb + 0.4 * cond.ambient) * (
