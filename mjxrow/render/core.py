@@ -65,7 +65,7 @@ SHADOW_REACH = 60.0  # m, how far a shadow ray looks for a plant toward the sun
 # "fused" (XLA, all candidates in one reduction), "pallas" (Triton kernels for the plant tests
 # and the terrain march; on CPU they run in Pallas' interpreter, for tests only)
 KERNELS = ("scan", "fused", "pallas")
-SETTLES = ("none", "barrier", "loop")  # RenderConfig.settle (`default_settle`)
+SETTLES = ("none", "geometry", "barrier", "loop")  # RenderConfig.settle (`default_settle`)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -108,8 +108,8 @@ class RenderConfig:
     obstacle_keep: int = 2  # of those, the ones per tile that its rays test (entered first)
     shadows: bool = True  # plants and obstacles cast sun shadows
     kernel: str | None = None  # how the per-ray tests run (KERNELS; None: `default_kernel`)
-    settle: str | None = None  # how the shading's per-pixel terms reach the colour channels
-    # (SETTLES; None: `default_settle`)
+    settle: str | None = None  # what is kept in memory before its consumers: the hit
+    # geometry, the shading's per-pixel terms (SETTLES; None: `default_settle`)
     near: float = 0.01  # m, nothing nearer the camera is drawn
     far: float = 150.0  # m, nothing further is drawn
 
@@ -155,16 +155,19 @@ def default_tile(intr: Intrinsics) -> int:
 
 
 def default_settle() -> str:
-    """How the shading's per-pixel terms (albedo, occlusion, sun, shadow; then the radiance)
-    reach the colour channels and the image's layout. XLA fuses the whole shading into each
-    consumer element, so left alone ("none") a pixel's textures, occlusion and sky are
-    computed once per channel, three times. "loop" keeps them in memory first
-    (`geom.materialise`): on the CPU 5-12 % faster per closed-loop step (BENCHMARKS.md).
-    "barrier" asks for the same with `lax.optimization_barrier`. GPUs: "none"."""
-    return "loop" if jax.default_backend() == "cpu" else "none"
+    """What the renderer computes into memory before its consumers read it. XLA fuses a
+    producer into each consumer element, so left alone ("none") a pixel's primitive normal is
+    computed again by every consumer of the hit geometry (shadow rays, shading), and its
+    textures, occlusion and sky once per colour channel. "geometry" keeps the hit points,
+    normals and primitive-frame points (`lax.optimization_barrier`); "barrier" keeps those
+    and the shading's per-pixel terms; "loop" keeps the shading terms with a while loop
+    (`geom.materialise`): on the CPU 5-12 % faster per closed-loop step. CPUs: "loop",
+    GPUs: "geometry" (BENCHMARKS.md)."""
+    return "loop" if jax.default_backend() == "cpu" else "geometry"
 
 
 def _settle(tree, how: str):
+    """The shading's per-pixel terms, kept as `how` says."""
     if how == "loop":
         return G.materialise(tree)
     if how == "barrier":
@@ -433,6 +436,8 @@ def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax
                                                      table)
     d = rays[1]
     t, cls, p, normal, plant, k, is_branch, local = _trace(field, shape, tab, obst, rays, cfg)
+    if cfg.settle in ("geometry", "barrier"):
+        p, normal, local = jax.lax.optimization_barrier((p, normal, local))
     with jax.named_scope("rd_shadow"):
         vis = (_shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, tiles[0] * tiles[1])
                if cfg.shadows else jnp.ones_like(t))
