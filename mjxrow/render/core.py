@@ -65,7 +65,7 @@ SHADOW_REACH = 60.0  # m, how far a shadow ray looks for a plant toward the sun
 # "fused" (XLA, all candidates in one reduction), "pallas" (Triton kernels for the plant tests
 # and the terrain march; on CPU they run in Pallas' interpreter, for tests only)
 KERNELS = ("scan", "fused", "pallas")
-SETTLES = ("none", "geometry", "barrier", "loop")  # RenderConfig.settle (`default_settle`)
+SETTLES = ("none", "barrier", "loop")  # RenderConfig.settle (`default_settle`)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -108,8 +108,8 @@ class RenderConfig:
     obstacle_keep: int = 2  # of those, the ones per tile that its rays test (entered first)
     shadows: bool = True  # plants and obstacles cast sun shadows
     kernel: str | None = None  # how the per-ray tests run (KERNELS; None: `default_kernel`)
-    settle: str | None = None  # what is kept in memory before its consumers: the hit
-    # geometry, the shading's per-pixel terms (SETTLES; None: `default_settle`)
+    settle: str | None = None  # what is kept in memory before its consumers read it: the
+    # hit geometry and the shading's per-pixel terms (SETTLES; None: `default_settle`)
     near: float = 0.01  # m, nothing nearer the camera is drawn
     far: float = 150.0  # m, nothing further is drawn
 
@@ -154,16 +154,20 @@ def default_tile(intr: Intrinsics) -> int:
     return int(np.clip(side, 4, 16))
 
 
-def default_settle() -> str:
+def default_settle(intr: Intrinsics | None = None) -> str:
     """What the renderer computes into memory before its consumers read it. XLA fuses a
     producer into each consumer element, so left alone ("none") a pixel's primitive normal is
     computed again by every consumer of the hit geometry (shadow rays, shading), and its
-    textures, occlusion and sky once per colour channel. "geometry" keeps the hit points,
-    normals and primitive-frame points (`lax.optimization_barrier`); "barrier" keeps those
-    and the shading's per-pixel terms; "loop" keeps the shading terms with a while loop
-    (`geom.materialise`): on the CPU 5-12 % faster per closed-loop step. CPUs: "loop",
-    GPUs: "geometry" (BENCHMARKS.md)."""
-    return "loop" if jax.default_backend() == "cpu" else "geometry"
+    textures, occlusion and sky once per colour channel. "barrier" keeps the hit points,
+    normals and primitive-frame points, then the shading's per-pixel terms, with
+    `lax.optimization_barrier`; "loop" keeps the shading terms with a while loop
+    (`geom.materialise`). CPUs: "loop" (5-12 % faster per closed-loop step). GPUs: "barrier"
+    up to 64 × 64 pixels (7 % more frames/s at 64 px), "none" above (at 224 px the barrier
+    costs 7 %) (BENCHMARKS.md)."""
+    if jax.default_backend() == "cpu":
+        return "loop"
+    small = intr is not None and intr.width * intr.height <= 64 * 64
+    return "barrier" if small else "none"
 
 
 def _settle(tree, how: str):
@@ -192,8 +196,8 @@ def default_kernel(tile: int) -> str:
 
 def resolve(cfg: RenderConfig, crop: str, intr: Intrinsics | None = None) -> RenderConfig:
     """`cfg` with the knobs left at None set: the deep-tile ones of `crop` (its `Crop.deep`,
-    else DEEP_DEFAULT), the tile side for `intr` (`default_tile`; 4 without intr) and the
-    kernels (`default_kernel`)."""
+    else DEEP_DEFAULT), the tile side for `intr` (`default_tile`; 4 without intr), the
+    kernels (`default_kernel`) and what is kept in memory (`default_settle`)."""
     names = ("deep_share", "deep_row_blocks", "deep_block_keep", "deep_keep")
     by_crop = dict(zip(names, crops.get(crop).deep or DEEP_DEFAULT, strict=True))
     cfg = dataclasses.replace(cfg, **{k: v for k, v in by_crop.items()
@@ -203,7 +207,7 @@ def resolve(cfg: RenderConfig, crop: str, intr: Intrinsics | None = None) -> Ren
     if cfg.kernel is None:
         cfg = dataclasses.replace(cfg, kernel=default_kernel(cfg.tile))
     if cfg.settle is None:
-        cfg = dataclasses.replace(cfg, settle=default_settle())
+        cfg = dataclasses.replace(cfg, settle=default_settle(intr))
     return cfg
 
 
@@ -436,7 +440,7 @@ def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax
                                                      table)
     d = rays[1]
     t, cls, p, normal, plant, k, is_branch, local = _trace(field, shape, tab, obst, rays, cfg)
-    if cfg.settle in ("geometry", "barrier"):
+    if cfg.settle == "barrier":
         p, normal, local = jax.lax.optimization_barrier((p, normal, local))
     with jax.named_scope("rd_shadow"):
         vis = (_shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, tiles[0] * tiles[1])
