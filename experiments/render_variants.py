@@ -109,7 +109,8 @@ def main(argv: list[str] | None = None) -> None:
                                    f"(render_variants.py)",
                          "max_rgb_diff": int(diff.max()), "class_differ": cls_diff,
                          "mask_iou_vs_first": iou})
-    bench.record(rows, args.out)
+    bench.record(rows, args.out, command="python experiments/render_variants.py " + " ".join(
+        argv if argv is not None else sys.argv[1:]))
 
 
 if __name__ == "__main__":

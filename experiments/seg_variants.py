@@ -108,7 +108,8 @@ def main(argv: list[str] | None = None) -> None:
                                f"{args.size}, {change['dtype']}, dw {change['dw_impl']}, 1x1 "
                                f"{change['pw_impl']}, interleaved (seg_variants.py)",
                      "max_logit_diff": dmax, "mask_differ": differ, "iou": iou})
-    bench.record(rows, args.out)
+    bench.record(rows, args.out, command="python experiments/seg_variants.py " + " ".join(
+        argv if argv is not None else sys.argv[1:]))
 
 
 def module_crop(spec: str) -> str:

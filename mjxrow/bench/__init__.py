@@ -72,11 +72,13 @@ def time_call(fn: Callable[..., Any], *args: Any, repeats: int = 5) -> dict[str,
     return {"compile_s": compile_s, "median_s": statistics.median(runs), "runs_s": runs}
 
 
-def record(rows: list[dict], path: str | Path = "benchmarks.jsonl") -> None:
+def record(rows: list[dict], path: str | Path = "benchmarks.jsonl",
+           command: str | None = None) -> None:
     """Append rows ({stage, config, batch, value, unit, ...}) with date, device and command
-    (and $XLA_FLAGS where set: they change compile and run times)."""
+    (default: this `python -m mjxrow.bench` command line; and $XLA_FLAGS where set: they
+    change compile and run times)."""
     base = {"date": datetime.date.today().isoformat(), "device": device_name(),
-            "command": "python -m mjxrow.bench " + " ".join(sys.argv[1:])}
+            "command": command or "python -m mjxrow.bench " + " ".join(sys.argv[1:])}
     if XLA_FLAGS:
         base["xla_flags"] = XLA_FLAGS
     with open(path, "a") as f:
