@@ -286,6 +286,20 @@ def test_config_validates():
         BR.parse_sets(["kernel=cuda"])
 
 
+def test_default_settle_by_backend_and_resolution(monkeypatch):
+    from mjxrow.render import core
+
+    assert core.default_settle(RD.Intrinsics(64, 64)) == "loop"  # this CPU
+    monkeypatch.setattr(core.jax, "default_backend", lambda: "gpu")
+    assert core.default_settle(RD.Intrinsics(64, 64)) == "barrier"
+    assert core.default_settle(RD.Intrinsics(48, 32)) == "barrier"
+    assert core.default_settle(RD.Intrinsics(128, 128)) == "none"
+    assert core.default_settle(None) == "none"
+    assert RD.resolve(RD.DEFAULT_CONFIG, "zucchini", RD.Intrinsics(224, 224)).settle == "none"
+    assert RD.resolve(RD.RenderConfig(settle="loop"), "zucchini",
+                      RD.Intrinsics(64, 64)).settle == "loop"  # an explicit choice stays
+
+
 def test_settle_modes_draw_the_same_image():
     shape, fields, pos, rot, conds = BR.worlds("zucchini", 2, 1)
     intr = RD.Intrinsics(16, 16)
