@@ -147,8 +147,8 @@ SKY, SOIL, PLANT, OBSTACLE = 0, 1, 2, 3  # pixel classes (`Frame.classes`)
 # or bark; pale patches or the canopy's clumps, whose second octave takes a third slot) and
 # three for its bumped normal, soil five, sky four (clouds), obstacles one. Evaluating every
 # class's textures and then picking one would take 18 noises (72 hashes) a pixel, and XLA
-# would compute them once per colour channel; this takes 6 (24 hashes), kept in memory by
-# `surfaces`' `keep` before any colour is formed.
+# would compute them once per colour channel; this takes 6 (24 hashes), which `surfaces`'
+# `keep` (the renderer's `settle`) can put in memory before any colour is formed.
 NOISE_SLOTS = 6
 
 
