@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import concurrent.futures
 import dataclasses
+import functools
 import statistics
 import sys
 import time
@@ -74,14 +75,8 @@ def main(argv: list[str] | None = None) -> None:
     for job, (exe, secs) in compiled.items():
         frames[job] = jax.tree.map(np.asarray, jax.block_until_ready(exe(*inputs)))
         print(f"{job[0] or 'defaults'} at {job[2]} px: compiled in {secs:.1f} s", flush=True)
-    times = {job: [] for job in jobs}
-    with bench.timing_lock():
-        for _ in range(args.rounds):
-            for job in jobs:
-                exe = compiled[job][0]
-                t0 = time.perf_counter()
-                jax.block_until_ready(exe(*inputs))
-                times[job].append(time.perf_counter() - t0)
+    times = bench.time_interleaved(
+        {job: functools.partial(compiled[job][0], *inputs) for job in jobs}, args.rounds)
     rows = []
     for res in args.res:
         ref = frames[(variants[0][0], variants[0][1], res)]

@@ -5,8 +5,8 @@ timed call.
     python experiments/seg_variants.py [--ckpt zucchini] [--size 224] [--batch 1024]
         [--variants float32:conv:conv float32:phases:dot ...] [--rounds 5] [--out FILE.jsonl]
 
-A variant is DTYPE:DW:PW (compute dtype; depthwise implementation, `seg.model.DW_IMPLS`; 1×1
-implementation, `seg.model.PW_IMPLS`). Inputs are renders of the shipped checkpoint's crop
+A variant is DTYPE:DW:PW (compute dtype; depthwise implementation, `seg.convs.DW_IMPLS`; 1×1
+implementation, `seg.convs.PW_IMPLS`). Inputs are renders of the shipped checkpoint's crop
 (`seg.eval`'s fixed set, seed 20,000, cycled up to the batch), so the masks can be compared: for
 each variant the largest logit difference and the share of pixels whose mask (threshold 0.7)
 differs from the first variant's. Prints a table (median ms per call over the rounds,
@@ -17,6 +17,7 @@ frames/s, compile s) and appends one `segmenter` row per variant to `--out`
 from __future__ import annotations
 
 import argparse
+import functools
 import statistics
 import sys
 import time
@@ -27,8 +28,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
 from mjxrow import bench  # noqa: E402
+from mjxrow.bench import closed_loop as CL  # noqa: E402
 from mjxrow.seg import checkpoint as ckpt  # noqa: E402
-from mjxrow.seg import convs as SC  # noqa: E402
 from mjxrow.seg import data as D  # noqa: E402
 from mjxrow.seg import model as M  # noqa: E402
 
@@ -38,12 +39,13 @@ DEFAULT = ("float32:conv:conv", "float32:conv:dot", "float32:mixed:dot", "float3
 
 
 def parse(spec: str) -> dict[str, str]:
-    parts = spec.split(":")
-    if (len(parts) != 3 or parts[0] not in ("float32", "bfloat16")
-            or parts[1] not in SC.DW_IMPLS + ("auto",) or parts[2] not in SC.PW_IMPLS + ("auto",)):
-        raise SystemExit(f"--variants {spec!r}: expected DTYPE:DW:PW with DTYPE float32 or "
-                         f"bfloat16, DW one of {SC.DW_IMPLS}, PW one of {SC.PW_IMPLS}")
-    return {"dtype": parts[0], "dw_impl": parts[1], "pw_impl": parts[2]}
+    dtype, _, impls = spec.partition(":")
+    try:
+        if dtype not in ("float32", "bfloat16"):
+            raise ValueError(f"DTYPE {dtype!r} is not float32 or bfloat16")
+        return {"dtype": dtype, **CL.seg_impl(impls)}
+    except ValueError as e:
+        raise SystemExit(f"--variants {spec!r}: expected DTYPE:DW:PW ({e})") from None
 
 
 UNIQUE = 64  # distinct renders; the batch repeats them
@@ -80,12 +82,8 @@ def main(argv: list[str] | None = None) -> None:
         logits[name] = np.asarray(jax.block_until_ready(exe(variables, x)))
         fns[name] = exe
         print(f"{name}: compiled in {compile_s[name]:.1f} s", flush=True)
-    times = {name: [] for name, _ in specs}
-    for _ in range(args.rounds):
-        for name, _ in specs:
-            t0 = time.perf_counter()
-            jax.block_until_ready(fns[name](variables, x))
-            times[name].append(time.perf_counter() - t0)
+    times = bench.time_interleaved(
+        {name: functools.partial(fns[name], variables, x) for name, _ in specs}, args.rounds)
     n = min(UNIQUE, args.batch)
     truth = truth[:n]
     ref = logits[specs[0][0]][:n]

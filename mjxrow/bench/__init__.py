@@ -72,6 +72,20 @@ def time_call(fn: Callable[..., Any], *args: Any, repeats: int = 5) -> dict[str,
     return {"compile_s": compile_s, "median_s": statistics.median(runs), "runs_s": runs}
 
 
+def time_interleaved(calls: dict[Any, Callable[[], Any]], rounds: int) -> dict[Any, list[float]]:
+    """Seconds of each of `calls` (compiled already), timed in `rounds` interleaved rounds under
+    `timing_lock`, every call waited for: variants compared in one process, so that no other
+    process's compilation or autotuning shares the device with a timed call."""
+    times = {name: [] for name in calls}
+    with timing_lock():
+        for _ in range(rounds):
+            for name, call in calls.items():
+                t0 = time.perf_counter()
+                jax.block_until_ready(call())
+                times[name].append(time.perf_counter() - t0)
+    return times
+
+
 def record(rows: list[dict], path: str | Path = "benchmarks.jsonl",
            command: str | None = None) -> None:
     """Append rows ({stage, config, batch, value, unit, ...}) with date, device and command

@@ -31,6 +31,7 @@ from mjxrow.bench import timing_lock
 from mjxrow.control import perception
 from mjxrow.rollout import build as B
 from mjxrow.rollout.config import RunConfig
+from mjxrow.seg import convs as SC
 from mjxrow.sweep import config as C
 
 
@@ -47,8 +48,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seg-dtype", default="float32", choices=("float32", "bfloat16"),
                    help="the segmenter's compute dtype (weights stay float32)")
     p.add_argument("--seg-impl", default="auto:auto", metavar="DW:PW",
-                   help="the segmenter's depthwise (auto, conv, shift, mixed, phases) and 1x1 "
-                        "(auto, conv, dot) conv implementations")
+                   help=f"the segmenter's depthwise (auto, {', '.join(SC.DW_IMPLS)}; "
+                        f"{SC.auto_rule('depthwise')}) and 1x1 (auto, {', '.join(SC.PW_IMPLS)}; "
+                        f"{SC.auto_rule('pointwise')}) conv implementations")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="a key of the sweep YAML, e.g. --set sim.iterations=2 (repeatable)")
     p.add_argument("--repeats", type=int, default=3)
@@ -66,8 +68,6 @@ def run_config(args: argparse.Namespace) -> RunConfig:
 
 def seg_impl(spec: str) -> dict[str, str]:
     """`--seg-impl DW:PW` → SegNet attributes (ValueError naming a bad part)."""
-    from mjxrow.seg import convs as SC
-
     dw, sep, pw = spec.partition(":")
     if not sep or dw not in ("auto",) + SC.DW_IMPLS or pw not in ("auto",) + SC.PW_IMPLS:
         raise ValueError(f"--seg-impl {spec!r}: expected DW:PW with DW one of auto, "

@@ -33,9 +33,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"))
     p.add_argument("--dw-impl", default="auto", choices=("auto",) + SC.DW_IMPLS,
-                   help="depthwise conv implementation (auto: shift on CPU, phases elsewhere)")
+                   help=f"depthwise conv implementation ({SC.auto_rule('depthwise')})")
     p.add_argument("--pw-impl", default="auto", choices=("auto",) + SC.PW_IMPLS,
-                   help="1x1 conv implementation (auto: dot)")
+                   help=f"1x1 conv implementation ({SC.auto_rule('pointwise')})")
     p.add_argument("--ckpt", help="checkpoint folder or crop to time instead of random weights")
 
 

@@ -29,9 +29,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--loss", default="iou", choices=tuple(T.LOSSES))
     p.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"))
     p.add_argument("--dw-impl", default="auto", choices=("auto",) + SC.DW_IMPLS,
-                   help="depthwise conv implementation (auto: shift on CPU, phases elsewhere)")
+                   help=f"depthwise conv implementation ({SC.auto_rule('depthwise')})")
     p.add_argument("--pw-impl", default="auto", choices=("auto",) + SC.PW_IMPLS,
-                   help="1x1 conv implementation (auto: dot)")
+                   help=f"1x1 conv implementation ({SC.auto_rule('pointwise')})")
     p.add_argument("--on-the-fly", action="store_true", help="render each batch in the step")
     p.add_argument("--crop", default="zucchini", choices=(*CROPS, "all"))
 

@@ -100,6 +100,14 @@ class DepthwiseConv(nn.Module):
         return conv(x, self.dilation)
 
 
+def auto_rule(what: str) -> str:
+    """What "auto" picks for the "depthwise" or "pointwise" conv, in words (for --help)."""
+    auto = DW_AUTO if what == "depthwise" else PW_AUTO
+    if auto["cpu"] == auto["other"]:
+        return f"auto: {auto['cpu']}"
+    return f"auto: {auto['cpu']} on CPU, {auto['other']} elsewhere"
+
+
 def resolve(impl: str, what: str) -> str:
     """The implementation `impl` of the "depthwise" or "pointwise" conv names, "auto"
     resolved by the default backend (`DW_AUTO`, `PW_AUTO`); ValueError for an unknown one."""
