@@ -2,7 +2,7 @@
 configuration on the dataset's camera poses.
 
     python experiments/render_accuracy.py [--presets ...] [--poses 16] [--res 64]
-        [--views dataset along headland] [--set terrain_steps=16 ...] [--shading]
+        [--views dataset along headland] [--set terrain_steps=16 ...] [--shading] [--chunk 8]
 
 The reference tests every ray on its own (1-pixel tiles) against 64 plants (its shadow rays
 against 32) and marches the terrain with 128 samples and 10 bisections; the candidate is the
@@ -90,16 +90,32 @@ def views(preset: str, n: int, kind: str, seed: int = 0):
     return shape, fields, pos.reshape(-1, 3)[:n], rot.reshape(-1, 3, 3)[:n], conds
 
 
+def in_chunks(fn, n: int, chunk: int, *args):
+    """fn (jitted, vmapped) over the leading axis [n] of `args` in calls of `chunk` frames
+    (the last one padded with its final frame, so that one program serves every call); the
+    outputs' leaves as host arrays [n, ...]. Bounds the memory of one call (the reference's
+    buffers at 224 px and 32 poses would need 80 GB at once)."""
+    parts = []
+    for s in range(0, n, chunk):
+        idx = np.minimum(np.arange(s, s + chunk), n - 1)
+        keep = min(chunk, n - s)
+        out = fn(*jax.tree.map(lambda x, i=idx: x[i], args))
+        parts.append(jax.tree.map(lambda x, k=keep: np.asarray(x)[:k], out))
+    return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
+
+
 def compare(preset: str, n: int, res: int, cfg: RD.RenderConfig, seed: int = 0,
-            shading: bool = False, kind: str = "dataset") -> dict:
+            shading: bool = False, kind: str = "dataset", chunk: int = 8) -> dict:
     shape, fields, pos, rot, conds = views(preset, n, kind, seed)
     intr = RD.Intrinsics(res, res)
+    chunk = min(chunk, n)
 
     def geo(c):
-        return jax.jit(jax.vmap(lambda f, p, r: RD.geometry(f, shape, p, r, intr, c)))
+        fn = jax.jit(jax.vmap(lambda f, p, r: RD.geometry(f, shape, p, r, intr, c)))
+        return in_chunks(fn, n, chunk, fields, pos, rot)
 
-    d_ref, c_ref = map(np.asarray, geo(REFERENCE)(fields, pos, rot))
-    d, c = map(np.asarray, geo(cfg)(fields, pos, rot))
+    d_ref, c_ref = geo(REFERENCE)
+    d, c = geo(cfg)
     m_ref, m = c_ref == RD.PLANT, c == RD.PLANT
     inter, union = np.sum(m & m_ref), np.sum(m | m_ref)
     fi, fu = np.sum(m & m_ref, (1, 2)), np.sum(m | m_ref, (1, 2))
@@ -114,10 +130,10 @@ def compare(preset: str, n: int, res: int, cfg: RD.RenderConfig, seed: int = 0,
            "depth_p99": float(np.percentile(err, 99)) if err.size else 0.0}
     if shading:  # shadows and shading: pixels of the same class whose colour differs
         def rgb(c):
-            return jax.jit(jax.vmap(lambda f, p, r, k: RD.render(f, shape, p, r, intr, k,
-                                                                 cfg=c).rgb))
-        a = np.asarray(rgb(REFERENCE)(fields, pos, rot, conds), int)
-        b = np.asarray(rgb(cfg)(fields, pos, rot, conds), int)
+            fn = jax.jit(jax.vmap(lambda f, p, r, k: RD.render(f, shape, p, r, intr, k,
+                                                               cfg=c).rgb))
+            return in_chunks(fn, n, chunk, fields, pos, rot, conds).astype(int)
+        a, b = rgb(REFERENCE), rgb(cfg)
         same = (c == c_ref) & (c != RD.SKY)
         out["rgb_diff"] = float(np.mean(np.max(np.abs(a - b), -1)[same] > 8))
     return out
@@ -132,12 +148,14 @@ def main(argv: list[str] | None = None) -> int:
                    help="camera poses: the dataset's, along the rows in a lane, in the "
                         "headland (see above)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    p.add_argument("--chunk", type=int, default=8,
+                   help="frames per jitted call (bounds the memory of the reference's buffers)")
     p.add_argument("--shading", action="store_true",
                    help="also render RGB (with shadows) and count same-class ground and plant "
                         "pixels whose colour differs by more than 8 levels")
     args = p.parse_args(argv)
-    if args.poses < 1 or args.res < 1:
-        p.error("--poses and --res must be positive")
+    if args.poses < 1 or args.res < 1 or args.chunk < 1:
+        p.error("--poses, --res and --chunk must be positive")
     try:
         cfg = dataclasses.replace(RD.DEFAULT_CONFIG, **BR.parse_sets(args.set))
     except ValueError as e:
@@ -151,7 +169,8 @@ def main(argv: list[str] | None = None) -> int:
     worst = 1.0
     for preset in args.presets:
         for kind in args.views:
-            r = compare(preset, args.poses, args.res, cfg, shading=args.shading, kind=kind)
+            r = compare(preset, args.poses, args.res, cfg, shading=args.shading, kind=kind,
+                        chunk=args.chunk)
             worst = min(worst, r["iou_min"])
             print(f"| {preset} | {kind} | {r['iou']:.4f} | {r['iou_min']:.4f} ({r['frames']}) | "
                   f"{r['class_diff']:.4%} | {r['depth_med']:.4f} | {r['depth_p99']:.4f} |"
