@@ -348,3 +348,37 @@ def test_segzeros_on_rendered_masks_steers_back():
         end = np.abs(log.pose[i, log.steps[i] - 1, 1] - log.lane_y[i])
         assert end < 0.5 * off0[i], (off0[i], end)
     assert (log.reason == M.GOAL).all(), log.reason
+
+
+
+@pytest.mark.parametrize("n_steps", [20, 25, 60, 150])
+def test_bench_counts_the_steps_the_loop_runs(n_steps):
+    """The episode loop runs whole chunks (60 steps run 75): `bench closed_loop` asks for a
+    number of steps that it runs, so that its control steps/s count every step timed."""
+    from mjxrow.bench import closed_loop as CL
+
+    steps = CL.timed_steps(n_steps)
+    shapes = dict(pose=jax.ShapeDtypeStruct((3,), jnp.float32),
+                  vel=jax.ShapeDtypeStruct((3,), jnp.float32),
+                  cmd=jax.ShapeDtypeStruct(E.CMD_SHAPE, jnp.float32),
+                  alive=jax.ShapeDtypeStruct((), jnp.bool_),
+                  event=jax.ShapeDtypeStruct((), jnp.int32))
+    ran = []
+
+    def body(carry, t):  # never done; every call that runs is counted on the host
+        jax.debug.callback(lambda: ran.append(1))
+        out = dict(pose=jnp.zeros(3), vel=jnp.zeros(3), cmd=jnp.zeros(2),
+                   alive=jnp.bool_(True), event=jnp.int32(0))
+        return carry, out
+
+    carry = (jnp.int32(0), None, jnp.bool_(False), None)
+    for n in (n_steps, steps):
+        ran.clear()
+        out = jax.jit(lambda c, n=n: E._run_until_done(body, c, n, shapes))(carry)
+        jax.block_until_ready(out)
+        jax.effects_barrier()
+        assert out["alive"].shape == (n,)
+        if n == steps:
+            assert len(ran) == steps
+        else:
+            assert len(ran) == steps > n  # the rounding is what the loop would run anyway

@@ -300,6 +300,22 @@ def test_default_settle_by_backend_and_resolution(monkeypatch):
                       RD.Intrinsics(64, 64)).settle == "loop"  # an explicit choice stays
 
 
+def test_deep_share_by_crop_and_tiles_across():
+    # the crop's share up to 8 tiles across the shorter side, 8 / n of it for n tiles across,
+    # never less than half
+    res = lambda crop, w, h=None, **kw: RD.resolve(RD.RenderConfig(**kw), crop,  # noqa: E731
+                                                   RD.Intrinsics(w, h or w))
+    for crop, share in (("zucchini", 0.25), ("lettuce", 0.25)):
+        assert res(crop, 64).deep_share == share  # 8 tiles of 8 px
+        assert res(crop, 128).deep_share == share  # 8 tiles of 16 px
+        assert res(crop, 224).deep_share == pytest.approx(share * 8 / 14)  # 14 tiles of 16 px
+        assert res(crop, 224, 128).deep_share == share  # the shorter side counts
+        assert res(crop, 32).deep_share == share  # 8 tiles of 4 px
+    assert res("zucchini", 224, tile=8).deep_share == 0.125  # 28 tiles across: half
+    assert res("zucchini", 224, deep_share=0.3).deep_share == 0.3  # an explicit choice stays
+    assert RD.resolve(RD.DEFAULT_CONFIG, "zucchini").deep_share == 0.25  # no intrinsics
+
+
 def test_settle_modes_draw_the_same_image():
     shape, fields, pos, rot, conds = BR.worlds("zucchini", 2, 1)
     intr = RD.Intrinsics(16, 16)

@@ -14,7 +14,7 @@ apart from the median of `--repeats` calls after a first, untimed one (which set
 the program runs once, e.g. its CUDA graphs; its time is kept as `first_run_s`).
 
 GPU: `--batch 1024 --image 64` (fast configuration) and `--batch 512 --image 224` (paper's
-224 × 224); CPU: `--batch 2 --image 64 --steps 30 --repeats 2`.
+224 × 224); CPU: `--batch 2 --image 64 --steps 25 --repeats 2`.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from mjxrow import control, crops, runtime
 from mjxrow.bench import timing_lock
 from mjxrow.control import perception
 from mjxrow.rollout import build as B
+from mjxrow.rollout import episode as E
 from mjxrow.rollout.config import RunConfig
 from mjxrow.seg import convs as SC
 from mjxrow.sweep import config as C
@@ -40,7 +41,9 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset", default="zucchini", choices=crops.names())
     p.add_argument("--batch", type=int, nargs="+", default=[256, 1024])
     p.add_argument("--image", type=int, default=64, help="camera image side [px]")
-    p.add_argument("--steps", type=int, default=150, help="control steps per timed call")
+    p.add_argument("--steps", type=int, default=150,
+                   help=f"control steps per timed call (above {E.CHUNK}, rounded up to a "
+                        f"multiple of {E.CHUNK}: the episode loop runs whole chunks)")
     p.add_argument("--episode-steps", type=int, default=600,
                    help="control steps of one episode, for episodes/min (default: 20 m at "
                         "0.5 m/s and 15 Hz)")
@@ -57,13 +60,21 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repeats", type=int, default=3)
 
 
+def timed_steps(steps: int) -> int:
+    """`steps` rounded up to what a call runs: the episode loop runs whole chunks of
+    `episode.CHUNK` control steps (fewer steps than one chunk run as one chunk of that
+    length), so 60 steps would run 75 and count 60."""
+    chunk = E.CHUNK
+    return steps if steps <= chunk else -(-steps // chunk) * chunk
+
+
 def run_config(args: argparse.Namespace) -> RunConfig:
     """The RunConfig of the command line (ConfigError naming the key)."""
     hz = C.from_dict({}, sets=args.set).sim.control_hz
     raw = {"preset": args.preset, "controller": {"name": args.controller},
            "perception": {"source": args.perception},
            "camera": {"width": args.image, "height": args.image},
-           "episode": {"max_time": args.steps / hz}}
+           "episode": {"max_time": timed_steps(args.steps) / hz}}
     return C.expand(C.from_dict(raw, sets=args.set))[0].cfg
 
 
@@ -130,6 +141,10 @@ def run(args: argparse.Namespace) -> list[dict]:
     except ValueError as e:
         raise SystemExit(f"bench closed_loop: {e}") from None
     rows = []
+    if timed_steps(args.steps) != args.steps:
+        print(f"note: --steps {args.steps} → {timed_steps(args.steps)}, a whole number of "
+              f"the episode loop's {E.CHUNK}-step chunks (it would run them and count "
+              f"{args.steps})", flush=True)
     for b in args.batch:
         built = with_segmenter(B.build(cfg), cfg, dtype=args.seg_dtype, **impl)
         m = measure(built, cfg, built.padded(b), args.repeats)
