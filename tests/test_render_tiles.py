@@ -287,14 +287,14 @@ def test_config_validates():
 
 
 def test_default_settle_by_backend_and_resolution(monkeypatch):
-    from mjxrow.render import core
+    from mjxrow.render import config
 
-    assert core.default_settle(RD.Intrinsics(64, 64)) == "loop"  # this CPU
-    monkeypatch.setattr(core.jax, "default_backend", lambda: "gpu")
-    assert core.default_settle(RD.Intrinsics(64, 64)) == "barrier"
-    assert core.default_settle(RD.Intrinsics(48, 32)) == "barrier"
-    assert core.default_settle(RD.Intrinsics(128, 128)) == "none"
-    assert core.default_settle(None) == "none"
+    assert config.default_settle(RD.Intrinsics(64, 64)) == "loop"  # this CPU
+    monkeypatch.setattr(config.jax, "default_backend", lambda: "gpu")
+    assert config.default_settle(RD.Intrinsics(64, 64)) == "barrier"
+    assert config.default_settle(RD.Intrinsics(48, 32)) == "barrier"
+    assert config.default_settle(RD.Intrinsics(128, 128)) == "none"
+    assert config.default_settle(None) == "none"
     assert RD.resolve(RD.DEFAULT_CONFIG, "zucchini", RD.Intrinsics(224, 224)).settle == "none"
     assert RD.resolve(RD.RenderConfig(settle="loop"), "zucchini",
                       RD.Intrinsics(64, 64)).settle == "loop"  # an explicit choice stays

@@ -54,7 +54,7 @@ class Crop:
         or None for the axis-aligned ellipse of half the plant's length and width.
     silver_leaf: pale mottled patches on the leaf blades (zucchini).
     deep: the renderer's deep-tile settings (share, row_blocks, block_keep, keep), or None for
-        `render.core.DEEP_DEFAULT` (small plants in many rows need more).
+        `render.config.DEEP_DEFAULT` (small plants in many rows need more).
     dataset_n: samples of the paper's dataset for this crop; test_frac: its test share.
     paper: the paper's printed values: optional 'table1' (FieldParams names → value),
         'table2' (accuracy, iou) and 'table3' (cha, mae, mse, omega_std).
