@@ -13,6 +13,7 @@ from flax import struct
 from mjxrow import control, crops
 from mjxrow.crops import prims as PL
 from mjxrow.sweep import config as C
+from mjxrow.sweep import docs as SD
 from mjxrow.sweep import run as S
 
 
@@ -70,7 +71,7 @@ def test_toy_crop_and_controller_run_a_sweep(registered, tmp_path):
            "controller": {"name": "creep", "speed": 0.5},
            "perception": {"source": "ground_truth"}, "camera": {"width": 16, "height": 16}}
     cfg = C.from_dict(raw)
-    assert cfg.controller.name == "creep" and "controller.speed" in C.reference_markdown()
+    assert cfg.controller.name == "creep" and "controller.speed" in SD.reference_markdown()
     S.run(cfg, tmp_path, progress=False, figures=False)
     res = pd.read_csv(tmp_path / "results.csv")
     assert len(res) == 4 and set(res["preset"]) == {"beans"}

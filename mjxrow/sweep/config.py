@@ -539,47 +539,7 @@ def check(cfg: SweepConfig) -> None:
                               f"the rows ({fv['row_length'] * fv['scale']:.3g} m){where}")
 
 
-# ---------------------------------------------------------------------------------------------
-# Reference (docs/sweep.md is generated from this)
-
-
-def _fmt_default(key: schema.Key) -> str:
-    if key.name.startswith("field."):
-        return "preset's"
-    if key.default is None:
-        return "variant's" if key.name.startswith("controller.") else "`null`"
-    return f"`{key.default}`"
-
-
-def reference_markdown() -> str:
-    """The config reference as a markdown table: key, type, default, static, meaning."""
-    lines = ["| key | type | default | static | meaning |", "|---|---|---|---|---|"]
-    meta = {f.name: f.metadata for f in dataclasses.fields(SweepConfig) if f.metadata}
-    for k in TOP_KEYS:
-        if k == "preset":
-            kinds = " \\| ".join(f"`{c}`" for c in crops.names())
-            lines.append(f"| `preset` | {kinds} | `zucchini` | yes | {PRESET_DOC} |")
-            continue
-        m = meta[k]
-        kind = {int: "integer", str: "string", bool: "boolean"}[m["kind"]]
-        unit = f" [{m['unit']}]" if m["unit"] else ""
-        d = dataclasses.fields(SweepConfig)[[f.name for f in dataclasses.fields(
-            SweepConfig)].index(k)].default
-        lines.append(f"| `{k}` | {kind} | `{d}` | — | {m['doc']}{unit} (not an axis) |")
-    for name, key in schema.all_keys().items():
-        kind = {"float": "number", "int": "integer", "str": "string", "bool": "boolean"}[key.kind]
-        if key.choices:
-            kind = " \\| ".join(f"`{c}`" for c in key.choices)
-        if key.optional and not name.startswith("field."):
-            kind += " or null"
-        who = f" ({', '.join(key.controllers)})" if key.controllers else ""
-        doc = key.doc.replace("|", "\\|")
-        lines.append(f"| `{name}` | {kind} | {_fmt_default(key)} | "
-                     f"{'yes' if key.static else 'no'} | {doc}{who} |")
-    return "\n".join(lines)
-
-
 __all__ = ["Cell", "ConfigError", "ControllerChoice", "RunConfig", "Section", "SweepConfig",
            "apply_sets", "cell_hash", "check", "checkpoint_id", "checkpoint_path", "expand",
-           "field_values", "from_dict", "get", "is_static", "leaf_keys", "load",
-           "reference_markdown", "resolved", "shrink", "static_key", "to_dict", "with_values"]
+           "field_values", "from_dict", "get", "is_static", "leaf_keys", "load", "resolved",
+           "shrink", "static_key", "to_dict", "with_values"]
