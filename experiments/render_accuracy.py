@@ -90,29 +90,19 @@ def views(preset: str, n: int, kind: str, seed: int = 0):
     return shape, fields, pos.reshape(-1, 3)[:n], rot.reshape(-1, 3, 3)[:n], conds
 
 
-def in_chunks(fn, n: int, chunk: int, *args):
-    """fn (jitted, vmapped) over the leading axis [n] of `args` in calls of `chunk` frames
-    (the last one padded with its final frame, so that one program serves every call); the
-    outputs' leaves as host arrays [n, ...]. Bounds the memory of one call (the reference's
-    buffers at 224 px and 32 poses would need 80 GB at once)."""
-    parts = []
-    for s in range(0, n, chunk):
-        idx = np.minimum(np.arange(s, s + chunk), n - 1)
-        keep = min(chunk, n - s)
-        out = fn(*jax.tree.map(lambda x, i=idx: x[i], args))
-        parts.append(jax.tree.map(lambda x, k=keep: np.asarray(x)[:k], out))
-    return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
-
-
 def compare(preset: str, n: int, res: int, cfg: RD.RenderConfig, seed: int = 0,
             shading: bool = False, kind: str = "dataset", chunk: int = 8) -> dict:
     shape, fields, pos, rot, conds = views(preset, n, kind, seed)
     intr = RD.Intrinsics(res, res)
     chunk = min(chunk, n)
 
+    def in_chunks(draw, *args):  # `chunk` frames per vmapped call: the reference's buffers
+        # at 224 px and 32 poses would need 80 GB at once
+        run = jax.jit(lambda xs: jax.lax.map(lambda x: draw(*x), xs, batch_size=chunk))
+        return jax.tree.map(np.asarray, run(args))
+
     def geo(c):
-        fn = jax.jit(jax.vmap(lambda f, p, r: RD.geometry(f, shape, p, r, intr, c)))
-        return in_chunks(fn, n, chunk, fields, pos, rot)
+        return in_chunks(lambda f, p, r: RD.geometry(f, shape, p, r, intr, c), fields, pos, rot)
 
     d_ref, c_ref = geo(REFERENCE)
     d, c = geo(cfg)
@@ -130,9 +120,8 @@ def compare(preset: str, n: int, res: int, cfg: RD.RenderConfig, seed: int = 0,
            "depth_p99": float(np.percentile(err, 99)) if err.size else 0.0}
     if shading:  # shadows and shading: pixels of the same class whose colour differs
         def rgb(c):
-            fn = jax.jit(jax.vmap(lambda f, p, r, k: RD.render(f, shape, p, r, intr, k,
-                                                               cfg=c).rgb))
-            return in_chunks(fn, n, chunk, fields, pos, rot, conds).astype(int)
+            return in_chunks(lambda f, p, r, k: RD.render(f, shape, p, r, intr, k, cfg=c).rgb,
+                             fields, pos, rot, conds).astype(int)
         a, b = rgb(REFERENCE), rgb(cfg)
         same = (c == c_ref) & (c != RD.SKY)
         out["rgb_diff"] = float(np.mean(np.max(np.abs(a - b), -1)[same] > 8))

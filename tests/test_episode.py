@@ -353,11 +353,14 @@ def test_segzeros_on_rendered_masks_steers_back():
 
 @pytest.mark.parametrize("n_steps", [20, 25, 60, 150])
 def test_bench_counts_the_steps_the_loop_runs(n_steps):
-    """The episode loop runs whole chunks (60 steps run 75): `bench closed_loop` asks for a
-    number of steps that it runs, so that its control steps/s count every step timed."""
+    """The episode loop runs whole chunks (60 steps run 75): `steps_run` says how many, and
+    `bench closed_loop` asks for that many, so that its control steps/s count every step
+    timed."""
+    import argparse
+
     from mjxrow.bench import closed_loop as CL
 
-    steps = CL.timed_steps(n_steps)
+    steps = E.steps_run(n_steps)
     shapes = dict(pose=jax.ShapeDtypeStruct((3,), jnp.float32),
                   vel=jax.ShapeDtypeStruct((3,), jnp.float32),
                   cmd=jax.ShapeDtypeStruct(E.CMD_SHAPE, jnp.float32),
@@ -372,13 +375,13 @@ def test_bench_counts_the_steps_the_loop_runs(n_steps):
         return carry, out
 
     carry = (jnp.int32(0), None, jnp.bool_(False), None)
-    for n in (n_steps, steps):
-        ran.clear()
-        out = jax.jit(lambda c, n=n: E._run_until_done(body, c, n, shapes))(carry)
-        jax.block_until_ready(out)
-        jax.effects_barrier()
-        assert out["alive"].shape == (n,)
-        if n == steps:
-            assert len(ran) == steps
-        else:
-            assert len(ran) == steps > n  # the rounding is what the loop would run anyway
+    out = jax.jit(lambda c: E._run_until_done(body, c, n_steps, shapes))(carry)
+    jax.block_until_ready(out)
+    jax.effects_barrier()
+    assert out["alive"].shape == (n_steps,)
+    assert len(ran) == steps >= n_steps
+    assert (steps == n_steps) == (n_steps <= E.CHUNK or n_steps % E.CHUNK == 0)
+    p = argparse.ArgumentParser()
+    CL.add_args(p)
+    args = p.parse_args(["--steps", str(n_steps), "--image", "16"])
+    assert CL.run_config(args).episode.n_steps == steps

@@ -62,14 +62,24 @@ def time_call(fn: Callable[..., Any], *args: Any, repeats: int = 5) -> dict[str,
     t0 = time.perf_counter()
     jax.block_until_ready(fn(*args))
     compile_s = time.perf_counter() - t0
+    runs = time_runs(fn, *args, repeats=repeats)["runs_s"]
+    return {"compile_s": compile_s, "median_s": statistics.median(runs), "runs_s": runs}
+
+
+def time_runs(fn: Callable[..., Any], *args: Any, repeats: int) -> dict[str, Any]:
+    """Under `timing_lock`: one untimed call (after the wait for the lock; it also sets up
+    what a program runs once, e.g. its CUDA graphs), then `repeats` timed ones. Returns
+    {first_s, runs_s, out (the last call's output)}; every call is waited for."""
     runs = []
     with timing_lock():
-        jax.block_until_ready(fn(*args))  # after the wait for the lock: warm again
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(fn(*args))
+        first_s = time.perf_counter() - t0
         for _ in range(repeats):
             t0 = time.perf_counter()
-            jax.block_until_ready(fn(*args))
+            out = jax.block_until_ready(fn(*args))
             runs.append(time.perf_counter() - t0)
-    return {"compile_s": compile_s, "median_s": statistics.median(runs), "runs_s": runs}
+    return {"first_s": first_s, "runs_s": runs, "out": out}
 
 
 def time_interleaved(calls: dict[Any, Callable[[], Any]], rounds: int) -> dict[Any, list[float]]:

@@ -24,11 +24,10 @@ import dataclasses
 import statistics
 import time
 
-import jax
 import numpy as np
 
 from mjxrow import control, crops, runtime
-from mjxrow.bench import timing_lock
+from mjxrow.bench import time_runs
 from mjxrow.control import perception
 from mjxrow.rollout import build as B
 from mjxrow.rollout import episode as E
@@ -60,21 +59,13 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repeats", type=int, default=3)
 
 
-def timed_steps(steps: int) -> int:
-    """`steps` rounded up to what a call runs: the episode loop runs whole chunks of
-    `episode.CHUNK` control steps (fewer steps than one chunk run as one chunk of that
-    length), so 60 steps would run 75 and count 60."""
-    chunk = E.CHUNK
-    return steps if steps <= chunk else -(-steps // chunk) * chunk
-
-
 def run_config(args: argparse.Namespace) -> RunConfig:
     """The RunConfig of the command line (ConfigError naming the key)."""
     hz = C.from_dict({}, sets=args.set).sim.control_hz
     raw = {"preset": args.preset, "controller": {"name": args.controller},
            "perception": {"source": args.perception},
            "camera": {"width": args.image, "height": args.image},
-           "episode": {"max_time": timed_steps(args.steps) / hz}}
+           "episode": {"max_time": E.steps_run(args.steps) / hz}}
     return C.expand(C.from_dict(raw, sets=args.set))[0].cfg
 
 
@@ -115,18 +106,11 @@ def measure(built: B.Built, run: RunConfig, b: int, repeats: int) -> dict:
     exe = built.executable(args)
     compile_s = time.perf_counter() - t0
     split = watch.split()
-    runs = []
-    with timing_lock():
-        t0 = time.perf_counter()  # the first call sets up what a program runs once (its CUDA
-        jax.block_until_ready(exe(*args))  # graphs, autotuned kernels' modules): not timed
-        first_s = time.perf_counter() - t0
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            log = jax.block_until_ready(exe(*args))
-            runs.append(time.perf_counter() - t0)
+    t = time_runs(exe, *args, repeats=repeats)
+    log = t["out"]
     summary = built.summarise(log, b)
-    return {"compile_s": compile_s, "cache_hits": split["cache_hits"], "first_run_s": first_s,
-            "runs_s": runs,
+    return {"compile_s": compile_s, "cache_hits": split["cache_hits"],
+            "first_run_s": t["first_s"], "runs_s": t["runs_s"],
             "alive_end": int(np.sum(runtime.to_host(log.alive[:, -1]))),
             "success": float(np.mean(summary["success"]))}
 
@@ -141,8 +125,8 @@ def run(args: argparse.Namespace) -> list[dict]:
     except ValueError as e:
         raise SystemExit(f"bench closed_loop: {e}") from None
     rows = []
-    if timed_steps(args.steps) != args.steps:
-        print(f"note: --steps {args.steps} → {timed_steps(args.steps)}, a whole number of "
+    if E.steps_run(args.steps) != args.steps:
+        print(f"note: --steps {args.steps} → {E.steps_run(args.steps)}, a whole number of "
               f"the episode loop's {E.CHUNK}-step chunks (it would run them and count "
               f"{args.steps})", flush=True)
     for b in args.batch:

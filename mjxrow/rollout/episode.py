@@ -249,6 +249,13 @@ def episodes(mx, fields: F.Field, lanes: jax.Array, keys: jax.Array, noise: sim.
     return jax.vmap(_log)(out, p0, ctx["goal"], ctx["lane_y"])
 
 
+def steps_run(n_steps: int) -> int:
+    """Control steps that a batch whose episodes all run `n_steps` steps computes: whole
+    chunks of CHUNK (one chunk of n_steps below that), e.g. 75 for 60."""
+    chunk = min(n_steps, CHUNK)
+    return -(-n_steps // chunk) * chunk
+
+
 def _run_until_done(body, carry, n_steps: int, shapes: dict) -> dict:
     """`lax.scan(body, carry, arange(n_steps))[1]`, stopped early once the episode is done,
     for one world or a batch (`carry[2]` (done) [] or [B]; outputs [T, ...] or [B, T, ...]).
@@ -260,7 +267,7 @@ def _run_until_done(body, carry, n_steps: int, shapes: dict) -> dict:
     as steps after the end: pose and vel NaN, cmd 0, alive False, event RUNNING.
     shapes: one world's per-step outputs (`_out_shapes`)."""
     chunk = min(n_steps, CHUNK)
-    n_chunks = -(-n_steps // chunk)
+    n_chunks = steps_run(n_steps) // chunk
     lead = jnp.shape(carry[2])  # () or (B,)
     fill = dict(pose=jnp.nan, vel=jnp.nan, cmd=0, alive=False, event=M.RUNNING)
     buf0 = {k: jnp.full((n_chunks * chunk,) + lead + v.shape, fill[k], v.dtype)
