@@ -6,6 +6,7 @@
 #
 #   OUT=DIR bash experiments/gpu_scaling.sh            # default OUT=/tmp/scaling_out
 #   SMOKE=1 OUT=DIR bash experiments/gpu_scaling.sh    # tiny sizes: checks the script on a CPU
+#   BENCH_SET="--set render.kernel=fused" ...          # extra flags for both benchmark runs
 #
 # The sweep is sweeps.yaml with 114 seeds (36 cells x 114 = 4,104 episodes) in batches of
 # 1,368 (three calls); the benchmark is `python -m mjxrow.bench closed_loop` at B = 2,048,
@@ -13,7 +14,8 @@
 # shared by all four runs (what both device counts use compiles once). Raw figures:
 # $OUT/scaling.jsonl (sweep: wall, compile / run / write as the sweep
 # prints them) and $OUT/closed_loop.jsonl (bench rows); the two summary.csv files are compared
-# at the end (equal, or the largest difference per column), then a short table.
+# at the end (equal, or the largest difference per column), then a short table; both runs'
+# summary.csv and results.csv are kept in $OUT/sweeps.tgz.
 set -uo pipefail
 out=${OUT:-/tmp/scaling_out}; mkdir -p "$out"
 py=${PY:-python3}
@@ -26,6 +28,8 @@ else
   sweep_flags=(--set seeds=114 --set batch_size=1368)
   bench_flags=(--batch 2048 --image 64 --steps 150 --repeats 3)
 fi
+read -r -a bench_set <<<"${BENCH_SET:-}"
+bench_flags+=("${bench_set[@]}")
 { command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,memory.total,driver_version \
     --format=csv,noheader; } 2>&1 | tee "$out/device.txt"
 
@@ -64,6 +68,8 @@ sweep_one 0 1
 sweep_one 0,1 2
 bench_one 0 1
 bench_one 0,1 2
+tar czf "$out/sweeps.tgz" -C "$work" --ignore-failed-read sweep_1/summary.csv sweep_1/results.csv \
+  sweep_2/summary.csv sweep_2/results.csv 2>/dev/null
 
 $py - "$out" "$work" <<'PY'
 import json, pathlib, sys
