@@ -23,7 +23,7 @@ from mjxrow import field as F
 from mjxrow.field import params as FP
 
 if TYPE_CHECKING:
-    from mjxrow.physics.sim import SimConfig
+    from mjxrow.physics.model import SimConfig
 
 
 def _np(params: F.FieldParams) -> dict[str, np.ndarray]:
