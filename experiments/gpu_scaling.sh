@@ -10,8 +10,9 @@
 #
 # The sweep is sweeps.yaml with 114 seeds (36 cells x 114 = 4,104 episodes) in batches of
 # 1,368 (three calls); the benchmark is `python -m mjxrow.bench closed_loop` at B = 2,048,
-# 64 x 64. Compile and run time are reported apart; the compilation cache starts empty and is
-# shared by all four runs (what both device counts use compiles once). Raw figures:
+# 64 x 64. Compile and run time are reported apart; the compilation cache starts empty (each
+# device count compiles programs of its own: on two H100s no program was shared). Each run
+# stops at SWEEP_LIMIT (default 190) or BENCH_LIMIT (default 180) seconds. Raw figures:
 # $OUT/scaling.jsonl (sweep: wall, compile / run / write as the sweep
 # prints them) and $OUT/closed_loop.jsonl (bench rows); the two summary.csv files are compared
 # at the end (equal, or the largest difference per column), then a short table; both runs'
@@ -33,7 +34,7 @@ bench_flags+=("${bench_set[@]}")
 { command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,memory.total,driver_version \
     --format=csv,noheader; } 2>&1 | tee "$out/device.txt"
 
-cache="$work/cache"  # one cache for all runs: what the two device counts share is compiled once
+cache="$work/cache"  # one cache for all runs
 sweep_one() {  # sweep_one DEVICES N
   local devs=$1 n=$2
   echo "== sweep on $n GPU(s) ($(date +%T))"
@@ -59,7 +60,7 @@ PY
 bench_one() {  # bench_one DEVICES N
   local devs=$1 n=$2
   echo "== closed loop on $n GPU(s) ($(date +%T))"
-  CUDA_VISIBLE_DEVICES=$devs timeout "${BENCH_LIMIT:-100}" $py -m mjxrow.bench closed_loop \
+  CUDA_VISIBLE_DEVICES=$devs timeout "${BENCH_LIMIT:-180}" $py -m mjxrow.bench closed_loop \
     "${bench_flags[@]}" --cache-dir "$cache" --out "$out/closed_loop.jsonl" \
     >"$out/bench_$n.log" 2>&1 || echo "!! bench on $n GPU(s) failed (log $out/bench_$n.log)"
   tail -n 2 "$out/bench_$n.log"
