@@ -235,3 +235,19 @@ def test_shipped_sweeps_are_valid(name):
 def test_docs_reference_table_is_current():
     doc = (Path(__file__).parents[1] / "docs" / "sweep.md").read_text()
     assert SD.reference_markdown() in doc
+
+
+def test_docs_command_rewrites_the_table_after_its_marker_and_names_a_bad_file(tmp_path, capsys):
+    doc = tmp_path / "keys.md"
+    doc.write_text(f"# Keys\n\n{SD.MARK} -->\n| stale | table |\n|---|---|\n\nAfter.\n")
+    assert SD.main([str(doc)]) == 0
+    text = doc.read_text()
+    assert SD.reference_markdown() in text and "| stale |" not in text
+    assert text.endswith("\nAfter.\n")
+    assert SD.main([str(doc)]) == 0 and "already current" in capsys.readouterr().out
+    for bad, why in ((tmp_path / "missing.md", "no such file"), (tmp_path / "plain.md", "no line")):
+        if bad.name == "plain.md":
+            bad.write_text("# no marker\n")
+        with pytest.raises(SystemExit) as e:
+            SD.main([str(bad)])
+        assert e.value.code == 2 and why in capsys.readouterr().err

@@ -4,6 +4,7 @@ static, and its meaning)."""
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import sys
 from pathlib import Path
@@ -66,5 +67,18 @@ def regenerate(path: str | Path = "docs/sweep.md") -> bool:
     return True
 
 
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m mjxrow.sweep.docs", description=__doc__)
+    ap.add_argument("path", nargs="?", default="docs/sweep.md",
+                    help="markdown file holding the marker line (default: docs/sweep.md)")
+    path = Path(ap.parse_args(argv).path)
+    if not path.is_file():
+        ap.error(f"{path}: no such file")
+    if not any(line.startswith(MARK) for line in path.read_text().split("\n")):
+        ap.error(f"{path}: no line starting with {MARK!r}")
+    print(path, "regenerated" if regenerate(path) else "already current")
+    return 0
+
+
 if __name__ == "__main__":
-    print("docs/sweep.md", "regenerated" if regenerate(*sys.argv[1:]) else "already current")
+    sys.exit(main())
