@@ -20,7 +20,7 @@ triangulation) and placed by the terrain geom's position. Heights are stored as
 (h − h_min) / `patch_z` in [0, 1] and the geom sits at z = h_min, so `patch_z` (static) must
 exceed the height range over the patch: |ΔH| ≤ 0.3 m plus a 10 % slope over 24 m × 6 m is 3.3 m,
 below the default 4 m (float32 keeps 0.5 mm resolution at that range). A robot leaving the patch
-falls off its edge: `off_patch` tells when. With cells ≥ 0.196 m a wheel of radius 0.098 m
+falls off its edge: `sim.off_patch` tells when. With cells ≥ 0.196 m a wheel of radius 0.098 m
 touches a 2×2-cell sub-grid (8 prisms) per step instead of 3×3 (18 prisms).
 
 Obstacles. Stones and fallen branches are capsules (a stone is a capsule of half length

@@ -53,10 +53,14 @@ def reference_markdown() -> str:
 
 
 def regenerate(path: str | Path = "docs/sweep.md") -> bool:
-    """Replace the table after the marker line with `reference_markdown()`; True if changed."""
+    """Replace the table after the marker line with `reference_markdown()`; True if changed.
+    OSError when the file cannot be read, ValueError when it has no marker line."""
     path = Path(path)
     lines = path.read_text().split("\n")
-    start = next(i for i, line in enumerate(lines) if line.startswith(MARK)) + 1
+    start = next((i for i, line in enumerate(lines) if line.startswith(MARK)), None)
+    if start is None:
+        raise ValueError(f"{path}: no line starting with {MARK!r}")
+    start += 1
     end = start
     while end < len(lines) and lines[end].startswith("|"):
         end += 1
@@ -71,12 +75,14 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mjxrow.sweep.docs", description=__doc__)
     ap.add_argument("path", nargs="?", default="docs/sweep.md",
                     help="markdown file holding the marker line (default: docs/sweep.md)")
-    path = Path(ap.parse_args(argv).path)
-    if not path.is_file():
+    path = ap.parse_args(argv).path
+    try:
+        changed = regenerate(path)
+    except FileNotFoundError:
         ap.error(f"{path}: no such file")
-    if not any(line.startswith(MARK) for line in path.read_text().split("\n")):
-        ap.error(f"{path}: no line starting with {MARK!r}")
-    print(path, "regenerated" if regenerate(path) else "already current")
+    except (OSError, ValueError) as e:
+        ap.error(str(e))
+    print(path, "regenerated" if changed else "already current")
     return 0
 
 
