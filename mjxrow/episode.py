@@ -15,7 +15,8 @@ import sys
 
 from mjxrow import control, crops, interrupt, runtime
 from mjxrow import files as FS
-from mjxrow.rollout import cli, limits
+from mjxrow import limits
+from mjxrow.rollout import cli
 from mjxrow.sweep import config as C
 from mjxrow.sweep import estimate
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from mjxrow import control, crops, runtime
 from mjxrow.bench import time_runs
-from mjxrow.control import perception
+from mjxrow.policies import perception
 from mjxrow.rollout import build as B
 from mjxrow.rollout import episode as E
 from mjxrow.rollout.config import RunConfig

@@ -9,12 +9,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from mjxrow import field as F
+from mjxrow import crops
 from mjxrow.seg import synth as DS
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--crop", default="zucchini", choices=F.CROPS)
+    p.add_argument("--crop", default="zucchini", choices=crops.names())
     p.add_argument("--n", type=int, default=DS.PAPER_N["zucchini"], help="samples to write")
     p.add_argument("--size", type=int, default=224, help="image side [px]")
     p.add_argument("--batch", type=int, default=256, help="images rendered per call")

@@ -6,13 +6,14 @@ import argparse
 
 import jax
 
+from mjxrow import crops
 from mjxrow import field as F
 from mjxrow.bench import time_call
 from mjxrow.rollout import build as B
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--preset", default="zucchini", choices=F.CROPS)
+    p.add_argument("--preset", default="zucchini", choices=crops.names())
     p.add_argument("--batch", type=int, nargs="+", default=[1024])
     p.add_argument("--repeats", type=int, default=5)
 

@@ -18,13 +18,14 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
+from mjxrow import crops
 from mjxrow import field as F
 from mjxrow.bench import time_call
 from mjxrow.physics import sim as S
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--preset", default="pear", choices=F.CROPS)
+    p.add_argument("--preset", default="pear", choices=crops.names())
     p.add_argument("--batch", type=int, nargs="+", default=[256, 1024, 4096])
     p.add_argument("--steps", type=int, default=100, help="control periods per call")
     p.add_argument("--repeats", type=int, default=5)

@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import yaml
 
+from mjxrow import crops
 from mjxrow import field as F
 from mjxrow import render as RD
 from mjxrow.bench import time_call
@@ -19,7 +20,7 @@ MAX_RAYS = 1 << 24  # rays per vmapped chunk when --chunk is 0 (bounds the [rays
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--preset", default="zucchini", choices=F.CROPS)
+    p.add_argument("--preset", default="zucchini", choices=crops.names())
     p.add_argument("--batch", type=int, nargs="+", default=[1024], help="worlds per call")
     p.add_argument("--res", type=int, nargs="+", default=[64, 128, 224],
                    help="square image sides [px]")

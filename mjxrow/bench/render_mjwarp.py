@@ -44,7 +44,7 @@ from mjxrow import field as F
 from mjxrow import render as RD
 from mjxrow.bench import render as BR
 from mjxrow.bench import time_call
-from mjxrow.field import mjcf
+from mjxrow.worlds import mjcf
 
 NEEDS = ("warp", "mujoco.mjx.third_party.mujoco_warp")
 MISSING = ("bench render_mjwarp: needs warp-lang (mujoco-mjx carries MuJoCo Warp): pip install "
@@ -81,7 +81,7 @@ def lane_poses(field: F.Field, cam_height: float, pitch_deg: float,
     over the lanes and −x on odd ones, pitched by `pitch_deg` (negative looks down), at a
     golden-ratio sequence of positions between the rows' ends. Returns (cam_pos float32 [B, 3],
     cam_rot float32 [B, 3, 3]), MuJoCo's camera convention (columns right, up, backwards)."""
-    from mjxrow.field import scene as S
+    from mjxrow.worlds import scene as S
 
     f = S.host(field)
     lanes = S.field_lanes(f)
@@ -190,7 +190,7 @@ def exported(preset: str):
     """(episode, MJCF text, assets) of `preset`'s world as `python -m mjxrow.worlds` exports
     it, without the robot."""
     from mjxrow import worlds
-    from mjxrow.field import replay
+    from mjxrow.worlds import replay
 
     run, shape = worlds.resolve_run(preset)
     ep = replay.episode_world(run, shape, 0)

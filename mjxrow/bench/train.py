@@ -12,8 +12,8 @@ import argparse
 import jax
 import numpy as np
 
+from mjxrow import crops
 from mjxrow.bench import time_call
-from mjxrow.field import CROPS
 from mjxrow.seg import convs as SC
 from mjxrow.seg import model as M
 from mjxrow.seg import train as T
@@ -33,7 +33,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pw-impl", default="auto", choices=("auto",) + SC.PW_IMPLS,
                    help=f"1x1 conv implementation ({SC.auto_rule('pointwise')})")
     p.add_argument("--on-the-fly", action="store_true", help="render each batch in the step")
-    p.add_argument("--crop", default="zucchini", choices=(*CROPS, "all"))
+    p.add_argument("--crop", default="zucchini", choices=(*crops.names(), "all"))
 
 
 def run(args: argparse.Namespace) -> list[dict]:

@@ -34,7 +34,7 @@ from flax import struct
 
 from mjxrow import control, render
 from mjxrow import field as F
-from mjxrow.env import observe as O
+from mjxrow.policies import observe as O
 from mjxrow.env import randomize as RZ
 from mjxrow.env import reward as RW
 from mjxrow.physics import sim

@@ -31,7 +31,7 @@ import numpy as np
 
 from mjxrow import control, runtime
 from mjxrow import field as F
-from mjxrow.control import perception
+from mjxrow.policies import perception
 from mjxrow.field.generate import PATH_LENGTH
 from mjxrow.physics import sim
 from mjxrow.rollout import episode as E

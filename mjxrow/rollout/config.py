@@ -37,12 +37,12 @@ import yaml
 
 from mjxrow import control, crops
 from mjxrow import field as F
-from mjxrow.control.perception import PerceptionConfig
+from mjxrow.policies.perception import PerceptionConfig
 from mjxrow.field import params as FP
 from mjxrow.physics.robot import RobotConfig
 from mjxrow.physics.sim import SimConfig
 from mjxrow.render import Intrinsics, RenderConfig
-from mjxrow.rollout import limits
+from mjxrow import limits
 from mjxrow.rollout.episode import EpisodeConfig
 
 SECTIONS: dict[str, type] = {"sim": SimConfig, "robot": RobotConfig, "camera": Intrinsics,

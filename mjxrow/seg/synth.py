@@ -46,7 +46,7 @@ from mjxrow import field as F
 from mjxrow import files as FS
 from mjxrow import render as RD
 from mjxrow.field import params as FP
-from mjxrow.rollout import limits
+from mjxrow import limits
 
 COLUMNS = ("rgb", "mask", "crop", "condition", "x", "y", "z", "yaw", "pitch", "lateral", "split")
 

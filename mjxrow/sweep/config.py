@@ -33,7 +33,7 @@ from mjxrow import control, crops
 from mjxrow import field as F
 from mjxrow.physics import sim
 from mjxrow.rollout import config as schema
-from mjxrow.rollout import limits
+from mjxrow import limits
 from mjxrow.rollout.config import (
     ConfigError,
     ControllerChoice,
@@ -172,7 +172,7 @@ def _value(path: str, v: Any, parse, axis_ok: bool) -> Any:
         num = _scalar(f"{path}.num", v["num"], "int", check="positive")
         if num > limits.AXIS_VALUES:
             raise ConfigError(f"{path}.num: {num:,} values, beyond the bound of "
-                              f"{limits.AXIS_VALUES:,} values per axis (mjxrow/rollout/limits.py)")
+                              f"{limits.AXIS_VALUES:,} values per axis (mjxrow/limits.py)")
         a = _scalar(f"{path}.start", v["start"], "float")
         b = _scalar(f"{path}.stop", v["stop"], "float")
         return _value(path, [round(float(x), 10) for x in np.linspace(a, b, num)], parse, True)
@@ -253,11 +253,11 @@ def check_grid(cfg: SweepConfig) -> None:
     if cells > limits.CELLS:
         raise ConfigError(f"{longest}: the grid has {cells:,} cells ("
                           + " × ".join(f"{n} {k}" for k, n in sizes.items())
-                          + f"), beyond the bound of {limits.CELLS:,} (mjxrow/rollout/limits.py)")
+                          + f"), beyond the bound of {limits.CELLS:,} (mjxrow/limits.py)")
     if cells * cfg.seeds > limits.EPISODES:
         raise ConfigError(f"seeds: {cells:,} cells × {cfg.seeds:,} seeds = "
                           f"{cells * cfg.seeds:,} episodes, beyond the bound of "
-                          f"{limits.EPISODES:,} (mjxrow/rollout/limits.py)")
+                          f"{limits.EPISODES:,} (mjxrow/limits.py)")
 
 
 def load(path: str | Path, sets=(), smoke: bool = False) -> SweepConfig:
@@ -504,7 +504,7 @@ def check(cfg: SweepConfig) -> None:
             given = {k for c in cells for k, v in c.cfg.field.items() if v is not None}
             key = next((k for k in keys if k in given), keys[0])
             raise ConfigError(f"field.{key}: gives {size:,} {what} in a field, beyond the "
-                              f"bound of {bound:,} (mjxrow/rollout/limits.py)")
+                              f"bound of {bound:,} (mjxrow/limits.py)")
     if cfg.mix_controllers:
         variants: dict[tuple, set] = {}
         for cell in cells:

@@ -5,9 +5,9 @@ states (`checkpoint`), and the loop with its budget, progress bar, log and learn
 (`loop`). `experiments/train_policy.py` is the command."""
 
 from mjxrow.train.bc import BCConfig
-from mjxrow.train.checkpoint import PolicyCheckpoint
+from mjxrow.policies.checkpoint import PolicyCheckpoint
 from mjxrow.train.loop import TrainConfig, Trainer, plot_curve, train
-from mjxrow.train.networks import TINY, NetConfig, PolicyNet
+from mjxrow.policies.networks import TINY, NetConfig, PolicyNet
 from mjxrow.train.ppo import PPOConfig
 
 __all__ = ["TINY", "BCConfig", "NetConfig", "PPOConfig", "PolicyCheckpoint", "PolicyNet",

@@ -17,7 +17,7 @@ import dataclasses
 
 import jax.numpy as jnp
 
-from mjxrow.train import networks as N
+from mjxrow.policies import networks as N
 
 
 @dataclasses.dataclass(frozen=True)

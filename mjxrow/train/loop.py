@@ -31,10 +31,11 @@ from tqdm.auto import tqdm
 from mjxrow import env as E
 from mjxrow.rollout.config import build_run
 from mjxrow.train import bc as BC
-from mjxrow.train import checkpoint as CK
-from mjxrow.train import networks as N
+from mjxrow.policies import checkpoint as CK
+from mjxrow.policies import networks as N
 from mjxrow.train import ppo as P
 from mjxrow.train import rollout as R
+from mjxrow.train import state as train_state
 
 
 @dataclasses.dataclass(frozen=True)
@@ -156,7 +157,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     params = tr.init_params(k_init)
     state = {"params": params, "bc_opt": tr.bc_tx.init(params), "ppo_opt": tr.ppo_tx.init(params),
              "counters": _counters(0, 0, 0.0), "key": jax.random.key_data(key)}
-    restored = CK.restore_state(out / "state", state, tr.about())
+    restored = train_state.restore_state(out / "state", state, tr.about())
     if restored is not None:
         state = restored[1]
         log(f"resumed from {out / 'state'}: iteration {int(state['counters']['iteration'])}, "
@@ -248,7 +249,7 @@ def _counters(it: int, env_steps: int, elapsed: float) -> dict:
 
 
 def _save(out, tr, params, bc_opt, ppo_opt, it, env_steps, elapsed, key):
-    CK.save_state(out / "state", it, {
+    train_state.save_state(out / "state", it, {
         "params": params, "bc_opt": bc_opt, "ppo_opt": ppo_opt,
         "counters": _counters(it, env_steps, elapsed),
         "key": jax.random.key_data(key)}, tr.about())

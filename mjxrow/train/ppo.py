@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from mjxrow.train import networks as N
+from mjxrow.policies import networks as N
 from mjxrow.train.rollout import Transition
 
 

@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from mjxrow.train import networks as N
+from mjxrow.policies import networks as N
 
 EPISODE_KEYS = ("return", "nav/success", "nav/collision", "nav/cha", "nav/mae", "nav/mse",
                 "nav/omega_std", "nav/time", "nav/max_offset")

@@ -80,11 +80,11 @@ def check_value(key: str, value: Any) -> None:
         raise LimitError(f"{key}: must be finite, got {value}")
     if float(value) > bound:
         raise LimitError(f"{key}: {_fmt(value)}{unit} is beyond the bound of {_fmt(bound)}{unit} "
-                         f"(mjxrow/rollout/limits.py)")
+                         f"(mjxrow/limits.py)")
 
 
 def check_count(key: str, what: str, n: float, bound: float) -> None:
     """LimitError naming `key` when a derived count `n` (e.g. control steps) exceeds `bound`."""
     if not n <= bound:
         raise LimitError(f"{key}: gives {_fmt(n)} {what}, beyond the bound of {_fmt(bound)} "
-                         f"(mjxrow/rollout/limits.py)")
+                         f"(mjxrow/limits.py)")

@@ -1,6 +1,6 @@
 """Host-side exports of ONE generated field, with the robot at the start of a lane: MJCF
 (MuJoCo and its viewer, `field.mjcf`), Gazebo Sim and Gazebo Classic 11 worlds (`field.sdf`,
-`field.gzrobot`) and the ground truth as CSV. CLI: `python -m mjxrow.worlds` (mjxrow/worlds.py).
+`field.gzrobot`) and the ground truth as CSV. CLI: `python -m mjxrow.worlds` (mjxrow/worlds/cli.py).
 
 Files written into an export folder for a world `<name>`:
 
@@ -18,11 +18,11 @@ import numpy as np
 import pandas as pd
 
 from mjxrow import field as F
-from mjxrow.field import scene as S
-from mjxrow.field import sdf as G
-from mjxrow.field.mjcf import lane_camera, snapshot, to_mjcf  # noqa: F401  (public names)
-from mjxrow.field.scene import Robot, Start  # noqa: F401
-from mjxrow.field.sdf import SDF_COLLISIONS, heightmap  # noqa: F401
+from mjxrow.worlds import scene as S
+from mjxrow.worlds import sdf as G
+from mjxrow.worlds.mjcf import lane_camera, snapshot, to_mjcf  # noqa: F401  (public names)
+from mjxrow.worlds.scene import Robot, Start  # noqa: F401
+from mjxrow.worlds.sdf import SDF_COLLISIONS, heightmap  # noqa: F401
 
 GAZEBO = ("sim", "classic", "both", "none")
 

@@ -32,9 +32,9 @@ from PIL import Image
 
 from mjxrow import field as F
 from mjxrow.crops import prims as PL
-from mjxrow.field import gzrobot
-from mjxrow.field import scene as S
-from mjxrow.field.mjcf import BRANCH_RGB, PLANT_RGB, SOIL_RGB, STONE_RGB
+from mjxrow.worlds import gzrobot
+from mjxrow.worlds import scene as S
+from mjxrow.worlds.mjcf import BRANCH_RGB, PLANT_RGB, SOIL_RGB, STONE_RGB
 
 FLAVOURS = ("sim", "classic")
 SDF_COLLISIONS = ("footprint", "primitives", "none")

@@ -170,7 +170,7 @@ def segmenter_for(run, spec: ObsSpec) -> Segmenter | None:
         return None
     from pathlib import Path
 
-    from mjxrow.control import perception
+    from mjxrow.policies import perception
 
     ck = run.perception.checkpoint
     if ck == "shipped":

@@ -29,8 +29,8 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
-from mjxrow.env.observe import ObsSpec
-from mjxrow.train import networks as N
+from mjxrow.policies.observe import ObsSpec
+from mjxrow.policies import networks as N
 
 SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints" / "policy"
 SPEC_FILE = "policy.json"
@@ -161,44 +161,3 @@ def example_obs(spec: ObsSpec, image_shape=None) -> dict:
     if spec.proprio:
         out["proprio"] = jnp.zeros(4, jnp.float32)
     return out
-
-
-# ---------------------------------------------------------------------------------------------
-# Training states
-
-
-def _manager(folder: Path) -> ocp.CheckpointManager:
-    return ocp.CheckpointManager(folder.resolve(), options=ocp.CheckpointManagerOptions(
-        max_to_keep=2, create=True))
-
-
-def save_state(folder: str | Path, step: int, tree: Any, about: dict) -> None:
-    """Save a training state `tree` (params, opt_state, counters) as step `step`; `about`
-    (JSON: observation, network, ...) is written beside it for `restore_state`'s check."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "train.json").write_text(json.dumps(about, indent=2, sort_keys=True) + "\n")
-    with _manager(folder) as mgr:
-        mgr.save(step, args=ocp.args.StandardSave(jax.device_get(tree)), force=True)
-        mgr.wait_until_finished()
-
-
-def restore_state(folder: str | Path, target: Any, about: dict,
-                  key: str = "--resume") -> tuple[int, Any] | None:
-    """(step, tree) of the latest training state in `folder`, restored like `target`; None
-    when there is none. ValueError naming `key` and the first entry of `about` that differs
-    from the saved run's."""
-    folder = Path(folder)
-    if not (folder / "train.json").is_file():
-        return None
-    saved = json.loads((folder / "train.json").read_text())
-    for k, v in about.items():
-        if saved.get(k) != json.loads(json.dumps(v)):
-            raise ValueError(f"{key}: {folder} holds a run with another {k} "
-                             f"({saved.get(k)!r}, this run: {v!r}); use another --out")
-    with _manager(folder) as mgr:
-        step = mgr.latest_step()
-        if step is None:
-            return None
-        tree = mgr.restore(step, args=ocp.args.StandardRestore(target))
-    return int(step), tree

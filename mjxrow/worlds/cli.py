@@ -1,5 +1,5 @@
 """`python -m mjxrow.worlds`: export fields as MuJoCo MJCF (with the robot), Gazebo Sim / Gazebo
-Classic worlds and ground-truth CSVs (mjxrow.field.export).
+Classic worlds and ground-truth CSVs (mjxrow.worlds.export).
 
     python -m mjxrow.worlds --preset zucchini [--seed 0] [--episode 0] [--set field.d_rr=2.0]
         [--lane 3] [--gazebo sim|classic|both|none] --out DIR
@@ -22,7 +22,7 @@ from pathlib import Path
 
 def _parser() -> argparse.ArgumentParser:
     from mjxrow import crops
-    from mjxrow.field import export as X
+    from mjxrow.worlds import export as X
 
     ap = argparse.ArgumentParser(prog="python -m mjxrow.worlds",
                                  description=__doc__.split("\n")[0].split(": ", 1)[1],
@@ -85,8 +85,8 @@ def main(argv: list[str] | None = None) -> int:
     from tqdm import tqdm
 
     from mjxrow import crops
-    from mjxrow.field import export as X
-    from mjxrow.field import replay
+    from mjxrow.worlds import export as X
+    from mjxrow.worlds import replay
     from mjxrow.files import check_out_dir, check_out_file
 
     try:

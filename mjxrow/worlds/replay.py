@@ -21,7 +21,7 @@ import pandas as pd
 import yaml
 
 from mjxrow import field as F
-from mjxrow.field import scene as S
+from mjxrow.worlds import scene as S
 from mjxrow.rollout import build as B
 from mjxrow.rollout.config import RunConfig
 

@@ -53,7 +53,7 @@ class PolicyState:
 
 @functools.lru_cache(maxsize=8)
 def _load(path: str, stamp: int, expect: tuple):
-    from mjxrow.train import checkpoint as ckpt
+    from mjxrow.policies import checkpoint as ckpt
 
     return ckpt.load(path, dict(expect))
 
@@ -61,7 +61,7 @@ def _load(path: str, stamp: int, expect: tuple):
 def load(cfg: PolicyConfig, image_hw: tuple[int, int] | None, base_dir: str = "."):
     """The checkpoint of `cfg`, checked against the camera's (height, width) unless None;
     cached until its policy.json changes (a retrained checkpoint in the same folder)."""
-    from mjxrow.train import checkpoint as ckpt
+    from mjxrow.policies import checkpoint as ckpt
 
     path = ckpt.resolve(cfg.checkpoint, base_dir)
     stamp = (path / ckpt.SPEC_FILE).stat().st_mtime_ns
@@ -91,7 +91,7 @@ def image_policy(net, spec, seg_module, shape, intr, render_cfg, limits: tuple[f
     observation spec, the segmenter module (None: none), the field shape, the camera
     intrinsics, the render config, the action limits (v_max, ω_max) and the control period."""
     from mjxrow import render
-    from mjxrow.env import observe as O
+    from mjxrow.policies import observe as O
 
     lim = jnp.asarray(limits, jnp.float32)
 
@@ -121,8 +121,8 @@ def image_policy(net, spec, seg_module, shape, intr, render_cfg, limits: tuple[f
 def make_policy(run, shape) -> tuple[Policy, Any]:
     """(Policy, base perception params) of a run whose controller is `policy`: the checkpoint
     loaded and checked, the segmenter its observation needs (env.observe.segmenter_for)."""
-    from mjxrow.control import perception
-    from mjxrow.env import observe as O
+    from mjxrow.policies import perception
+    from mjxrow.policies import observe as O
 
     ck = load(run.controller.params, (run.camera.height, run.camera.width), run.base_dir)
     seg = O.segmenter_for(run, ck.spec)

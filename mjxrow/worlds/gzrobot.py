@@ -25,7 +25,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 
 from mjxrow import field as F
-from mjxrow.field import scene as S
+from mjxrow.worlds import scene as S
 from mjxrow.physics import sim
 
 CAMERA_HZ = 15.0  # Hz, camera update rate (the closed loop's control rate)

@@ -29,7 +29,7 @@ import numpy as np
 
 from mjxrow import field as F
 from mjxrow.crops import prims as PL
-from mjxrow.field import scene as S
+from mjxrow.worlds import scene as S
 from mjxrow.physics import robot as R
 from mjxrow.physics import sim
 
