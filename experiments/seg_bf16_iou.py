@@ -21,7 +21,7 @@ import jax
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
-from mjxrow.field import CROPS  # noqa: E402
+from mjxrow import crops  # noqa: E402
 from mjxrow.seg import checkpoint as ckpt  # noqa: E402
 from mjxrow.seg import data as D  # noqa: E402
 from mjxrow.seg.model import predict_mask  # noqa: E402
@@ -49,7 +49,7 @@ def compare(crop: str, n: int, size: int, batch: int = 32) -> dict[str, float]:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--crops", nargs="+", default=["zucchini"], choices=CROPS)
+    p.add_argument("--crops", nargs="+", default=["zucchini"], choices=crops.names())
     p.add_argument("--n", type=int, default=256, help="rendered images per crop")
     p.add_argument("--size", type=int, default=64, help="image side [px]")
     p.add_argument("--out", help="also append one JSON line per crop to this file")

@@ -112,12 +112,12 @@ def main(argv: list[str] | None = None) -> None:
 
 def module_crop(spec: str) -> str:
     """The crop whose renders feed a checkpoint: its name, or the folder's config crop."""
-    from mjxrow.field import CROPS
+    from mjxrow import crops
 
-    if spec in CROPS:
+    if spec in crops.names():
         return spec
     crop = ckpt.read_config(spec).get("crop", "zucchini")
-    return crop if crop in CROPS else "zucchini"
+    return crop if crop in crops.names() else "zucchini"
 
 
 if __name__ == "__main__":

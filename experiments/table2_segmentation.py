@@ -1,10 +1,10 @@
-"""Table 2 (segmentation) beside the paper's; the logic is `mjxrow.seg.table2`."""
+"""Table 2 (segmentation) beside the paper's; the logic is `paper.table2`."""
 
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
-from mjxrow.seg.table2 import main  # noqa: E402
+from paper.table2 import main  # noqa: E402
 
 if __name__ == "__main__":
     main()

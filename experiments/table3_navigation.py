@@ -1,10 +1,10 @@
-"""Table 3 (navigation) beside the paper's; the logic is `mjxrow.sweep.table3`."""
+"""Table 3 (navigation) beside the paper's; the logic is `paper.table3`."""
 
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, uninstalled
-from mjxrow.sweep.table3 import main  # noqa: E402
+from paper.table3 import main  # noqa: E402
 
 if __name__ == "__main__":
     sys.exit(main())

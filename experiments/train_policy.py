@@ -140,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.cache_dir != "none":
         jax.config.update("jax_compilation_cache_dir", args.cache_dir or str(out / "jax_cache"))
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 2.0)
-    from mjxrow.train import checkpoint as CK
+    from mjxrow.policies import checkpoint as CK
     from mjxrow.train import evaluate as EV
     from mjxrow.train import loop as L
 

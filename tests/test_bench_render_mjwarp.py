@@ -15,7 +15,7 @@ from mjxrow import field as F
 from mjxrow import render as RD
 from mjxrow.bench import render_mjwarp as RM
 from mjxrow.bench.__main__ import main as bench_main
-from mjxrow.field import mjcf
+from mjxrow.worlds import mjcf
 
 CAM_HEIGHT, PITCH = 0.4, -10.0
 

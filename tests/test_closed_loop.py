@@ -11,7 +11,7 @@ import pytest
 from mjxrow import control as K
 from mjxrow import field as F
 from mjxrow import render
-from mjxrow.control import perception as CL
+from mjxrow.policies import perception as CL
 from mjxrow.physics import sim
 from mjxrow.rollout import build as B
 from mjxrow.rollout import episode as E

@@ -10,8 +10,8 @@ from mjxrow import crops
 from mjxrow import field as F
 from mjxrow import render as RD
 from mjxrow.crops import prims as PL
-from mjxrow.field import export as WD
 from mjxrow.seg import synth as DS
+from mjxrow.worlds import export as WD
 
 BUILT_IN = ("zucchini", "lettuce", "chard", "pear", "vineyard")
 
@@ -47,7 +47,7 @@ def toy():
 
 def test_registry_lists_the_built_in_crops_in_order():
     assert crops.names() == BUILT_IN
-    assert F.CROPS == BUILT_IN  # the old name, read from the registry
+    assert crops.names() == BUILT_IN
     zucchini = crops.get("zucchini")
     assert zucchini.preset["d_rr"] == 1.8 and zucchini.preset["rows_per_group"] == 7  # Table 1
     assert zucchini.preset["plant_jitter"] == crops.COMMON_PRESET["plant_jitter"]
@@ -86,7 +86,7 @@ def test_a_preset_missing_or_misnaming_a_parameter_names_it():
 
 
 def test_a_toy_crop_registered_here_works_everywhere(toy):
-    assert crops.names() == (*BUILT_IN, "toy") and "toy" in F.CROPS
+    assert crops.names() == (*BUILT_IN, "toy")
     params = F.make_params("toy")
     assert float(params.plant_jitter) == pytest.approx(0.03)  # COMMON_PRESET's
     shape = F.fit_shape(params, "toy")

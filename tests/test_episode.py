@@ -325,7 +325,7 @@ def test_segzeros_on_rendered_masks_steers_back():
     """Closed loop through the renderer's ground-truth mask: from a lateral offset SegZeros
     turns back toward the lane centre (image column 0 is the left: signs end to end)."""
     from mjxrow import render
-    from mjxrow.control import perception as closed_loop
+    from mjxrow.policies import perception as closed_loop
 
     n = 2
     params = F.make_params("vineyard", **FLAT)

@@ -18,7 +18,7 @@ from mjxrow import crops
 from mjxrow import field as F
 from mjxrow import render as RD
 from mjxrow.crops import prims as PL
-from mjxrow.field import export as WD
+from mjxrow.worlds import export as WD
 from mjxrow.render import geom as G
 from mjxrow.render import shade as S
 from mjxrow.render import terrain as T

@@ -1,4 +1,4 @@
-"""mjxrow.sweep.table3: configs of the blocks, statistics and the markdown table on
+"""paper.table3: configs of the blocks, statistics and the markdown table on
 hand-made results, resumable runs with a fake evaluator, blocks left out without a
 checkpoint, CLI errors; one tiny real run: the blocks of a preset share one program."""
 
@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from mjxrow.seg import checkpoint as ckpt
-from mjxrow.sweep import table3 as T3
+from paper import table3 as T3
 
 
 def test_block_configs():

@@ -21,8 +21,8 @@ from PIL import Image  # noqa: E402
 from mjxrow import field as F  # noqa: E402
 from mjxrow import worlds  # noqa: E402
 from mjxrow.crops import prims as PL  # noqa: E402
-from mjxrow.field import export as Wd  # noqa: E402
-from mjxrow.field import scene as S  # noqa: E402
+from mjxrow.worlds import export as Wd  # noqa: E402
+from mjxrow.worlds import scene as S  # noqa: E402
 
 # 12 × 12 m terrain, 2 groups of 2 rows: rows at y = -3.6, -1.8, 1.8, 3.6 (gaps 1.8, 3.6, 1.8),
 # 8 m rows with a plant every 0.7 m → 12 plants per row.
@@ -410,7 +410,7 @@ def test_from_run_exports_the_episode_the_sweep_ran(tmp_path):
     r, p = np.nonzero(ref.plant_active)
     want = np.sort(ref.plant_pos[r, p], axis=0)
     np.testing.assert_allclose(np.sort(t[["x", "y", "z"]].to_numpy(), axis=0), want, atol=6e-5)
-    from mjxrow.field import replay
+    from mjxrow.worlds import replay
 
     ep = replay.from_run(run_dir, 0, 1)
     for name in ("plant_pos", "plant_size", "plant_active", "terrain", "obst_pos"):
