@@ -13,11 +13,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from mjxrow import control, crops, interrupt, runtime
-from mjxrow import files as FS
-from mjxrow import limits
+from mjxrow import control, crops, files, interrupt, limits, runtime
 from mjxrow.rollout import cli
-from mjxrow.sweep import config as C
+from mjxrow.sweep import config as sweep_config
 from mjxrow.sweep import estimate
 
 
@@ -58,15 +56,21 @@ def main(argv: list[str] | None = None) -> int:
     sets += [f"seed={args.seed}", *args.set]
     try:
         runtime.setup(args)
-        cfg = C.load(args.config, sets) if args.config else C.from_dict({}, ".", sets)
+        cfg = (
+            sweep_config.load(args.config, sets)
+            if args.config
+            else sweep_config.from_dict({}, ".", sets)
+        )
         if cfg.axis_order:
-            raise C.ConfigError(f"{cfg.axis_order[0]}: one run needs one value, got an axis")
+            raise sweep_config.ConfigError(
+                f"{cfg.axis_order[0]}: one run needs one value, got an axis"
+            )
         if args.n < 1:
-            raise C.ConfigError(f"--n: must be at least 1, got {args.n}")
+            raise sweep_config.ConfigError(f"--n: must be at least 1, got {args.n}")
         limits.check_count("--n", "episodes", args.n, limits.EPISODES)
-        run = C.expand(cfg)[0].cfg
+        run = sweep_config.expand(cfg)[0].cfg
         estimate.check_episodes(run, args.n, args.force)
-        FS.check_out_dir(args.out, "--out")
+        files.check_out_dir(args.out, "--out")
         with interrupt.HardStop():
             cli.run_episodes(run, args.n, args.out, not args.no_progress)
     except ValueError as e:

@@ -23,8 +23,8 @@ import numpy as np
 from tqdm import tqdm
 
 from mjxrow import crops
-from mjxrow import field as F
-from mjxrow.crops import prims as PL
+from mjxrow import field as mjxrow_field
+from mjxrow.crops import prims as crops_prims
 
 SAME_GAP = 0.05  # m: gaps closer than this form one cluster (a uniform row spacing)
 
@@ -34,10 +34,10 @@ def _half_extents(rot: np.ndarray, size: np.ndarray, kind: np.ndarray) -> np.nda
     rot's columns; capsule: radius + half length along rot[:, 2])."""
     ell = np.sqrt(np.sum((rot * size[..., None, :]) ** 2, -1))
     cap = size[..., :1] + np.abs(rot[..., :, 2]) * size[..., 2:3]
-    return np.where((kind == PL.CAPSULE)[:, None], cap, ell)
+    return np.where((kind == crops_prims.CAPSULE)[:, None], cap, ell)
 
 
-def plant_boxes(field: F.Field, prims: PL.Prims) -> np.ndarray:
+def plant_boxes(field: mjxrow_field.Field, prims: crops_prims.Prims) -> np.ndarray:
     """(L, W, H) [m] of the bounding box of each active plant's primitives: L along the row (x),
     W across it (y), H from the plant's base up: [n_active, 3]. One field, numpy arrays."""
     centre = prims.centre - field.plant_pos[:, :, None]
@@ -47,9 +47,11 @@ def plant_boxes(field: F.Field, prims: PL.Prims) -> np.ndarray:
     return box[field.plant_active]
 
 
-def detrended_ptp(field: F.Field) -> float:
+def detrended_ptp(field: mjxrow_field.Field) -> float:
     """Peak-to-peak [m] of the terrain after removing its least-squares plane."""
-    x, y = (np.asarray(a) for a in F.terrain_axes(field.terrain_size, field.terrain.shape))
+    x, y = (
+        np.asarray(a) for a in mjxrow_field.terrain_axes(field.terrain_size, field.terrain.shape)
+    )
     xx, yy = np.meshgrid(x, y)
     a = np.stack([xx.ravel(), yy.ravel(), np.ones(xx.size)], 1)
     h = field.terrain.ravel().astype(np.float64)
@@ -57,7 +59,7 @@ def detrended_ptp(field: F.Field) -> float:
     return float(np.ptp(h - a @ coef))
 
 
-def spacings(field: F.Field) -> dict[str, float]:
+def spacings(field: mjxrow_field.Field) -> dict[str, float]:
     """d_rr, d_RR, d_pp [m], rows per group, rows and groups, from plant positions only."""
     act = field.plant_active
     rows = [r for r in range(act.shape[0]) if act[r].any()]
@@ -84,18 +86,20 @@ def spacings(field: F.Field) -> dict[str, float]:
 
 def measure(preset: str, seeds: int) -> dict[str, float | tuple]:
     """Means over `seeds` generated fields of `preset` (seed 0..seeds-1)."""
-    shape = F.preset_shape(preset)
-    gen = jax.jit(jax.vmap(F.generate, in_axes=(None, None, 0)), static_argnums=1)  # one preset
-    prims_fn = jax.jit(jax.vmap(PL.plant_prims, in_axes=(0, None)), static_argnums=1)
+    shape = mjxrow_field.preset_shape(preset)
+    gen = jax.jit(
+        jax.vmap(mjxrow_field.generate, in_axes=(None, None, 0)), static_argnums=1
+    )  # one preset
+    prims_fn = jax.jit(jax.vmap(crops_prims.plant_prims, in_axes=(0, None)), static_argnums=1)
     keys = jax.vmap(jax.random.key)(np.arange(seeds))
-    fields = gen(F.make_params(preset), shape, keys)
+    fields = gen(mjxrow_field.make_params(preset), shape, keys)
     prims = jax.tree.map(np.asarray, prims_fn(fields, shape))
     fields = jax.tree.map(np.asarray, fields)
     rows = []
     for b in range(seeds):
         f = jax.tree.map(lambda a, b=b: a[b], fields)
         p = jax.tree.map(lambda a, b=b: a[b], prims)
-        x, y = (np.asarray(a) for a in F.terrain_axes(f.terrain_size, f.terrain.shape))
+        x, y = (np.asarray(a) for a in mjxrow_field.terrain_axes(f.terrain_size, f.terrain.shape))
         rows.append({"terrain": (np.ptp(x), np.ptp(y)), "dh": detrended_ptp(f),
                      "plant": tuple(plant_boxes(f, p).mean(0)), **spacings(f)})
     out = {}

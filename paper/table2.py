@@ -23,8 +23,8 @@ from pathlib import Path
 import pandas as pd
 
 from mjxrow import crops
-from mjxrow.seg import checkpoint as C
-from mjxrow.seg import eval as E
+from mjxrow.seg import checkpoint as seg_checkpoint
+from mjxrow.seg import eval as seg_eval
 
 
 def _fmt(x) -> str:
@@ -52,14 +52,14 @@ def test_counts(module, variables, crop: str, args, size: int) -> pd.DataFrame:
     if args.data_root:
         root = Path(args.data_root)
         folder = root / crop if (root / crop / "index.csv").is_file() else root
-        return E.evaluate_folder(module, variables, folder, crop, "test", size, args.batch)
-    return E.evaluate_renders(module, variables, crop, args.n, size, args.batch, args.seed)
+        return seg_eval.evaluate_folder(module, variables, folder, crop, "test", size, args.batch)
+    return seg_eval.evaluate_renders(module, variables, crop, args.n, size, args.batch, args.seed)
 
 
 def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--ckpt-root", default=str(C.CHECKPOINT_DIR))
+    p.add_argument("--ckpt-root", default=str(seg_checkpoint.CHECKPOINT_DIR))
     p.add_argument("--data-root", help="dataset folder(s) written by python -m mjxrow.seg.synth")
     p.add_argument("--n", type=int, default=512, help="renders per crop without --data-root")
     p.add_argument("--batch", type=int, default=32)
@@ -78,12 +78,12 @@ def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
                          f"{args.ckpt_root}/CROP`")
     rows, sizes, loaded = [], {}, {}
     for name, path in found.items():
-        module, variables = loaded[name] = C.load(path)
-        size = C.read_config(path)["meta"].get("image_size", 224)
+        module, variables = loaded[name] = seg_checkpoint.load(path)
+        size = seg_checkpoint.read_config(path)["meta"].get("image_size", 224)
         sizes[name] = size
         for crop in args.crops:
             print(f"model {name} on {crop} ...", file=sys.stderr, flush=True)
-            s = E.summarise(test_counts(module, variables, crop, args, size))
+            s = seg_eval.summarise(test_counts(module, variables, crop, args, size))
             total = s[(s["crop"] == "all") & (s["condition"] == "all")].iloc[0]
             rows.append({"trained_on": name, "tested_on": crop, "images": int(total["images"]),
                          "accuracy": float(total["accuracy"]), "iou": float(total["iou"])})
@@ -107,7 +107,7 @@ def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
         module, variables = loaded[own]
         for size in args.also_sizes:
             print(f"model {own} on {row['crop']} at {size} px ...", file=sys.stderr, flush=True)
-            s = E.summarise(test_counts(module, variables, row["crop"], args, size))
+            s = seg_eval.summarise(test_counts(module, variables, row["crop"], args, size))
             total = s[(s["crop"] == "all") & (s["condition"] == "all")].iloc[0]
             row[f"IoU at {size} px"] = _fmt(float(total["iou"]))
     table = pd.DataFrame(table)

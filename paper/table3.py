@@ -48,10 +48,12 @@ import pandas as pd
 import yaml
 from tqdm.auto import tqdm
 
-from mjxrow import crops, runtime
-from mjxrow.rollout import build as B
-from mjxrow.rollout import metrics as M
-from mjxrow.sweep import config as C
+from mjxrow import control, crops, runtime
+from mjxrow.rollout import build as rollout_build
+from mjxrow.rollout import metrics as rollout_metrics
+from mjxrow.seg import checkpoint as seg_checkpoint
+from mjxrow.sweep import config as sweep_config
+from mjxrow.sweep import run as sweep_run
 
 ROOT = Path(__file__).resolve().parents[2]  # the checkout: sweeps/, docs/
 
@@ -104,15 +106,15 @@ def load_base(path: str | Path = BASE_YAML) -> dict:
     try:
         raw = yaml.safe_load(path.read_text()) or {}
     except OSError as e:
-        raise C.ConfigError(f"{path}: cannot read ({e.strerror})") from None
+        raise sweep_config.ConfigError(f"{path}: cannot read ({e.strerror})") from None
     if not isinstance(raw, dict):
-        raise C.ConfigError(f"{path}: expected a mapping of keys")
+        raise sweep_config.ConfigError(f"{path}: expected a mapping of keys")
     return raw
 
 
 def build_config(controller: str, preset: str, episodes: int, image: int | None = None,
                  base: dict | None = None, batch_size: int = 256, seed: int = 0,
-                 smoke: bool = False) -> C.SweepConfig:
+                 smoke: bool = False) -> sweep_config.SweepConfig:
     """The one-cell sweep of `controller` (a CONTROLLERS key) on `preset`: the base scenario
     with `episodes` seeds, an `image` × `image` camera (None: the base's), the controller and
     perception overrides. With `smoke`, config.SMOKE shrinks it (2 episodes, 16 × 16 images,
@@ -126,21 +128,21 @@ def build_config(controller: str, preset: str, episodes: int, image: int | None 
                out=f"runs/table3/{controller}/{preset}")
     if image is not None:
         raw = _merge(raw, {"camera": {"width": int(image), "height": int(image)}})
-    cfg = C.from_dict(raw, BASE_YAML.parent, smoke=smoke)
+    cfg = sweep_config.from_dict(raw, BASE_YAML.parent, smoke=smoke)
     if cfg.axis_order:
-        raise C.ConfigError(f"{', '.join(cfg.axis_order)}: the base scenario must not have "
-                            "grid axes besides preset")
+        raise sweep_config.ConfigError(
+            f"{', '.join(cfg.axis_order)}: the base scenario must not have grid axes besides preset"
+        )
     return cfg
 
 
 def checkpoint_missing(preset: str) -> str | None:
     """None if a segmenter checkpoint serves `preset`, else why not (one line)."""
-    from mjxrow.seg import checkpoint as ckpt
 
     try:
-        ckpt.resolve(preset)
+        seg_checkpoint.resolve(preset)
     except ValueError:
-        d = Path(ckpt.CHECKPOINT_DIR)
+        d = Path(seg_checkpoint.CHECKPOINT_DIR)
         d = d.relative_to(ROOT) if d.is_relative_to(ROOT) else d
         return (f"none in {d / preset}/ or {d / 'all'}/; train one with `python -m "
                 f"mjxrow.seg.train --crop {preset} --export-to {d / preset}`")
@@ -155,7 +157,7 @@ def block_stats(results: pd.DataFrame) -> dict[str, Any]:
     """Per metric of COLUMNS its metrics.aggregate entry (mean, lo, hi, n), plus `episodes`
     and `ends` (termination reason → count) of one block's per-episode results."""
     table = {m: results[m].to_numpy() for m, *_ in COLUMNS if m in results}
-    stats: dict[str, Any] = dict(M.aggregate(table))
+    stats: dict[str, Any] = dict(rollout_metrics.aggregate(table))
     stats["episodes"] = len(results)
     stats["ends"] = {str(k): int(v) for k, v in results["reason"].value_counts().items()}
     return stats
@@ -171,7 +173,7 @@ def _cell(agg: dict | None, fmt: str) -> str:
 
 
 def _ends(ends: dict[str, int]) -> str:
-    order = [r for r in M.REASONS[1:] if ends.get(r)]
+    order = [r for r in rollout_metrics.REASONS[1:] if ends.get(r)]
     return ", ".join(f"{r} {ends[r]}" for r in order) or "–"
 
 
@@ -286,7 +288,6 @@ def block_timing(folder: Path, cell_hash: str, ran: int, wall: float, device: st
 def mixable(controller: str) -> bool:
     """Whether a CONTROLLERS entry can share a program with the others (rollout.build's mixed
     groups): not the learned policy, which renders its own images."""
-    from mjxrow import control
 
     name = CONTROLLERS[controller][1]["controller"]["name"]
     return getattr(control.get(name), "make_policy", None) is None
@@ -299,12 +300,12 @@ class SharedBlocks:
     each block then takes its own rows. Blocks whose groups would differ in field shape run
     one by one instead. `blocks`: the blocks' sweep configs and folders, by config name."""
 
-    def __init__(self, blocks: dict[str, tuple[C.SweepConfig, Path]]):
+    def __init__(self, blocks: dict[str, tuple[sweep_config.SweepConfig, Path]]):
         self.blocks = blocks
         self.rows: dict[str, pd.DataFrame] | None = None
         self.episodes = 0
 
-    def __call__(self, group, cfg: C.SweepConfig, on_batch_done) -> pd.DataFrame:
+    def __call__(self, group, cfg: sweep_config.SweepConfig, on_batch_done) -> pd.DataFrame:
         if self.rows is None:
             self.rows = self._evaluate_all()
         rows = self.rows.pop(cfg.name)
@@ -312,23 +313,24 @@ class SharedBlocks:
         return rows
 
     def _evaluate_all(self) -> dict[str, pd.DataFrame]:
-        from mjxrow.sweep import run as S
 
         flat = [(name, g) for name, (cfg, folder) in self.blocks.items()
-                for g in S.pending(cfg, folder) if g.episodes]
+                for g in sweep_run.pending(cfg, folder) if g.episodes]
         self.episodes = sum(len(g.episodes) for _, g in flat)
         if len({g.shape for _, g in flat}) > 1:  # fields of other shapes: one by one
             parts: dict[str, list[pd.DataFrame]] = {name: [] for name in self.blocks}
             for name, g in flat:
-                parts[name].append(S.evaluate_group(g, self.blocks[name][0], lambda r: None))
+                parts[name].append(
+                    sweep_run.evaluate_group(g, self.blocks[name][0], lambda r: None)
+                )
             return {name: pd.concat(ps, ignore_index=True) if ps else pd.DataFrame()
                     for name, ps in parts.items()}
         runs = {(name, c.index): c.cfg for name, g in flat for c in g.cells}
-        built = B.build(list(runs.values()), flat[0][1].shape)
+        built = rollout_build.build(list(runs.values()), flat[0][1].shape)
         items = [(name, runs[(name, c)], c, e) for name, g in flat for c, e in g.episodes]
         size = built.padded(min(sum(cfg.batch_size for cfg, _ in self.blocks.values()),
                                 len(items)))
-        rows = S.evaluate_episodes(built, [it[1:] for it in items], size)
+        rows = sweep_run.evaluate_episodes(built, [it[1:] for it in items], size)
         tags = pd.Series([it[0] for it in items])
         return {name: rows[(tags == name).to_numpy()].reset_index(drop=True)
                 for name in self.blocks}
@@ -346,9 +348,8 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
     (controller, preset))."""
     import jax
 
-    from mjxrow.sweep import run as S
 
-    watch, programs0 = runtime.Stopwatch(), B.program_count()
+    watch, programs0 = runtime.Stopwatch(), rollout_build.program_count()
     out = Path(out)
     base = base if base is not None else load_base()
     devs = jax.devices()
@@ -380,8 +381,14 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
         bar.set_postfix_str(f"{c} / {p}")
         cfg = configs[(c, p)]
         t0 = time.perf_counter()
-        res = S.run(cfg, out / c / p, evaluate=shared.get((c, p), evaluate), progress=progress,
-                    command=command, hard_stop=hard_stop)  # Ctrl-C: finished cells kept
+        res = sweep_run.run(
+            cfg,
+            out / c / p,
+            evaluate=shared.get((c, p), evaluate),
+            progress=progress,
+            command=command,
+            hard_stop=hard_stop,
+        )  # Ctrl-C: finished cells kept
         if runtime.writer():  # several processes: process 0 reads and writes
             stats[(c, p)] = block_stats(pd.read_csv(res["files"]["results"]))
             done.append(((c, p), res["groups"][0].hashes[0], res["ran"],
@@ -397,8 +404,12 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
             out / b[0] / b[1], cell_hash, ran, wall, device, note))
     bar.close()
     if runtime.writer():
-        print(f"{len(todo)} blocks, {B.program_count() - programs0} closed-loop programs; "
-              f"{watch.line()}", file=sys.stderr)
+        print(
+            f"{len(todo)} blocks, {rollout_build.program_count() - programs0} closed-loop "
+            f"programs; "
+            f"{watch.line()}",
+            file=sys.stderr,
+        )
     for c in CONTROLLERS:
         if c not in controllers:
             missing = [p for p in presets if c == "segzeros_learned" and checkpoint_missing(p)]
@@ -470,7 +481,7 @@ def main(argv: list[str] | None = None) -> int:
                               args.batch_size, args.seed, args.smoke, base,
                               progress=not args.no_progress, command=command.strip(),
                               hard_stop=True, share=not args.separate)
-    except C.ConfigError as e:
+    except sweep_config.ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -15,6 +15,7 @@ from mjxrow.policies import perception as CL
 from mjxrow.physics import sim
 from mjxrow.rollout import build as B
 from mjxrow.rollout import episode as E
+from mjxrow.rollout import step as rollout_step
 
 N = 2
 INTR = render.Intrinsics(40, 8, 42.0)
@@ -109,7 +110,7 @@ def test_rollout_takes_weights_as_shared_arguments(world):
     """Lowering the batched rollout for two checkpoints of one architecture traces once, and
     the weights are arguments of the program, not constants in it."""
     shape, fields = world
-    cfg = E.EpisodeConfig(crop="vineyard", max_time=5 / 15, sim=sim.SimConfig(path_length=3.0))
+    cfg = rollout_step.EpisodeConfig(crop="vineyard", max_time=5 / 15, sim=sim.SimConfig(path_length=3.0))
     _, mx = sim.make_model(shape, cfg.sim)
     policy = CL.perception_policy("segzeros", shape, INTR, "learned", Ramp())
     keys = jax.random.split(jax.random.key(1), N)

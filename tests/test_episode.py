@@ -16,6 +16,7 @@ from mjxrow import field as F
 from mjxrow.physics import sim
 from mjxrow.rollout import build as RB
 from mjxrow.rollout import episode as E
+from mjxrow.rollout import step as rollout_step
 from mjxrow.rollout import metrics as M
 
 B = 8
@@ -23,7 +24,7 @@ SHAPE = F.FieldShape(crop="vineyard", max_rows=8, max_plants_per_row=32, terrain
                      obstacle_slots=8)
 FLAT = dict(terrain_length=26.0, row_length=22.0, terrain_width=12.0, terrain_dh=0.0,
             stone_density=0.0, branch_density=0.0, p_missing=0.0)
-CFG = E.EpisodeConfig(crop="vineyard", max_time=640 / 15)  # 640 steps, 20 m, goal 0.40 m
+CFG = rollout_step.EpisodeConfig(crop="vineyard", max_time=640 / 15)  # 640 steps, 20 m, goal 0.40 m
 ORACLE = C.oracle_params()
 
 
@@ -294,7 +295,7 @@ def test_oracle_every_preset(preset):
     shape = F.fit_shape(params, preset)
     gen = RB.generate_fn()
     fields = gen(params, shape, jax.random.split(jax.random.key(0), n))
-    cfg = E.EpisodeConfig(crop=preset)
+    cfg = rollout_step.EpisodeConfig(crop=preset)
     _, mx = sim.make_model(shape, cfg.sim)
     log = E.rollout(mx, fields, None, jax.random.split(jax.random.key(1), n),
                     C.as_policy("oracle"), C.oracle_params(), cfg)
@@ -332,7 +333,7 @@ def test_segzeros_on_rendered_masks_steers_back():
     params = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,)), params)
     fields = RB.generate_fn()(
         params, SHAPE, jax.random.split(jax.random.key(0), n))
-    cfg = E.EpisodeConfig(crop="vineyard", max_time=200 / 15, sim=sim.SimConfig(path_length=6.0))
+    cfg = rollout_step.EpisodeConfig(crop="vineyard", max_time=200 / 15, sim=sim.SimConfig(path_length=6.0))
     _, mx = sim.make_model(SHAPE, cfg.sim)
     intr = render.Intrinsics(48, 32, 42.0)
     policy, pparams = closed_loop.make("segzeros", SHAPE, intr)
@@ -363,7 +364,7 @@ def test_bench_counts_the_steps_the_loop_runs(n_steps):
     steps = E.steps_run(n_steps)
     shapes = dict(pose=jax.ShapeDtypeStruct((3,), jnp.float32),
                   vel=jax.ShapeDtypeStruct((3,), jnp.float32),
-                  cmd=jax.ShapeDtypeStruct(E.CMD_SHAPE, jnp.float32),
+                  cmd=jax.ShapeDtypeStruct(rollout_step.CMD_SHAPE, jnp.float32),
                   alive=jax.ShapeDtypeStruct((), jnp.bool_),
                   event=jax.ShapeDtypeStruct((), jnp.int32))
     ran = []

@@ -8,6 +8,7 @@ import re
 
 from mjxrow import runtime
 from mjxrow.bench import STAGES, print_table, record
+from mjxrow.files import check_out_file
 
 
 def _first_sentence(doc: str) -> str:
@@ -36,7 +37,6 @@ def main(argv: list[str] | None = None) -> None:
     try:  # the closed loop runs as the sweep does: on a CPU, one device per core
         runtime.setup(args, cpu_split=args.stage == "closed_loop")
         if not args.no_record:  # the record file must be writable before any measurement
-            from mjxrow.files import check_out_file
 
             check_out_file(args.out, "--out")
     except ValueError as e:

@@ -29,20 +29,25 @@ import numpy as np
 from mjxrow import control, crops, runtime
 from mjxrow.bench import time_runs
 from mjxrow.policies import perception
-from mjxrow.rollout import build as B
-from mjxrow.rollout import episode as E
+from mjxrow.rollout import build as rollout_build
+from mjxrow.rollout import episode as rollout_episode
 from mjxrow.rollout.config import RunConfig
-from mjxrow.seg import convs as SC
-from mjxrow.sweep import config as C
+from mjxrow.seg import checkpoint as seg_checkpoint
+from mjxrow.seg import convs as seg_convs
+from mjxrow.sweep import config as sweep_config
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset", default="zucchini", choices=crops.names())
     p.add_argument("--batch", type=int, nargs="+", default=[256, 1024])
     p.add_argument("--image", type=int, default=64, help="camera image side [px]")
-    p.add_argument("--steps", type=int, default=150,
-                   help=f"control steps per timed call (above {E.CHUNK}, rounded up to a "
-                        f"multiple of {E.CHUNK}: the episode loop runs whole chunks)")
+    p.add_argument(
+        "--steps",
+        type=int,
+        default=150,
+        help=f"control steps per timed call (above {rollout_episode.CHUNK}, rounded up to a "
+        f"multiple of {rollout_episode.CHUNK}: the episode loop runs whole chunks)",
+    )
     p.add_argument("--episode-steps", type=int, default=600,
                    help="control steps of one episode, for episodes/min (default: 20 m at "
                         "0.5 m/s and 15 Hz)")
@@ -50,10 +55,14 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--controller", default="segzeros", choices=("segzeros", "segmin", "oracle"))
     p.add_argument("--seg-dtype", default="float32", choices=("float32", "bfloat16"),
                    help="the segmenter's compute dtype (weights stay float32)")
-    p.add_argument("--seg-impl", default="auto:auto", metavar="DW:PW",
-                   help=f"the segmenter's depthwise (auto, {', '.join(SC.DW_IMPLS)}; "
-                        f"{SC.auto_rule('depthwise')}) and 1x1 (auto, {', '.join(SC.PW_IMPLS)}; "
-                        f"{SC.auto_rule('pointwise')}) conv implementations")
+    p.add_argument(
+        "--seg-impl",
+        default="auto:auto",
+        metavar="DW:PW",
+        help=f"the segmenter's depthwise (auto, {', '.join(seg_convs.DW_IMPLS)}; "
+        f"{seg_convs.auto_rule('depthwise')}) and 1x1 (auto, {', '.join(seg_convs.PW_IMPLS)}; "
+        f"{seg_convs.auto_rule('pointwise')}) conv implementations",
+    )
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="a key of the sweep YAML, e.g. --set sim.iterations=2 (repeatable)")
     p.add_argument("--repeats", type=int, default=3)
@@ -61,32 +70,39 @@ def add_args(p: argparse.ArgumentParser) -> None:
 
 def run_config(args: argparse.Namespace) -> RunConfig:
     """The RunConfig of the command line (ConfigError naming the key)."""
-    hz = C.from_dict({}, sets=args.set).sim.control_hz
+    hz = sweep_config.from_dict({}, sets=args.set).sim.control_hz
     raw = {"preset": args.preset, "controller": {"name": args.controller},
            "perception": {"source": args.perception},
            "camera": {"width": args.image, "height": args.image},
-           "episode": {"max_time": E.steps_run(args.steps) / hz}}
-    return C.expand(C.from_dict(raw, sets=args.set))[0].cfg
+           "episode": {"max_time": rollout_episode.steps_run(args.steps) / hz}}
+    return sweep_config.expand(sweep_config.from_dict(raw, sets=args.set))[0].cfg
 
 
 def seg_impl(spec: str) -> dict[str, str]:
     """`--seg-impl DW:PW` → SegNet attributes (ValueError naming a bad part)."""
     dw, sep, pw = spec.partition(":")
-    if not sep or dw not in ("auto",) + SC.DW_IMPLS or pw not in ("auto",) + SC.PW_IMPLS:
-        raise ValueError(f"--seg-impl {spec!r}: expected DW:PW with DW one of auto, "
-                         f"{', '.join(SC.DW_IMPLS)} and PW one of auto, {', '.join(SC.PW_IMPLS)}")
+    if (
+        not sep
+        or dw not in ("auto",) + seg_convs.DW_IMPLS
+        or pw not in ("auto",) + seg_convs.PW_IMPLS
+    ):
+        raise ValueError(
+            f"--seg-impl {spec!r}: expected DW:PW with DW one of auto, "
+            f"{', '.join(seg_convs.DW_IMPLS)} and PW one of auto, {', '.join(seg_convs.PW_IMPLS)}"
+        )
     return {"dw_impl": dw, "pw_impl": pw}
 
 
-def with_segmenter(built: B.Built, run: RunConfig, **changes: str) -> B.Built:
+def with_segmenter(
+    built: rollout_build.Built, run: RunConfig, **changes: str
+) -> rollout_build.Built:
     """`built` whose segmenter module has `changes` (compute dtype, conv implementations);
     its weights, shared params, are unchanged."""
     if built.base is None:
         return built
-    from mjxrow.seg import checkpoint as ckpt
 
-    module = ckpt.module_from_config(
-        ckpt.read_config(run.checkpoint_path() or run.preset)["model"])
+    module = seg_checkpoint.module_from_config(
+        seg_checkpoint.read_config(run.checkpoint_path() or run.preset)["model"])
     if all(getattr(module, k) == v for k, v in changes.items()):
         return built
     policy = perception.perception_policy(run.controller.name, built.shape, run.camera,
@@ -96,7 +112,7 @@ def with_segmenter(built: B.Built, run: RunConfig, **changes: str) -> B.Built:
                                key=built.key and f"{built.key}\nsegmenter {note}")
 
 
-def measure(built: B.Built, run: RunConfig, b: int, repeats: int) -> dict:
+def measure(built: rollout_build.Built, run: RunConfig, b: int, repeats: int) -> dict:
     """Compile (or cache load) seconds, the run times of `repeats` calls and the summary of
     the last one, for episodes 0..b-1 of `run`."""
     batch = built.batch([(run, e) for e in range(b)])
@@ -118,19 +134,22 @@ def measure(built: B.Built, run: RunConfig, b: int, repeats: int) -> dict:
 def run(args: argparse.Namespace) -> list[dict]:
     try:
         cfg = run_config(args)
-    except C.ConfigError as e:
+    except sweep_config.ConfigError as e:
         raise SystemExit(f"bench closed_loop: {e}") from None
     try:
         impl = seg_impl(args.seg_impl)
     except ValueError as e:
         raise SystemExit(f"bench closed_loop: {e}") from None
     rows = []
-    if E.steps_run(args.steps) != args.steps:
-        print(f"note: --steps {args.steps} → {E.steps_run(args.steps)}, a whole number of "
-              f"the episode loop's {E.CHUNK}-step chunks (it would run them and count "
-              f"{args.steps})", flush=True)
+    if rollout_episode.steps_run(args.steps) != args.steps:
+        print(
+            f"note: --steps {args.steps} → {rollout_episode.steps_run(args.steps)}, a whole "
+            f"number of the episode loop's {rollout_episode.CHUNK}-step chunks (it would run "
+            f"them and count {args.steps})",
+            flush=True,
+        )
     for b in args.batch:
-        built = with_segmenter(B.build(cfg), cfg, dtype=args.seg_dtype, **impl)
+        built = with_segmenter(rollout_build.build(cfg), cfg, dtype=args.seg_dtype, **impl)
         m = measure(built, cfg, built.padded(b), args.repeats)
         med = statistics.median(m["runs_s"])
         steps_s = b * cfg.episode.n_steps / med

@@ -10,12 +10,12 @@ import time
 from pathlib import Path
 
 from mjxrow import crops
-from mjxrow.seg import synth as DS
+from mjxrow.seg import synth as seg_synth
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--crop", default="zucchini", choices=crops.names())
-    p.add_argument("--n", type=int, default=DS.PAPER_N["zucchini"], help="samples to write")
+    p.add_argument("--n", type=int, default=seg_synth.PAPER_N["zucchini"], help="samples to write")
     p.add_argument("--size", type=int, default=224, help="image side [px]")
     p.add_argument("--batch", type=int, default=256, help="images rendered per call")
     p.add_argument("--workers", type=int, default=8, help="PNG-encoding threads")
@@ -29,13 +29,20 @@ def run(args: argparse.Namespace) -> list[dict]:
         # warm-up: the same compiled shapes as the timed run (render batch, meta batch)
         n_warm = min(args.n, max(args.batch, 512))
         t0 = time.perf_counter()
-        DS.write_dataset(args.crop, n_warm, root / "warmup", size=args.size, batch=args.batch,
-                         workers=args.workers, progress=False)
+        seg_synth.write_dataset(
+            args.crop,
+            n_warm,
+            root / "warmup",
+            size=args.size,
+            batch=args.batch,
+            workers=args.workers,
+            progress=False,
+        )
         warm_s = time.perf_counter() - t0
         out = root / "timed"
         t0 = time.perf_counter()
-        DS.write_dataset(args.crop, args.n, out, size=args.size, batch=args.batch,
-                         workers=args.workers)
+        seg_synth.write_dataset(args.crop, args.n, out, size=args.size, batch=args.batch,
+                                workers=args.workers)
         total_s = time.perf_counter() - t0
         written = len(list(out.glob("*/rgb/*.png")))
     finally:
@@ -43,7 +50,7 @@ def run(args: argparse.Namespace) -> list[dict]:
             shutil.rmtree(root, ignore_errors=True)
     if written != args.n:
         raise RuntimeError(f"wrote {written} RGB images, expected {args.n}")
-    paper = DS.PAPER_N[args.crop]
+    paper = seg_synth.PAPER_N[args.crop]
     row = {"stage": "dataset", "config": f"{args.crop} {args.n} samples {args.size}x{args.size}, "
            f"batch {args.batch}, {args.workers} PNG threads", "batch": args.batch,
            "value": total_s, "unit": "s", "samples_per_s": args.n / total_s,

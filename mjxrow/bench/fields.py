@@ -6,10 +6,9 @@ import argparse
 
 import jax
 
-from mjxrow import crops
-from mjxrow import field as F
+from mjxrow import crops, field
 from mjxrow.bench import time_call
-from mjxrow.rollout import build as B
+from mjxrow.rollout import build as rollout_build
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
@@ -19,12 +18,12 @@ def add_args(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> list[dict]:
-    shape = F.preset_shape(args.preset)
-    gen = B.generate_fn()
+    shape = field.preset_shape(args.preset)
+    gen = rollout_build.generate_fn()
     rows = []
     for b in args.batch:
         params = jax.tree.map(lambda x, b=b: jax.numpy.broadcast_to(x, (b,)),
-                              F.make_params(args.preset))
+                              field.make_params(args.preset))
         keys = jax.random.split(jax.random.key(0), b)
         t = time_call(lambda p, k: gen(p, shape, k), params, keys, repeats=args.repeats)
         config = f"{args.preset} {shape.max_rows}x{shape.max_plants_per_row} plants, " \

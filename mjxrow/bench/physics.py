@@ -18,10 +18,9 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from mjxrow import crops
-from mjxrow import field as F
+from mjxrow import crops, field
 from mjxrow.bench import time_call
-from mjxrow.physics import sim as S
+from mjxrow.physics import sim as physics_sim
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
@@ -30,33 +29,33 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=int, default=100, help="control periods per call")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--seed", type=int, default=0)
-    for f in dataclasses.fields(S.SimConfig):
+    for f in dataclasses.fields(physics_sim.SimConfig):
         if f.type in ("int", "float"):
             p.add_argument("--" + f.name.replace("_", "-"), type=int if f.type == "int" else float,
                            default=f.default, help=f"SimConfig.{f.name} (default {f.default})")
     p.add_argument("--chassis-contacts", action="store_true", help="SimConfig.chassis_contacts")
 
 
-def sim_config(args: argparse.Namespace) -> S.SimConfig:
-    kw = {f.name: getattr(args, f.name) for f in dataclasses.fields(S.SimConfig)
+def sim_config(args: argparse.Namespace) -> physics_sim.SimConfig:
+    kw = {f.name: getattr(args, f.name) for f in dataclasses.fields(physics_sim.SimConfig)
           if hasattr(args, f.name)}
-    return S.SimConfig(**kw)
+    return physics_sim.SimConfig(**kw)
 
 
-def make_worlds(preset: str, batch: int, cfg: S.SimConfig, seed: int = 0):
+def make_worlds(preset: str, batch: int, cfg: physics_sim.SimConfig, seed: int = 0):
     """(mjx world models [B], initial SimStates [B], commands float32 [B, 2], model axes,
     shape) for `batch` fields of `preset`, one PRNG key each."""
-    params = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,)), F.make_params(preset))
-    shape = F.fit_shape(params, preset)
-    _, mx = S.make_model(shape, cfg)
-    axes = S.model_axes(mx)
+    params = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,)), field.make_params(preset))
+    shape = field.fit_shape(params, preset)
+    _, mx = physics_sim.make_model(shape, cfg)
+    axes = physics_sim.model_axes(mx)
     k_field, k_reset, k_cmd = jax.random.split(jax.random.key(seed), 3)
 
     def world(p, kf, kr):
-        fld = F.generate(p, shape, kf)
-        lane = F.robot_lane(fld)
-        mw = S.world_model(mx, fld, lane, cfg)
-        return mw, S.reset(mw, fld, lane, kr, cfg, S.pose_noise(0.05, 0.05))
+        fld = field.generate(p, shape, kf)
+        lane = field.robot_lane(fld)
+        mw = physics_sim.world_model(mx, fld, lane, cfg)
+        return mw, physics_sim.reset(mw, fld, lane, kr, cfg, physics_sim.pose_noise(0.05, 0.05))
 
     build = jax.jit(jax.vmap(world, out_axes=(axes, 0)))
     mws, states = build(params, jax.random.split(k_field, batch), jax.random.split(k_reset, batch))
@@ -65,15 +64,15 @@ def make_worlds(preset: str, batch: int, cfg: S.SimConfig, seed: int = 0):
     return mws, states, cmds, axes, shape
 
 
-def rollout_fn(cfg: S.SimConfig, axes, steps: int):
+def rollout_fn(cfg: physics_sim.SimConfig, axes, steps: int):
     """jit(vmap(scan(step))): (models [B], states [B], cmds [B, 2]) → (final states, bad [B])."""
 
     def one(mw, state, cmd):
         def body(s, _):
-            return S.step(mw, s, cmd, cfg), None
+            return physics_sim.step(mw, s, cmd, cfg), None
 
         state, _ = jax.lax.scan(body, state, None, length=steps)
-        return state, S.is_bad(state, cfg)
+        return state, physics_sim.is_bad(state, cfg)
 
     return jax.jit(jax.vmap(one, in_axes=(axes, 0, 0)))
 

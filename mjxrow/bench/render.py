@@ -10,11 +10,10 @@ import jax
 import jax.numpy as jnp
 import yaml
 
-from mjxrow import crops
-from mjxrow import field as F
-from mjxrow import render as RD
+from mjxrow import crops, field
+from mjxrow import render as mjxrow_render
 from mjxrow.bench import time_call
-from mjxrow.seg import synth as DS
+from mjxrow.seg import synth as seg_synth
 
 MAX_RAYS = 1 << 24  # rays per vmapped chunk when --chunk is 0 (bounds the [rays, ...] buffers)
 
@@ -26,7 +25,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
                    help="square image sides [px]")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--no-shadows", action="store_true", help="skip the shadow rays")
-    p.add_argument("--tile", type=int, default=RD.DEFAULT_CONFIG.tile,
+    p.add_argument("--tile", type=int, default=mjxrow_render.DEFAULT_CONFIG.tile,
                    help="tile side [px] of the renderer's culling (default: by resolution, "
                         "8 at 64 px, 16 from 128)")
     p.add_argument("--table", action="store_true",
@@ -43,7 +42,7 @@ def parse_sets(items: list[str]) -> dict:
     """`KEY=VALUE` overrides of RenderConfig fields, values read as YAML scalars (numbers,
     true/false, null); an unknown key, a missing `=` or another value raises ValueError naming
     it."""
-    names = {f.name for f in dataclasses.fields(RD.RenderConfig)}
+    names = {f.name for f in dataclasses.fields(mjxrow_render.RenderConfig)}
     out = {}
     for item in items:
         key, sep, val = item.partition("=")
@@ -51,7 +50,7 @@ def parse_sets(items: list[str]) -> dict:
             raise ValueError(f"--set {item!r}: expected KEY=VALUE with KEY one of "
                              f"{sorted(names)}")
         v = yaml.safe_load(val)
-        choices = RD.RenderConfig.CHOICES.get(key)
+        choices = mjxrow_render.RenderConfig.CHOICES.get(key)
         if choices and v not in choices + (None,):
             raise ValueError(f"--set {item!r}: expected one of {', '.join(choices)} or null")
         if not choices and v is not None and not isinstance(v, (bool, int, float)):
@@ -60,24 +59,28 @@ def parse_sets(items: list[str]) -> dict:
     return out
 
 
-def render_config(args: argparse.Namespace) -> RD.RenderConfig:
+def render_config(args: argparse.Namespace) -> mjxrow_render.RenderConfig:
     """RenderConfig of the command line (--no-shadows, --tile, --set)."""
-    return dataclasses.replace(RD.RenderConfig(shadows=not args.no_shadows, tile=args.tile),
-                               **parse_sets(args.set))
+    return dataclasses.replace(
+        mjxrow_render.RenderConfig(shadows=not args.no_shadows, tile=args.tile),
+        **parse_sets(args.set),
+    )
 
 
 def worlds(preset: str, b: int, seed: int = 0):
     """B fields, camera poses (the dataset's sampler) and conditions (the four in turn)."""
-    shape = DS.dataset_shape(preset)
+    shape = seg_synth.dataset_shape(preset)
     keys = jax.random.split(jax.random.key(seed), 4 * b).reshape(b, 4)
 
     def one(k):
-        fld = F.generate(DS.random_params(preset, k[0]), shape, k[1])
-        pos, rot, _ = DS.sample_pose(fld, k[2])
+        fld = field.generate(seg_synth.random_params(preset, k[0]), shape, k[1])
+        pos, rot, _ = seg_synth.sample_pose(fld, k[2])
         return fld, pos, rot
 
     fields, pos, rot = jax.jit(jax.vmap(one))(keys)
-    conds = jax.vmap(RD.condition_by_index)(jnp.arange(b) % len(RD.CONDITIONS), keys[:, 3])
+    conds = jax.vmap(mjxrow_render.condition_by_index)(
+        jnp.arange(b) % len(mjxrow_render.CONDITIONS), keys[:, 3]
+    )
     return shape, fields, pos, rot, conds
 
 
@@ -87,15 +90,21 @@ def auto_chunk(res: int, b: int, chunk: int = 0) -> int:
     return min(b, chunk or max(1, 1 << ((MAX_RAYS // (res * res)).bit_length() - 1)))
 
 
-def batched_render(shape: F.FieldShape, intr: RD.Intrinsics, cfg: RD.RenderConfig, b: int,
-                   chunk: int, shared_field: bool = False):
+def batched_render(
+    shape: field.FieldShape,
+    intr: mjxrow_render.Intrinsics,
+    cfg: mjxrow_render.RenderConfig,
+    b: int,
+    chunk: int,
+    shared_field: bool = False,
+):
     """jit of render over [B] worlds: one vmap, or lax.map over chunks of `chunk` frames.
     Arguments (fields, pos, rot, conds) or, with plant tables, (fields, pos, rot, conds,
     tables). With `shared_field`, `fields` is ONE field that every world renders (vmap in_axes
     None: what depends on the field alone, e.g. its plant table, is computed once per call)."""
     def one(f, x):
         p, r, c, *tab = x
-        return RD.render(f, shape, p, r, intr, c, cfg=cfg, table=tab[0] if tab else None)
+        return mjxrow_render.render(f, shape, p, r, intr, c, cfg=cfg, table=tab[0] if tab else None)
 
     def frames(f, *x):
         if shared_field:
@@ -119,14 +128,16 @@ def run(args: argparse.Namespace) -> list[dict]:
         shape, fields, pos, rot, conds = worlds(args.preset, b)
         inputs = (fields, pos, rot, conds)
         if args.table:
-            tables = jax.jit(jax.vmap(RD.plant_table, in_axes=(0, None)), static_argnums=1)
+            tables = jax.jit(
+                jax.vmap(mjxrow_render.plant_table, in_axes=(0, None)), static_argnums=1
+            )
             inputs += (tables(fields, shape),)
         for res in args.res:
-            intr = RD.Intrinsics(res, res)
+            intr = mjxrow_render.Intrinsics(res, res)
             chunk = auto_chunk(res, b, args.chunk)
             fn = batched_render(shape, intr, cfg, b, chunk)
             t = time_call(fn, *inputs, repeats=args.repeats)
-            used = RD.resolve(cfg, shape.crop, intr)
+            used = mjxrow_render.resolve(cfg, shape.crop, intr)
             config = (f"{args.preset} {res}x{res}, fovy {intr.fovy:g}, "
                       f"{'no shadows' if args.no_shadows else 'shadows'}, tile {used.tile}, "
                       f"{used.kernel} kernels, "

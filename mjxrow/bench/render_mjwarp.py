@@ -39,12 +39,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxrow import crops, runtime
-from mjxrow import field as F
-from mjxrow import render as RD
-from mjxrow.bench import render as BR
+from mjxrow import crops, render, runtime, worlds
+from mjxrow import field as mjxrow_field
+from mjxrow.bench import render as bench_render
 from mjxrow.bench import time_call
-from mjxrow.worlds import mjcf
+from mjxrow.physics.quiet import mjx
+from mjxrow.worlds import mjcf, replay
+from mjxrow.worlds import scene as worlds_scene
 
 NEEDS = ("warp", "mujoco.mjx.third_party.mujoco_warp")
 MISSING = ("bench render_mjwarp: needs warp-lang (mujoco-mjx carries MuJoCo Warp): pip install "
@@ -74,24 +75,23 @@ def check_packages() -> None:
             module.config.log_level = getattr(module, "LOG_WARNING", 30)
 
 
-def lane_poses(field: F.Field, cam_height: float, pitch_deg: float,
+def lane_poses(field: mjxrow_field.Field, cam_height: float, pitch_deg: float,
                b: int) -> tuple[np.ndarray, np.ndarray]:
     """B camera poses along the lanes of ONE field: pose i in lane i mod n (`scene.field_lanes`,
     by y) on its centre line, `cam_height` metres above the terrain, heading +x on even passes
     over the lanes and −x on odd ones, pitched by `pitch_deg` (negative looks down), at a
     golden-ratio sequence of positions between the rows' ends. Returns (cam_pos float32 [B, 3],
     cam_rot float32 [B, 3, 3]), MuJoCo's camera convention (columns right, up, backwards)."""
-    from mjxrow.worlds import scene as S
 
-    f = S.host(field)
-    lanes = S.field_lanes(f)
+    f = worlds_scene.host(field)
+    lanes = worlds_scene.field_lanes(f)
     i = np.arange(b)
     y = f.lane_y[lanes[i % len(lanes)]]
     x = f.row_x[0] + ((i * GOLDEN) % 1.0) * (f.row_x[1] - f.row_x[0])
-    z = np.asarray(F.terrain_height(f.terrain, f.terrain_size, x, y)) + cam_height
+    z = np.asarray(mjxrow_field.terrain_height(f.terrain, f.terrain_size, x, y)) + cam_height
     yaw = np.where((i // len(lanes)) % 2 == 0, 0.0, np.pi)
-    rot = jax.vmap(RD.camera_rot, in_axes=(0, None))(jnp.asarray(yaw),
-                                                     jnp.float32(np.radians(pitch_deg)))
+    rot = jax.vmap(render.camera_rot, in_axes=(0, None))(jnp.asarray(yaw),
+                                                         jnp.float32(np.radians(pitch_deg)))
     return np.stack([x, y, z], 1).astype(np.float32), np.asarray(rot, np.float32)
 
 
@@ -123,19 +123,18 @@ def geom_classes(m) -> np.ndarray:
     (id −1, nothing hit, is sky), from the export's geom names (`field.mjcf`)."""
     import mujoco
 
-    out = np.full(m.ngeom + 1, RD.SKY, np.uint8)
+    out = np.full(m.ngeom + 1, render.SKY, np.uint8)
     for g in range(m.ngeom):
         name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or ""
-        out[g + 1] = (RD.PLANT if name.startswith("plant_") else
-                      RD.OBSTACLE if name.startswith(("stone_", "branch_")) else
-                      RD.SOIL if name == "terrain" else RD.SKY)
+        out[g + 1] = (render.PLANT if name.startswith("plant_") else
+                      render.OBSTACLE if name.startswith(("stone_", "branch_")) else
+                      render.SOIL if name == "terrain" else render.SKY)
     return out
 
 
 def warp_worlds(m, pos: np.ndarray, rot: np.ndarray):
     """(mjx.Model, mjx.Data [B]) of impl "warp": one data per pose, the rig at (pos, rot), the
     kinematics (camera and geom frames) computed."""
-    from mjxrow.physics.quiet import mjx
 
     mx = mjx.put_model(m, impl="warp")
     b = len(pos)
@@ -148,7 +147,6 @@ def warp_worlds(m, pos: np.ndarray, rot: np.ndarray):
 def warp_render(m, b: int, res: int, shadows: bool):
     """(render context, jitted fn(mx, d) -> (rgb, depth, seg)) of camera `CAMERA` at res × res
     over B worlds: refit of the scene BVH, then `render_with_segmentation`."""
-    from mjxrow.physics.quiet import mjx
 
     rc = mjx.create_render_context(m, nworld=b, cam_res=(res, res), cam_active=[CAMERA],
                                    render_rgb=True, render_depth=True, render_seg=True,
@@ -166,7 +164,6 @@ def warp_render(m, b: int, res: int, shadows: bool):
 def warp_classes(rc, seg: jax.Array, table: np.ndarray) -> np.ndarray:
     """uint8 [B, H, W] classes of the packed segmentation `seg` ([B, pixels, 2]) of the
     context's first camera."""
-    from mjxrow.physics.quiet import mjx
 
     ids = np.asarray(mjx.get_segmentation(rc.pytree(), 0, seg))
     return table[np.clip(ids, -1, len(table) - 2) + 1]
@@ -176,21 +173,19 @@ def agreement(ours: np.ndarray, theirs: np.ndarray) -> dict[str, float]:
     """Class images [B, H, W] of two renderers: mean plant IoU over the poses where either has a
     plant pixel (nan if none), share of pixels of the same class, share of non-sky pixels of
     each."""
-    a, t = ours == RD.PLANT, theirs == RD.PLANT
+    a, t = ours == render.PLANT, theirs == render.PLANT
     inter = np.sum(a & t, axis=(1, 2))
     union = np.sum(a | t, axis=(1, 2))
     seen = union > 0
     iou = float(np.mean(inter[seen] / union[seen])) if seen.any() else float("nan")
     return {"plant_iou": iou, "class_agree": float(np.mean(ours == theirs)),
-            "non_sky_ours": float(np.mean(ours != RD.SKY)),
-            "non_sky_mjwarp": float(np.mean(theirs != RD.SKY))}
+            "non_sky_ours": float(np.mean(ours != render.SKY)),
+            "non_sky_mjwarp": float(np.mean(theirs != render.SKY))}
 
 
 def exported(preset: str):
     """(episode, MJCF text, assets) of `preset`'s world as `python -m mjxrow.worlds` exports
     it, without the robot."""
-    from mjxrow import worlds
-    from mjxrow.worlds import replay
 
     run, shape = worlds.resolve_run(preset)
     ep = replay.episode_world(run, shape, 0)
@@ -210,7 +205,7 @@ def run(args: argparse.Namespace) -> list[dict]:
     robot = ep.robot.robot
     pos, rot = lane_poses(ep.field, robot.cam_height, robot.cam_pitch_deg, b)
     sun = -np.array(mjcf.SUN_DIR) / np.linalg.norm(mjcf.SUN_DIR)  # towards the export's sun
-    cond = RD.conditions("sunny").replace(sun_dir=jnp.asarray(sun, jnp.float32))
+    cond = render.conditions("sunny").replace(sun_dir=jnp.asarray(sun, jnp.float32))
     conds = jax.tree.map(lambda x: jnp.broadcast_to(x, (b, *x.shape)), cond)
     field = jax.tree.map(jnp.asarray, ep.field)
     print(f"render_mjwarp: {args.preset}, {int(ep.field.plant_active.sum())} plants, B={b} "
@@ -227,16 +222,16 @@ def run(args: argparse.Namespace) -> list[dict]:
             theirs = warp_classes(rc, fn(mx, d)[2], table)
             del rc
 
-            intr = RD.Intrinsics(res, res, robot.cam_fovy)
-            cfg = RD.RenderConfig(shadows=shadows)
-            chunk = BR.auto_chunk(res, b)
-            ours_fn = BR.batched_render(ep.shape, intr, cfg, b, chunk, shared_field=True)
+            intr = render.Intrinsics(res, res, robot.cam_fovy)
+            cfg = render.RenderConfig(shadows=shadows)
+            chunk = bench_render.auto_chunk(res, b)
+            ours_fn = bench_render.batched_render(ep.shape, intr, cfg, b, chunk, shared_field=True)
             inputs = (field, jnp.asarray(pos), jnp.asarray(rot), conds)
             t_o = time_call(ours_fn, *inputs, repeats=args.repeats)
             ours = np.asarray(ours_fn(*inputs).classes)
             agree = agreement(ours, theirs)
 
-            used = RD.resolve(cfg, ep.shape.crop, intr)
+            used = render.resolve(cfg, ep.shape.crop, intr)
             base = (f"{args.preset} {res}x{res}, fovy {robot.cam_fovy:g}, "
                     f"{'shadows' if shadows else 'no shadows'}, one field, lane poses")
             configs = {

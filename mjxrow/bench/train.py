@@ -14,24 +14,25 @@ import numpy as np
 
 from mjxrow import crops
 from mjxrow.bench import time_call
-from mjxrow.seg import convs as SC
-from mjxrow.seg import model as M
-from mjxrow.seg import train as T
+from mjxrow.seg import convs as seg_convs
+from mjxrow.seg import model as seg_model
+from mjxrow.seg import train as seg_train
+from mjxrow.seg.data import onthefly
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--arch", default="small", choices=M.ARCHS)
+    p.add_argument("--arch", default="small", choices=seg_model.ARCHS)
     p.add_argument("--width", type=float, default=1.0)
     p.add_argument("--size", type=int, nargs="+", default=[224])
     p.add_argument("--batch", type=int, nargs="+", default=[64])
     p.add_argument("--steps", type=int, default=20, help="steps chained in one timed call")
     p.add_argument("--repeats", type=int, default=5)
-    p.add_argument("--loss", default="iou", choices=tuple(T.LOSSES))
+    p.add_argument("--loss", default="iou", choices=tuple(seg_train.LOSSES))
     p.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"))
-    p.add_argument("--dw-impl", default="auto", choices=("auto",) + SC.DW_IMPLS,
-                   help=f"depthwise conv implementation ({SC.auto_rule('depthwise')})")
-    p.add_argument("--pw-impl", default="auto", choices=("auto",) + SC.PW_IMPLS,
-                   help=f"1x1 conv implementation ({SC.auto_rule('pointwise')})")
+    p.add_argument("--dw-impl", default="auto", choices=("auto",) + seg_convs.DW_IMPLS,
+                   help=f"depthwise conv implementation ({seg_convs.auto_rule('depthwise')})")
+    p.add_argument("--pw-impl", default="auto", choices=("auto",) + seg_convs.PW_IMPLS,
+                   help=f"1x1 conv implementation ({seg_convs.auto_rule('pointwise')})")
     p.add_argument("--on-the-fly", action="store_true", help="render each batch in the step")
     p.add_argument("--crop", default="zucchini", choices=(*crops.names(), "all"))
 
@@ -40,19 +41,18 @@ def run(args: argparse.Namespace) -> list[dict]:
     rows = []
     rng = np.random.default_rng(0)
     for size in args.size:
-        module, variables = M.create(args.arch, args.width, 0, size, dtype=args.dtype,
-                                     dw_impl=args.dw_impl, pw_impl=args.pw_impl)
-        tx = T.make_optimizer(T.make_schedule(1e-3, 10_000, 100))
+        module, variables = seg_model.create(args.arch, args.width, 0, size, dtype=args.dtype,
+                                             dw_impl=args.dw_impl, pw_impl=args.pw_impl)
+        tx = seg_train.make_optimizer(seg_train.make_schedule(1e-3, 10_000, 100))
         for b in args.batch:
-            state = T.init_state(variables, tx)
+            state = seg_train.init_state(variables, tx)
             if args.on_the_fly:
-                from mjxrow.seg.data import onthefly
-                step = jax.jit(T.make_step(module, tx, args.loss,
-                                           batch_fn=onthefly(args.crop, size, b)))
+                step = jax.jit(seg_train.make_step(module, tx, args.loss,
+                                                   batch_fn=onthefly(args.crop, size, b)))
                 batch = ()
                 src = f"rendered {args.crop}"
             else:
-                step = jax.jit(T.make_step(module, tx, args.loss))
+                step = jax.jit(seg_train.make_step(module, tx, args.loss))
                 batch = (jax.device_put(rng.integers(0, 256, (b, size, size, 3), np.uint8)),
                          jax.device_put(rng.random((b, size, size)) < 0.3))
                 src = "fixed batch"

@@ -33,14 +33,15 @@ import jax.numpy as jnp
 from flax import struct
 
 from mjxrow import control, render
-from mjxrow import field as F
-from mjxrow.policies import observe as O
-from mjxrow.env import randomize as RZ
-from mjxrow.env import reward as RW
+from mjxrow import field as mjxrow_field
+from mjxrow.control.oracle import OracleConfig
+from mjxrow.env import randomize as env_randomize
+from mjxrow.env import reward as env_reward
 from mjxrow.physics import sim
-from mjxrow.rollout import build as B
-from mjxrow.rollout import episode as E
-from mjxrow.rollout import metrics as M
+from mjxrow.policies import observe as policies_observe
+from mjxrow.rollout import build as rollout_build
+from mjxrow.rollout import metrics as rollout_metrics
+from mjxrow.rollout import step as rollout_step
 from mjxrow.rollout.config import ControllerChoice, RunConfig
 
 # the plant table's array fields, in the order of its leaves (EnvData.table)
@@ -57,13 +58,13 @@ class EnvConfig:
 
     observation: str = "rgb"  # what the policy sees: 'rgb', 'mask' or 'features' (env.observe)
     proprio: bool = True  # odometry (v, ω) and the previous action in the observation
-    randomize: RZ.Randomize = RZ.Randomize()  # what every reset draws
-    reward: RW.RewardConfig = RW.RewardConfig()  # reward weights
+    randomize: env_randomize.Randomize = env_randomize.Randomize()  # what every reset draws
+    reward: env_reward.RewardConfig = env_reward.RewardConfig()  # reward weights
 
     def __post_init__(self):
-        if self.observation not in O.KINDS:
+        if self.observation not in policies_observe.KINDS:
             raise ValueError(f"env.observation: {self.observation!r} is not one of "
-                             f"{', '.join(O.KINDS)}")
+                             f"{', '.join(policies_observe.KINDS)}")
 
 
 @struct.dataclass
@@ -87,7 +88,7 @@ class EnvData:
 
     sim: sim.SimState
     world: dict  # the world's model arrays (sim.WORLD_FIELDS), written by sim.world_model
-    field: F.Field
+    field: mjxrow_field.Field
     table: tuple  # the arrays of the field's render.PlantTable (Env rebuilds the table)
     lane: jax.Array  # int32 [], the driven lane
     goal: jax.Array  # float32 [2], (x, y) [m]
@@ -100,13 +101,12 @@ class EnvData:
     t: jax.Array  # int32 [], control steps since reset
     ret: jax.Array  # float32 [], return so far
     teacher: Any  # the teacher controller's state
-    log: M.Log  # the episode so far ([T] per step)
+    log: rollout_metrics.Log  # the episode so far ([T] per step)
 
 
 def teacher_run(run: RunConfig) -> RunConfig:
     """The run with its controller replaced by the oracle (for the builder: no segmenter or
     policy checkpoint is loaded)."""
-    from mjxrow.control.oracle import OracleConfig
 
     return dataclasses.replace(run, controller=ControllerChoice("oracle", OracleConfig()))
 
@@ -121,19 +121,21 @@ class Env:
         rz = cfg.randomize
         self.ranges = rz.resolved(run.preset)
         self.base = run.field_params()
-        shape = F.fit_shape(RZ.corner_params(self.base, self.ranges), run.preset)
-        RZ.check_ranges(self.base, self.ranges, shape)
-        built = B.build(teacher_run(run), shape=shape,
-                        devices=[device or jax.devices()[0]])
+        shape = mjxrow_field.fit_shape(
+            env_randomize.corner_params(self.base, self.ranges), run.preset
+        )
+        env_randomize.check_ranges(self.base, self.ranges, shape)
+        built = rollout_build.build(teacher_run(run), shape=shape,
+                                    devices=[device or jax.devices()[0]])
         self.shape, self.mx, self.episode = built.shape, built.mx, built.episode
         self.intr, self.render_cfg = run.camera, run.render
         robot = run.robot_config()
         self.limits = jnp.asarray([robot.v_max, robot.omega_max], jnp.float32)
         rn = sim.robot_numbers(self.mx)
         self.half = (0.5 * rn["length"], 0.5 * rn["width"])
-        self.spec = O.ObsSpec(cfg.observation, run.camera.height, run.camera.width,
-                              cfg.proprio)
-        self.seg = O.segmenter_for(run, self.spec)
+        self.spec = policies_observe.ObsSpec(cfg.observation, run.camera.height, run.camera.width,
+                                             cfg.proprio)
+        self.seg = policies_observe.segmenter_for(run, self.spec)
         tc = control.get(run.controller.name)
         if getattr(tc, "make_policy", None) is not None:
             raise ValueError(f"controller.name: {tc.name!r} cannot be the teacher (it needs a "
@@ -145,7 +147,7 @@ class Env:
         static = {}
 
         def table(k):
-            t = render.plant_table(F.generate(self.base, self.shape, k), self.shape)
+            t = render.plant_table(mjxrow_field.generate(self.base, self.shape, k), self.shape)
             static.update(kind=t.kind, material=t.material)
             return ()
 
@@ -154,7 +156,7 @@ class Env:
         h, w = run.camera.height, run.camera.width
         frame = render.Frame(rgb=jnp.zeros((h, w, 3), jnp.uint8), depth=jnp.zeros((h, w)),
                              mask=jnp.zeros((h, w), bool), classes=jnp.zeros((h, w), jnp.uint8))
-        self._obs_shapes = jax.eval_shape(lambda f: O.observe(
+        self._obs_shapes = jax.eval_shape(lambda f: policies_observe.observe(
             self.spec, f, self.seg, jnp.zeros(2), jnp.zeros(2), self.limits), frame)
 
     # -- static facts ---------------------------------------------------------------------
@@ -183,7 +185,7 @@ class Env:
         return self.mx.tree_replace(world)
 
     def frame(self, d: EnvData, s: sim.SimState, key: jax.Array | None):
-        cam_pos, cam_rot = O.camera_jitter(*sim.camera_pose(s), d.jitter)
+        cam_pos, cam_rot = policies_observe.camera_jitter(*sim.camera_pose(s), d.jitter)
         table = render.PlantTable(**dict(zip(TABLE_FIELDS, d.table, strict=True)),
                                   **self._table_static)
         return render.render(d.field, self.shape, cam_pos, cam_rot, self.intr, d.cond, key,
@@ -195,21 +197,31 @@ class Env:
                           goal=d.goal, cam_pos=cam_pos, cam_rot=cam_rot, field=d.field,
                           mask=frame.mask, depth=frame.depth)
         tstate, cmd = self.teacher.act(self.teacher_params, tstate, obs)
-        return tstate, O.normalise_command(jnp.asarray(cmd, jnp.float32), self.limits)
+        return tstate, policies_observe.normalise_command(
+            jnp.asarray(cmd, jnp.float32), self.limits
+        )
 
     def _sensor_key(self, d: EnvData, t):
         return jax.random.fold_in(d.key, t) if self.cfg.randomize.sensor_noise else None
 
-    def _empty_log(self, p0, goal, lane_y) -> M.Log:
+    def _empty_log(self, p0, goal, lane_y) -> rollout_metrics.Log:
         T = self.n_steps
-        return M.Log(pose=jnp.full((T, 3), jnp.nan), cmd=jnp.zeros((T, 2)),
-                     alive=jnp.zeros(T, bool), event=jnp.zeros(T, jnp.int32), start=p0,
-                     goal=goal, lane_y=lane_y, reason=jnp.int32(M.RUNNING),
-                     steps=jnp.int32(0), vel=jnp.full((T, 2), jnp.nan))
+        return rollout_metrics.Log(
+            pose=jnp.full((T, 3), jnp.nan),
+            cmd=jnp.zeros((T, 2)),
+            alive=jnp.zeros(T, bool),
+            event=jnp.zeros(T, jnp.int32),
+            start=p0,
+            goal=goal,
+            lane_y=lane_y,
+            reason=jnp.int32(rollout_metrics.RUNNING),
+            steps=jnp.int32(0),
+            vel=jnp.full((T, 2), jnp.nan),
+        )
 
     def _metrics(self, parts, log, ret):
         out = {f"reward/{k}": v.astype(jnp.float32) for k, v in parts.items()}
-        nav = M.summarise(log, self.dt)
+        nav = rollout_metrics.summarise(log, self.dt)
         out.update({f"nav/{k}": jnp.asarray(nav[k], jnp.float32) for k in NAV_METRICS})
         out["return"] = ret
         return out
@@ -236,9 +248,9 @@ class Env:
         zeros until `observe`)."""
         rz, scfg = self.cfg.randomize, self.episode.sim
         ks = jax.random.split(rng, 8)
-        params = RZ.sample_params(self.base, self.ranges, ks[0])
-        field = F.generate(params, self.shape, ks[1])
-        lane = F.robot_lane(field)
+        params = env_randomize.sample_params(self.base, self.ranges, ks[0])
+        field = mjxrow_field.generate(params, self.shape, ks[1])
+        lane = mjxrow_field.robot_lane(field)
         m = sim.world_model(self.mx, field, lane, scfg)
         ahead = rz.start_progress * scfg.path_length * jax.random.uniform(ks[2])
         start = field.replace(row_x=field.row_x.at[1].add(ahead))  # start `ahead` m closer
@@ -246,15 +258,26 @@ class Env:
         s0 = sim.reset(m, start, lane, ks[3], scfg, noise)
         goal = jnp.stack([field.row_x[1], field.lane_y[lane]])
         p0 = sim.pose(s0)
-        d = EnvData(sim=s0, world={k: getattr(m, k) for k in sim.WORLD_FIELDS}, field=field,
-                    table=tuple(jax.tree.leaves(render.plant_table(field, self.shape))),
-                    lane=lane, goal=goal, cond=RZ.sample_condition(rz, ks[4]),
-                    jitter=RZ.sample_jitter(rz, ks[5]), key=ks[6], prev_action=jnp.zeros(2),
-                    vel=jnp.zeros(2), anchor=p0[:2], t=jnp.int32(0), ret=jnp.float32(0.0),
-                    teacher=self.teacher.init(self.teacher_params),
-                    log=self._empty_log(p0, goal, goal[1]))
+        d = EnvData(
+            sim=s0,
+            world={k: getattr(m, k) for k in sim.WORLD_FIELDS},
+            field=field,
+            table=tuple(jax.tree.leaves(render.plant_table(field, self.shape))),
+            lane=lane,
+            goal=goal,
+            cond=env_randomize.sample_condition(rz, ks[4]),
+            jitter=env_randomize.sample_jitter(rz, ks[5]),
+            key=ks[6],
+            prev_action=jnp.zeros(2),
+            vel=jnp.zeros(2),
+            anchor=p0[:2],
+            t=jnp.int32(0),
+            ret=jnp.float32(0.0),
+            teacher=self.teacher.init(self.teacher_params),
+            log=self._empty_log(p0, goal, goal[1]),
+        )
         zero = jnp.float32(0.0)
-        parts = {k: zero for k in RW.TERMS}
+        parts = {k: zero for k in env_reward.TERMS}
         obs = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), self._obs_shapes)
         return State(data=d, obs=obs, reward=zero, done=zero,
                      metrics=self._metrics(parts, d.log, zero),
@@ -265,40 +288,34 @@ class Env:
         d = state.data
         frame = self.frame(d, d.sim, self._sensor_key(d, d.t))
         tstate, teacher = self._teach(d, d.sim, frame, d.teacher)
-        obs = O.observe(self.spec, frame, self.seg, d.vel, d.prev_action, self.limits)
+        obs = policies_observe.observe(
+            self.spec, frame, self.seg, d.vel, d.prev_action, self.limits
+        )
         return state.replace(data=d.replace(teacher=tstate), obs=obs,
                              info={**state.info, "teacher_action": teacher})
 
     def advance(self, state: State, action: jax.Array) -> State:
         """The physics, events and reward of one control step (obs left as it was: call
         `observe`). A done state stays as it is."""
-        d, scfg = state.data, self.episode.sim
+        d = state.data
         a = jnp.clip(jnp.asarray(action, jnp.float32), -1.0, 1.0)
-        cmd = O.scale_action(a, self.limits)
+        cmd = policies_observe.scale_action(a, self.limits)
         m = self.model(d.world)
-        s_new = sim.step(m, d.sim, cmd, scfg)
-        bad = sim.is_bad(s_new, scfg) | ~jnp.all(jnp.isfinite(cmd))
-        p_old, p = sim.pose(d.sim), sim.pose(s_new)
-        reason = E.end_reason(m, s_new, bad, d.t, d.anchor, d.goal, d.field, self.half,
-                               self.episode)
-        s_next = jax.tree.map(lambda x, y: jnp.where(bad, x, y), d.sim, s_new)
-        check = (d.t + 1) % self.episode.stuck_window == 0
-        log = d.log
-        t = jnp.minimum(d.t, self.n_steps - 1)
-        log = log.replace(pose=log.pose.at[t].set(p), cmd=log.cmd.at[t].set(cmd),
-                          alive=log.alive.at[t].set(True), event=log.event.at[t].set(reason),
-                          vel=log.vel.at[t].set(jnp.where(bad, jnp.nan, sim.velocity(s_new))),
-                          reason=reason, steps=d.t + 1)
-        parts = RW.terms(p_old, p, d.goal[1], reason, self.dt)
-        r = RW.total(self.cfg.reward, parts)
-        d_new = d.replace(sim=s_next, prev_action=a, t=d.t + 1, ret=d.ret + r, log=log,
-                          vel=O.odometry(p_old, sim.pose(s_next), self.dt),
-                          anchor=jnp.where(check, p[:2], d.anchor))
+        carry = rollout_step.Carry(sim=d.sim, done=state.done > 0, anchor=d.anchor)
+        nxt, row, reason = rollout_step.step(m, d.field, d.goal, self.half, carry, cmd, d.t,
+                                             self.episode)
+        p_old, p = sim.pose(d.sim), row.pose
+        log = rollout_step.record(d.log, jnp.minimum(d.t, self.n_steps - 1), row, reason)
+        parts = env_reward.terms(p_old, p, d.goal[1], reason, self.dt)
+        r = env_reward.total(self.cfg.reward, parts)
+        d_new = d.replace(sim=nxt.sim, prev_action=a, t=d.t + 1, ret=d.ret + r, log=log,
+                          vel=policies_observe.odometry(p_old, sim.pose(nxt.sim), self.dt),
+                          anchor=nxt.anchor)
         new = State(data=d_new, obs=state.obs, reward=r,
-                    done=(reason != M.RUNNING).astype(jnp.float32),
+                    done=(reason != rollout_metrics.RUNNING).astype(jnp.float32),
                     metrics=self._metrics(parts, log, d_new.ret),
                     info={**state.info,
-                          "truncation": (reason == M.TIMEOUT).astype(jnp.float32)})
+                          "truncation": (reason == rollout_metrics.TIMEOUT).astype(jnp.float32)})
         was_done = state.done > 0
         return jax.tree.map(lambda x, y: jnp.where(was_done, x, y),
                             state.replace(reward=jnp.zeros_like(state.reward)), new)

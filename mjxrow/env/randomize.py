@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxrow import field as F
+from mjxrow import field
 from mjxrow.render import shade
 
 # Default ranges per preset (metres, slopes dz/dx, densities per 100 m²): wide enough to cover
@@ -73,7 +73,7 @@ class Randomize:
         if not self.conditions:
             raise ValueError("env.randomize.conditions: at least one condition")
         for name, lo, hi in self.ranges or ():
-            if name not in F.PARAM_NAMES:
+            if name not in field.PARAM_NAMES:
                 raise ValueError(f"env.randomize.ranges: {name!r} is not a field parameter")
             if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
                 raise ValueError(f"env.randomize.ranges.{name}: need lo <= hi, got "
@@ -98,7 +98,7 @@ class Randomize:
                    start_offset_std=0.0, start_yaw_std_deg=0.0, start_progress=0.0)
 
 
-def corner_params(base: F.FieldParams, ranges) -> F.FieldParams:
+def corner_params(base: field.FieldParams, ranges) -> field.FieldParams:
     """FieldParams [2^k] at every corner of the k ranges (host), other values from `base`."""
     if not ranges:
         return jax.tree.map(lambda x: jnp.asarray(x)[None], base)
@@ -109,11 +109,11 @@ def corner_params(base: F.FieldParams, ranges) -> F.FieldParams:
                           enumerate(ranges)})
 
 
-def check_ranges(base: F.FieldParams, ranges, shape: F.FieldShape) -> None:
+def check_ranges(base: field.FieldParams, ranges, shape: field.FieldShape) -> None:
     """ValueError naming the parameter and the corner of the ranges that gives an impossible
     field (or one larger than `shape`)."""
     corners = corner_params(base, ranges)
-    for name, (ok, reason) in F.checks(corners, shape).items():
+    for name, (ok, reason) in field.checks(corners, shape).items():
         ok = np.asarray(ok).reshape(-1)
         if not ok.all():
             i = int(np.argmin(ok))
@@ -121,7 +121,7 @@ def check_ranges(base: F.FieldParams, ranges, shape: F.FieldShape) -> None:
             raise ValueError(f"env.randomize.ranges: {name}: {reason} (at {at})")
 
 
-def sample_params(base: F.FieldParams, ranges, key: jax.Array) -> F.FieldParams:
+def sample_params(base: field.FieldParams, ranges, key: jax.Array) -> field.FieldParams:
     """FieldParams of one world: each ranged parameter uniform in (lo, hi), the rest `base`."""
     if not ranges:
         return base

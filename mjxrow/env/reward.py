@@ -1,5 +1,5 @@
 """The environment's reward terms. Its episodes end where the sweep's would: the environment
-calls `rollout.episode.end_reason`, the evaluation episode's own step events
+calls `rollout.step.step`, the evaluation episode's own step
 (`tests/test_env.py` checks this on an oracle episode against `rollout.episode.episode`).
 
 Reward of one control step (each term is logged as a metric `reward/<term>`):
@@ -21,10 +21,16 @@ import jax
 import jax.numpy as jnp
 
 from mjxrow.control.base import wrap_angle
-from mjxrow.rollout import metrics as M
+from mjxrow.rollout import metrics as rollout_metrics
 
 TERMS = ("progress", "lateral", "heading", "collision", "goal", "failure")
-FAILURES = (M.FLIPPED, M.OFF_PATCH, M.MISSED_GOAL, M.STUCK, M.SIM_ERROR)
+FAILURES = (
+    rollout_metrics.FLIPPED,
+    rollout_metrics.OFF_PATCH,
+    rollout_metrics.MISSED_GOAL,
+    rollout_metrics.STUCK,
+    rollout_metrics.SIM_ERROR,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,8 +65,8 @@ def terms(prev_pose: jax.Array, pose: jax.Array, lane_y: jax.Array, reason: jax.
         "progress": f(pose[0] - prev_pose[0]),
         "lateral": -jnp.abs(pose[1] - lane_y) * dt,
         "heading": -jnp.abs(wrap_angle(pose[2])) * dt,
-        "collision": -f(reason == M.COLLISION),
-        "goal": f(reason == M.GOAL),
+        "collision": -f(reason == rollout_metrics.COLLISION),
+        "goal": f(reason == rollout_metrics.GOAL),
         "failure": -f(failure),
     }
 

@@ -19,15 +19,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mjxrow import field as F
-from mjxrow.field import params as FP
+from mjxrow import field
+from mjxrow.field import params as field_params
 
 if TYPE_CHECKING:
     from mjxrow.physics.model import SimConfig
 
 
-def _np(params: F.FieldParams) -> dict[str, np.ndarray]:
-    return {k: np.atleast_1d(np.asarray(getattr(params, k), np.float64)) for k in F.PARAM_NAMES}
+def _np(params: field.FieldParams) -> dict[str, np.ndarray]:
+    return {k: np.atleast_1d(np.asarray(getattr(params, k), np.float64)) for k in field.PARAM_NAMES}
 
 
 def _where(bad: np.ndarray) -> tuple[int, str]:
@@ -35,7 +35,7 @@ def _where(bad: np.ndarray) -> tuple[int, str]:
     return i, "" if bad.size == 1 else f" (batch index {i})"
 
 
-def patch_relief(params: F.FieldParams, sim_cfg: SimConfig) -> np.ndarray:
+def patch_relief(params: field.FieldParams, sim_cfg: SimConfig) -> np.ndarray:
     """float64 [B] (or [1]): bound [m] on the terrain height range under a physics patch:
     peak-to-peak roughness `terrain_dh · scale` plus |slope_x| · patch length plus
     |slope_y| · patch width (`sim_cfg.patch_size`). The patch stores heights in
@@ -45,7 +45,7 @@ def patch_relief(params: F.FieldParams, sim_cfg: SimConfig) -> np.ndarray:
     return p["terrain_dh"] * p["scale"] + np.abs(p["slope_x"]) * lx + np.abs(p["slope_y"]) * ly
 
 
-def fit_patch_z(params: F.FieldParams, sim_cfg: SimConfig) -> SimConfig:
+def fit_patch_z(params: field.FieldParams, sim_cfg: SimConfig) -> SimConfig:
     """`sim_cfg` with `patch_z` raised to the next whole metre above every field's
     `patch_relief` (unchanged when it already holds them; whole metres keep the number of
     distinct static configurations, hence compiles, small)."""
@@ -55,7 +55,7 @@ def fit_patch_z(params: F.FieldParams, sim_cfg: SimConfig) -> SimConfig:
     return dataclasses.replace(sim_cfg, patch_z=float(math.floor(need) + 1))
 
 
-def check_patch_z(params: F.FieldParams, sim_cfg: SimConfig) -> None:
+def check_patch_z(params: field.FieldParams, sim_cfg: SimConfig) -> None:
     """Raise ValueError when a field's terrain relief under the patch can exceed
     `sim_cfg.patch_z` (its physics terrain would be flattened), naming the largest term."""
     relief = patch_relief(params, sim_cfg)
@@ -75,7 +75,7 @@ def check_patch_z(params: F.FieldParams, sim_cfg: SimConfig) -> None:
         f"or lower {key}")
 
 
-def lane_free_width(params: F.FieldParams) -> tuple[np.ndarray, np.ndarray]:
+def lane_free_width(params: field.FieldParams) -> tuple[np.ndarray, np.ndarray]:
     """(in-group, between-groups) free lane widths [m] (lane width − plant width), float64 [B];
     the in-group one is −inf where rows_per_group = 1 (no such lane)."""
     p = _np(params)
@@ -85,14 +85,14 @@ def lane_free_width(params: F.FieldParams) -> tuple[np.ndarray, np.ndarray]:
     return free_in, (p["d_RR"] - p["plant_width"]) * s
 
 
-def check_lane(params: F.FieldParams, sim_cfg: SimConfig,
-               robot_width: float = F.ROBOT_WIDTH) -> None:
+def check_lane(params: field.FieldParams, sim_cfg: SimConfig,
+               robot_width: float = field.ROBOT_WIDTH) -> None:
     """Raise ValueError when `sim_cfg.lane` asks for a lane kind that no field of `params` can
     give the robot: "in_group" with rows_per_group = 1 or a free in-group width
     (d_rr − plant_width) below robot_width + LANE_CLEARANCE; "between_groups" likewise with
     d_RR. "auto" is checked by `field.validate` (some lane must fit). `field.robot_lane(field,
     mode=sim_cfg.lane)` picks the lane inside traced code."""
-    mode, need = sim_cfg.lane, robot_width + F.LANE_CLEARANCE
+    mode, need = sim_cfg.lane, robot_width + field.LANE_CLEARANCE
     if mode == "auto":
         return
     free_in, free_between = lane_free_width(params)
@@ -104,7 +104,7 @@ def check_lane(params: F.FieldParams, sim_cfg: SimConfig,
                              f"rows_per_group=1{where}; use sim.lane='between_groups' or 'auto'")
         free, key = free_in, "d_rr"
     else:
-        lay = FP._layout(FP._scaled(params))
+        lay = field_params._layout(field_params._scaled(params))
         one = (np.atleast_1d(np.asarray(lay["n_groups"])) < 2) & (p["rows_per_group"] > 1)
         if one.any():
             i, where = _where(one)
@@ -121,14 +121,14 @@ def check_lane(params: F.FieldParams, sim_cfg: SimConfig,
             f"{need:.2f} m; widen field.{key} or choose another sim.lane")
 
 
-def auto_lane_kind(params: F.FieldParams, robot_width: float = F.ROBOT_WIDTH) -> np.ndarray:
+def auto_lane_kind(params: field.FieldParams, robot_width: float = field.ROBOT_WIDTH) -> np.ndarray:
     """str [B]: the lane kind "auto" drives on each field, "in_group" where an in-group lane
     fits the robot (field.robot_lane's preference), else "between_groups"."""
     free_in, _ = lane_free_width(params)
-    return np.where(free_in >= robot_width + F.LANE_CLEARANCE, "in_group", "between_groups")
+    return np.where(free_in >= robot_width + field.LANE_CLEARANCE, "in_group", "between_groups")
 
 
-def check_params(params: F.FieldParams, sim_cfg: SimConfig) -> None:
+def check_params(params: field.FieldParams, sim_cfg: SimConfig) -> None:
     """`check_patch_z` and `check_lane` (call before compiling a batch of these fields)."""
     check_patch_z(params, sim_cfg)
     check_lane(params, sim_cfg)

@@ -40,9 +40,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxrow import field as F
-from mjxrow.physics import robot as R
-from mjxrow.physics import sim as S
+from mjxrow import field as mjxrow_field
+from mjxrow.physics import robot, sim
 
 MANOEUVRES = ("start", "stop", "flip_turn", "descent", "climb")
 HOLD = "hold"  # standing (command 0) on a 20° slope: what the wheel friction holds (run_c)
@@ -71,42 +70,43 @@ def slope(name: str) -> float:
     return math.tan(math.radians(SLOPE_DEG.get(name, 0.0)))
 
 
-def sim_config(sim_cfg: S.SimConfig) -> S.SimConfig:
+def sim_config(sim_cfg: sim.SimConfig) -> sim.SimConfig:
     """`sim_cfg` with a patch height range that holds the steepest manoeuvre's slope."""
     lx = sim_cfg.patch_size[0]
     need = max(abs(slope(n)) for n in MANOEUVRES) * lx
     return dataclasses.replace(sim_cfg, patch_z=max(sim_cfg.patch_z, math.ceil(need + 1.0)))
 
 
-def run(sim_cfg: S.SimConfig | None = None, robot_cfg: R.RobotConfig | None = None,
+def run(sim_cfg: sim.SimConfig | None = None, robot_cfg: robot.RobotConfig | None = None,
         seconds: float = 4.0) -> dict[str, dict[str, np.ndarray]]:
     """Simulate every manoeuvre (host; compiles once per configuration).
 
     Returns name → samples after each control period [T]: `x`, `z` [m] (chassis origin),
     `pitch` [rad] (nose up positive), `v` [m/s] forward speed, `w` [rad/s] yaw rate, `bad`,
     `flipped` (bool), plus `cmd` [T, 2] and the scalars `slope` (dz/dx) and `dt` [s]."""
-    sim_cfg = sim_config(sim_cfg or S.SimConfig())
-    robot_cfg = robot_cfg or R.RobotConfig()
+    sim_cfg = sim_config(sim_cfg or sim.SimConfig())
+    robot_cfg = robot_cfg or robot.RobotConfig()
     n = math.ceil(seconds * sim_cfg.control_hz - 1e-9)
-    params = F.stack_params([F.make_params("zucchini", **FIELD, slope_x=slope(m))
-                             for m in MANOEUVRES])
-    shape = F.fit_shape(params, "zucchini", obstacle_slots=1)
-    _, mx = S.make_model(shape, sim_cfg, robot_cfg)
+    params = mjxrow_field.stack_params(
+        [mjxrow_field.make_params("zucchini", **FIELD, slope_x=slope(m)) for m in MANOEUVRES]
+    )
+    shape = mjxrow_field.fit_shape(params, "zucchini", obstacle_slots=1)
+    _, mx = sim.make_model(shape, sim_cfg, robot_cfg)
     cmds = jnp.asarray(np.stack([commands(m, n) for m in MANOEUVRES]))
 
     def world(p, cmd_seq):
-        field = F.generate(p, shape, jax.random.key(0))
-        lane = F.robot_lane(field)
-        mw = S.world_model(mx, field, lane, sim_cfg)
-        s0 = S.reset(mw, field, lane, jax.random.key(0), sim_cfg)
+        field = mjxrow_field.generate(p, shape, jax.random.key(0))
+        lane = mjxrow_field.robot_lane(field)
+        mw = sim.world_model(mx, field, lane, sim_cfg)
+        s0 = sim.reset(mw, field, lane, jax.random.key(0), sim_cfg)
 
         def body(s, cmd):
-            s = S.step(mw, s, cmd, sim_cfg)
+            s = sim.step(mw, s, cmd, sim_cfg)
             xmat = s.data.xmat[1]
-            vel = S.velocity(s)
+            vel = sim.velocity(s)
             out = dict(x=s.data.qpos[0], z=s.data.qpos[2],
                        pitch=jnp.arcsin(jnp.clip(xmat[2, 0], -1.0, 1.0)), v=vel[0], w=vel[1],
-                       bad=S.is_bad(s, sim_cfg), flipped=S.is_flipped(s, sim_cfg))
+                       bad=sim.is_bad(s, sim_cfg), flipped=sim.is_flipped(s, sim_cfg))
             return s, out
 
         _, traj = jax.lax.scan(body, s0, cmd_seq)
@@ -124,41 +124,45 @@ def run(sim_cfg: S.SimConfig | None = None, robot_cfg: R.RobotConfig | None = No
 
 
 @functools.lru_cache(maxsize=8)
-def _c_worlds(sim_cfg: S.SimConfig, robot_cfg: R.RobotConfig, fields: tuple[tuple, ...]):
+def _c_worlds(sim_cfg: sim.SimConfig, robot_cfg: robot.RobotConfig, fields: tuple[tuple, ...]):
     """(C model, start qpos float [nq]) per field (FieldParams overrides as sorted items),
     built by the MJX code; cached (one compile for every manoeuvre and friction)."""
-    fp = [F.make_params("zucchini", **dict(f)) for f in fields]
-    shape = F.fit_shape(F.stack_params(fp), "zucchini", obstacle_slots=1)
-    m, mx = S.make_model(shape, sim_cfg, robot_cfg)
+    fp = [mjxrow_field.make_params("zucchini", **dict(f)) for f in fields]
+    shape = mjxrow_field.fit_shape(mjxrow_field.stack_params(fp), "zucchini", obstacle_slots=1)
+    m, mx = sim.make_model(shape, sim_cfg, robot_cfg)
 
     def world(p):
-        fld = F.generate(p, shape, jax.random.key(0))
-        lane = F.robot_lane(fld)
-        mw = S.world_model(mx, fld, lane, sim_cfg)
-        return mw, S.reset(mw, fld, lane, jax.random.key(0), sim_cfg).data.qpos
+        fld = mjxrow_field.generate(p, shape, jax.random.key(0))
+        lane = mjxrow_field.robot_lane(fld)
+        mw = sim.world_model(mx, fld, lane, sim_cfg)
+        return mw, sim.reset(mw, fld, lane, jax.random.key(0), sim_cfg).data.qpos
 
-    mws, q0 = jax.device_get(jax.jit(jax.vmap(world))(F.stack_params(fp)))
-    return [(S.world_mjmodel(m, jax.tree.map(lambda x, i=i: x[i], mws)), np.asarray(q0[i]))
+    mws, q0 = jax.device_get(jax.jit(jax.vmap(world))(mjxrow_field.stack_params(fp)))
+    return [(sim.world_mjmodel(m, jax.tree.map(lambda x, i=i: x[i], mws)), np.asarray(q0[i]))
             for i in range(len(fp))]
 
 
-def c_world(name: str, sim_cfg: S.SimConfig | None = None, robot_cfg: R.RobotConfig | None = None,
-            field: dict | None = None) -> tuple:
+def c_world(
+    name: str,
+    sim_cfg: sim.SimConfig | None = None,
+    robot_cfg: robot.RobotConfig | None = None,
+    field: dict | None = None,
+) -> tuple:
     """(MuJoCo C model, start qpos float [nq]) of manoeuvre `name`'s world (`run_c`; the
     model's timestep is sim_cfg's physics step; a copy, free to modify). The worlds of every
     manoeuvre are built together and cached, once for all physics steps."""
-    sim_cfg = sim_config(sim_cfg or S.SimConfig())
+    sim_cfg = sim_config(sim_cfg or sim.SimConfig())
     every = MANOEUVRES + (HOLD,)
     over = [tuple(sorted({**FIELD, "slope_x": slope(m), **(field or {})}.items())) for m in every]
-    worlds = _c_worlds(dataclasses.replace(sim_cfg, dt=S.SimConfig.dt),
-                       robot_cfg or R.RobotConfig(), tuple(over))
+    worlds = _c_worlds(dataclasses.replace(sim_cfg, dt=sim.SimConfig.dt),
+                       robot_cfg or robot.RobotConfig(), tuple(over))
     mc, q0 = worlds[every.index(name)]
     mc = copy.deepcopy(mc)
     mc.opt.timestep = sim_cfg.physics_dt
     return mc, q0
 
 
-def run_c(sim_cfg: S.SimConfig | None = None, robot_cfg: R.RobotConfig | None = None,
+def run_c(sim_cfg: sim.SimConfig | None = None, robot_cfg: robot.RobotConfig | None = None,
           seconds: float = 4.0, names: tuple[str, ...] = MANOEUVRES, friction: float | None = None,
           field: dict | None = None) -> dict[str, dict[str, np.ndarray]]:
     """`run` in MuJoCo C on the same model (host): each world is built by the MJX code
@@ -173,16 +177,18 @@ def run_c(sim_cfg: S.SimConfig | None = None, robot_cfg: R.RobotConfig | None = 
     (`slope_x` is the manoeuvre's unless given). Same samples as `run`."""
     import mujoco
 
-    sim_cfg = sim_config(sim_cfg or S.SimConfig())
-    robot_cfg = robot_cfg or R.RobotConfig()
+    sim_cfg = sim_config(sim_cfg or sim.SimConfig())
+    robot_cfg = robot_cfg or robot.RobotConfig()
     n = math.ceil(seconds * sim_cfg.control_hz - 1e-9)
     dt = sim_cfg.physics_dt
     out = {}
     for name in names:
         mc, q0 = c_world(name, sim_cfg, robot_cfg, field)
-        rn = S.robot_numbers(mc)
-        dofs = S.wheel_dofs(mc)
-        wheels = [mujoco.mj_name2id(mc, mujoco.mjtObj.mjOBJ_GEOM, f"wheel_{w}") for w in R.WHEELS]
+        rn = sim.robot_numbers(mc)
+        dofs = sim.wheel_dofs(mc)
+        wheels = [
+            mujoco.mj_name2id(mc, mujoco.mjtObj.mjOBJ_GEOM, f"wheel_{w}") for w in robot.WHEELS
+        ]
         chassis = mujoco.mj_name2id(mc, mujoco.mjtObj.mjOBJ_BODY, "chassis")
         if friction is not None:
             mc.geom_friction[wheels, 0] = friction
@@ -195,8 +201,8 @@ def run_c(sim_cfg: S.SimConfig | None = None, robot_cfg: R.RobotConfig | None = 
         rec.update(bad=np.zeros(n, bool), flipped=np.zeros(n, bool))
         for i in range(n):
             for _ in range(sim_cfg.substeps):
-                target = R.ramp(target, cmds[i], rn, dt)
-                tau, stiff = R.servo(R.wheel_speeds(target, rn), d.qvel[dofs], rn)
+                target = robot.ramp(target, cmds[i], rn, dt)
+                tau, stiff = robot.servo(robot.wheel_speeds(target, rn), d.qvel[dofs], rn)
                 d.ctrl[:] = tau
                 mc.dof_armature[dofs] = arm + dt * stiff
                 mujoco.mj_step(mc, d)

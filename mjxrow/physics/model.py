@@ -73,9 +73,9 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from mjxrow import field as F
+from mjxrow import field as mjxrow_field
 from mjxrow.field.generate import LANE_MODES
-from mjxrow.physics import robot as R
+from mjxrow.physics import robot as physics_robot
 from mjxrow.physics.quiet import mjx
 
 TERRAIN = "terrain"  # name of the heightfield geom
@@ -152,7 +152,9 @@ class SimConfig:
 # Model
 
 
-def model_xml(shape: F.FieldShape, sim_cfg: SimConfig, robot_cfg: R.RobotConfig) -> str:
+def model_xml(
+    shape: mjxrow_field.FieldShape, sim_cfg: SimConfig, robot_cfg: physics_robot.RobotConfig
+) -> str:
     """MJCF text of the physics model for `shape` (no assets: the heightfield starts flat)."""
     ny, nx = sim_cfg.patch_cells
     lx, ly = sim_cfg.patch_size
@@ -169,8 +171,8 @@ def model_xml(shape: F.FieldShape, sim_cfg: SimConfig, robot_cfg: R.RobotConfig)
         f'group="3" rgba="1 0 0 0.3"/>'
         for j in range(n_slots)
     )
-    robot = R.mjcf_body(robot_cfg, pos=(0.0, 0.0, robot_cfg.wheel_radius + 0.01),
-                        chassis_contacts=sim_cfg.chassis_contacts)
+    robot = physics_robot.mjcf_body(robot_cfg, pos=(0.0, 0.0, robot_cfg.wheel_radius + 0.01),
+                                    chassis_contacts=sim_cfg.chassis_contacts)
     robot = "\n".join("    " + line for line in robot.splitlines())
     return f"""<mujoco model="mjxrow_{shape.crop}">
   <compiler angle="radian" autolimits="true"/>
@@ -180,7 +182,7 @@ def model_xml(shape: F.FieldShape, sim_cfg: SimConfig, robot_cfg: R.RobotConfig)
     <flag eulerdamp="disable"/>
   </option>
   <custom>
-    {R.mjcf_numeric(robot_cfg)}
+    {physics_robot.mjcf_numeric(robot_cfg)}
   </custom>
   <asset>
     <hfield name="patch" nrow="{ny}" ncol="{nx}"
@@ -194,21 +196,24 @@ def model_xml(shape: F.FieldShape, sim_cfg: SimConfig, robot_cfg: R.RobotConfig)
 {robot}
   </worldbody>
   <actuator>
-{R.mjcf_actuators(robot_cfg)}
+{physics_robot.mjcf_actuators(robot_cfg)}
   </actuator>
 </mujoco>
 """
 
 
-def make_model(shape: F.FieldShape, sim_cfg: SimConfig | None = None,
-               robot_cfg: R.RobotConfig | None = None) -> tuple[mujoco.MjModel, mjx.Model]:
+def make_model(
+    shape: mjxrow_field.FieldShape,
+    sim_cfg: SimConfig | None = None,
+    robot_cfg: physics_robot.RobotConfig | None = None,
+) -> tuple[mujoco.MjModel, mjx.Model]:
     """Compile the physics model for a static shape (host; once per shape and configs).
 
     Returns the MuJoCo C model (flat patch, obstacles parked) and its MJX model (impl "jax").
     The robot's limits and geometry travel inside the model (a `<numeric>`), so `step` and
     `reset` need only the model."""
     sim_cfg = sim_cfg or SimConfig()
-    robot_cfg = robot_cfg or R.RobotConfig()
+    robot_cfg = robot_cfg or physics_robot.RobotConfig()
     m = mujoco.MjModel.from_xml_string(model_xml(shape, sim_cfg, robot_cfg))
     mx = mjx.put_model(m, impl="jax", device=jax.local_devices()[0])  # this process's own
     return m, mx
@@ -216,15 +221,17 @@ def make_model(shape: F.FieldShape, sim_cfg: SimConfig | None = None,
 
 def robot_numbers(mx: mjx.Model | mujoco.MjModel) -> dict[str, float]:
     """The robot's numbers baked into a model (robot.NUMERIC_KEYS → float; static)."""
-    i = mjx.name2id(mx, mujoco.mjtObj.mjOBJ_NUMERIC, R.NUMERIC)
+    i = mjx.name2id(mx, mujoco.mjtObj.mjOBJ_NUMERIC, physics_robot.NUMERIC)
     if i < 0:
-        raise ValueError(f"model: no <numeric name={R.NUMERIC!r}>; build it with sim.make_model")
+        raise ValueError(
+            f"model: no <numeric name={physics_robot.NUMERIC!r}>; build it with sim.make_model"
+        )
     adr = int(mx.numeric_adr[i])
-    vals = np.asarray(mx.numeric_data)[adr: adr + len(R.NUMERIC_KEYS)]
-    return {k: float(v) for k, v in zip(R.NUMERIC_KEYS, vals, strict=True)}
+    vals = np.asarray(mx.numeric_data)[adr: adr + len(physics_robot.NUMERIC_KEYS)]
+    return {k: float(v) for k, v in zip(physics_robot.NUMERIC_KEYS, vals, strict=True)}
 
 
-def _obstacle_counts(shape: F.FieldShape, sim_cfg: SimConfig) -> tuple[int, int]:
+def _obstacle_counts(shape: mjxrow_field.FieldShape, sim_cfg: SimConfig) -> tuple[int, int]:
     """(obstacle geoms per world, colliding contact slots)."""
     k = min(sim_cfg.obstacle_candidates, shape.obstacle_slots)
     return k, min(sim_cfg.obstacle_slots, k)
@@ -244,12 +251,14 @@ def _geom_ids(mx: mjx.Model | mujoco.MjModel) -> tuple[int, np.ndarray, np.ndarr
 
 
 def _wheel_body_ids(mx: mjx.Model | mujoco.MjModel) -> np.ndarray:
-    return np.array([mjx.name2id(mx, mujoco.mjtObj.mjOBJ_BODY, f"wheel_{n}") for n in R.WHEELS])
+    return np.array(
+        [mjx.name2id(mx, mujoco.mjtObj.mjOBJ_BODY, f"wheel_{n}") for n in physics_robot.WHEELS]
+    )
 
 
 def wheel_dofs(mx: mjx.Model | mujoco.MjModel) -> np.ndarray:
     """int [4]: the wheel joints' qvel indices, robot.WHEELS order (static)."""
-    ids = [mjx.name2id(mx, mujoco.mjtObj.mjOBJ_JOINT, f"wheel_{n}") for n in R.WHEELS]
+    ids = [mjx.name2id(mx, mujoco.mjtObj.mjOBJ_JOINT, f"wheel_{n}") for n in physics_robot.WHEELS]
     return np.asarray(mx.jnt_dofadr)[ids]
 
 
@@ -280,7 +289,7 @@ def _axis_quat(angle: jax.Array, axis: int) -> jax.Array:
     return jnp.stack(parts, -1)
 
 
-def patch_frame(field: F.Field, lane: jax.Array, sim_cfg: SimConfig) -> jax.Array:
+def patch_frame(field: mjxrow_field.Field, lane: jax.Array, sim_cfg: SimConfig) -> jax.Array:
     """float32 [2]: the patch centre (x, y) [m] for `lane`: along x it spans
     [row end − path_length − patch_back, row end + patch_front], across it is centred on the
     lane's centre line."""
@@ -289,7 +298,7 @@ def patch_frame(field: F.Field, lane: jax.Array, sim_cfg: SimConfig) -> jax.Arra
     return jnp.stack([cx, field.lane_y[lane]]).astype(jnp.float32)
 
 
-def patch_heights(field: F.Field, lane: jax.Array, sim_cfg: SimConfig) -> jax.Array:
+def patch_heights(field: mjxrow_field.Field, lane: jax.Array, sim_cfg: SimConfig) -> jax.Array:
     """float32 [NY, NX] terrain heights [m] at the patch samples (NY, NX = sim_cfg.patch_cells;
     row j ↔ y, column i ↔ x, as MuJoCo lays a heightfield)."""
     ny, nx = sim_cfg.patch_cells
@@ -297,10 +306,10 @@ def patch_heights(field: F.Field, lane: jax.Array, sim_cfg: SimConfig) -> jax.Ar
     c = patch_frame(field, lane, sim_cfg)
     x = c[0] + (jnp.linspace(0.0, 1.0, nx) - 0.5) * lx
     y = c[1] + (jnp.linspace(0.0, 1.0, ny) - 0.5) * ly
-    return F.terrain_height(field.terrain, field.terrain_size, x[None, :], y[:, None])
+    return mjxrow_field.terrain_height(field.terrain, field.terrain_size, x[None, :], y[:, None])
 
 
-def _select_obstacles(field: F.Field, centre: jax.Array, sim_cfg: SimConfig, k: int):
+def _select_obstacles(field: mjxrow_field.Field, centre: jax.Array, sim_cfg: SimConfig, k: int):
     """Indices [k] of the obstacles that get a physics slot, whether each is used, and how many
     obstacles on the patch got none."""
     lx, ly = sim_cfg.patch_size
@@ -313,14 +322,16 @@ def _select_obstacles(field: F.Field, centre: jax.Array, sim_cfg: SimConfig, k: 
     return idx, used, dropped
 
 
-def obstacles_dropped(field: F.Field, lane: jax.Array, sim_cfg: SimConfig,
-                      shape: F.FieldShape) -> jax.Array:
+def obstacles_dropped(field: mjxrow_field.Field, lane: jax.Array, sim_cfg: SimConfig,
+                      shape: mjxrow_field.FieldShape) -> jax.Array:
     """int32 []: active obstacles on the patch that found no physics slot (0 when all fit)."""
     k = _obstacle_counts(shape, sim_cfg)[0]
     return _select_obstacles(field, patch_frame(field, lane, sim_cfg), sim_cfg, k)[2]
 
 
-def world_model(mx: mjx.Model, field: F.Field, lane: jax.Array, sim_cfg: SimConfig) -> mjx.Model:
+def world_model(
+    mx: mjx.Model, field: mjxrow_field.Field, lane: jax.Array, sim_cfg: SimConfig
+) -> mjx.Model:
     """`mx` with one world written in (pure, jittable; vmap over `field`/`lane` with
     `model_axes(mx)` as the out axes):
 
@@ -346,7 +357,7 @@ def world_model(mx: mjx.Model, field: F.Field, lane: jax.Array, sim_cfg: SimConf
         parked = jnp.stack([jnp.full(k, centre[0]), jnp.full(k, centre[1]),
                             h_min - _PARK_DEPTH - 3.0 * jnp.arange(k)], -1)
         pos = jnp.where(used[:, None], pos, parked)
-        stone = field.obst_kind[idx] == F.STONE
+        stone = field.obst_kind[idx] == mjxrow_field.STONE
         radius = jnp.where(used, field.obst_size[idx, 0], 0.01)
         half = jnp.where(stone | ~used, _STONE_HALF, field.obst_size[idx, 1])
         size = jnp.stack([radius, half, jnp.zeros_like(half)], -1)

@@ -20,9 +20,9 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from mjxrow import field as F
-from mjxrow.physics import robot as R
-from mjxrow.physics.checks import (  # noqa: F401  (re-exported: sim.check_lane, ...)
+from mjxrow import field as mjxrow_field
+from mjxrow.physics import robot
+from mjxrow.physics.checks import (  # noqa: F401  (the physics' face: sim.check_lane, ...)
     auto_lane_kind,
     check_lane,
     check_params,
@@ -31,7 +31,7 @@ from mjxrow.physics.checks import (  # noqa: F401  (re-exported: sim.check_lane,
     lane_free_width,
     patch_relief,
 )
-from mjxrow.physics.model import (  # noqa: F401  (re-exported: sim.make_model, ...)
+from mjxrow.physics.model import (  # noqa: F401  (the physics' face: sim.make_model, ...)
     TERRAIN,
     WORLD_FIELDS,
     SimConfig,
@@ -78,10 +78,10 @@ class SimState:
     target: jax.Array  # float32 [2], (v [m/s], ω [rad/s]) the wheels follow (robot.ramp)
 
 
-def lane_of(field: F.Field, sim_cfg: SimConfig) -> jax.Array:
+def lane_of(field: mjxrow_field.Field, sim_cfg: SimConfig) -> jax.Array:
     """int32 []: the lane the robot drives, `field.robot_lane(field, mode=sim_cfg.lane)`
     (traced; check the request on the host with `check_lane`)."""
-    return F.robot_lane(field, mode=sim_cfg.lane)
+    return mjxrow_field.robot_lane(field, mode=sim_cfg.lane)
 
 
 def _patch_surface(mx: mjx.Model, sim_cfg: SimConfig, x: jax.Array, y: jax.Array) -> jax.Array:
@@ -91,10 +91,10 @@ def _patch_surface(mx: mjx.Model, sim_cfg: SimConfig, x: jax.Array, y: jax.Array
     c = mx.geom_pos[terrain_id]
     grid = mx.hfield_data.reshape(ny, nx) * sim_cfg.patch_z
     size = jnp.asarray(sim_cfg.patch_size, jnp.float32)
-    return c[2] + F.terrain_height(grid, size, x - c[0], y - c[1])
+    return c[2] + mjxrow_field.terrain_height(grid, size, x - c[0], y - c[1])
 
 
-def reset(mx: mjx.Model, field: F.Field, lane: jax.Array | None, key: jax.Array,
+def reset(mx: mjx.Model, field: mjxrow_field.Field, lane: jax.Array | None, key: jax.Array,
           sim_cfg: SimConfig, noise: PoseNoise | None = None) -> SimState:
     """Robot at rest at the start of `lane`, wheels on the terrain (pure, jittable).
 
@@ -113,8 +113,8 @@ def reset(mx: mjx.Model, field: F.Field, lane: jax.Array | None, key: jax.Array,
     yaw = jnp.float32(0.0) if noise is None else noise.heading_std * jax.random.normal(kh)
     x0 = field.row_x[1] - sim_cfg.path_length
     y0 = field.lane_y[lane] + lat
-    wxy = jnp.asarray(np.stack([R.WHEEL_FRONT * rn["wheelbase"] / 2,
-                                R.WHEEL_SIDE * rn["track"] / 2], -1), jnp.float32)
+    wxy = jnp.asarray(np.stack([robot.WHEEL_FRONT * rn["wheelbase"] / 2,
+                                robot.WHEEL_SIDE * rn["track"] / 2], -1), jnp.float32)
     c, s = jnp.cos(yaw), jnp.sin(yaw)
     wx = x0 + c * wxy[:, 0] - s * wxy[:, 1]
     wy = y0 + s * wxy[:, 0] + c * wxy[:, 1]
@@ -150,8 +150,8 @@ def step(mx: mjx.Model, state: SimState, cmd: jax.Array, sim_cfg: SimConfig) -> 
 
     def body(carry, _):
         d, target = carry
-        target = R.ramp(target, cmd, rn, dt)
-        tau, stiff = R.servo(R.wheel_speeds(target, rn), d.qvel[dofs], rn)
+        target = robot.ramp(target, cmd, rn, dt)
+        tau, stiff = robot.servo(robot.wheel_speeds(target, rn), d.qvel[dofs], rn)
         m = mx.tree_replace({"dof_armature": mx.dof_armature.at[dofs].set(armature + dt * stiff)})
         d = d.replace(ctrl=tau.astype(d.ctrl.dtype))
         return (mjx.step(m, d), target), None

@@ -29,8 +29,8 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
+from mjxrow.policies import networks
 from mjxrow.policies.observe import ObsSpec
-from mjxrow.policies import networks as N
 
 SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints" / "policy"
 SPEC_FILE = "policy.json"
@@ -43,7 +43,7 @@ class PolicyCheckpoint:
     limits (v_max [m/s], ω_max [rad/s]) and the training facts."""
 
     path: Path
-    net: N.PolicyNet
+    net: networks.PolicyNet
     variables: Any
     spec: ObsSpec
     limits: tuple[float, float]
@@ -67,7 +67,7 @@ def resolve(name: str | Path, base_dir: str | Path = ".", key: str = "controller
     return path
 
 
-def save(path: str | Path, variables: Any, spec: ObsSpec, net: N.NetConfig,
+def save(path: str | Path, variables: Any, spec: ObsSpec, net: networks.NetConfig,
          limits: tuple[float, float], meta: dict | None = None,
          weights_dtype: str = "float32") -> Path:
     """Write a policy checkpoint folder (replacing one there). weights_dtype "float16" halves
@@ -88,12 +88,12 @@ def save(path: str | Path, variables: Any, spec: ObsSpec, net: N.NetConfig,
     return path
 
 
-def read_spec(path: Path, key: str = "controller.checkpoint") -> tuple[ObsSpec, N.NetConfig,
+def read_spec(path: Path, key: str = "controller.checkpoint") -> tuple[ObsSpec, networks.NetConfig,
                                                                        dict]:
     """(observation, network, the whole policy.json) of a checkpoint folder."""
     try:
         doc = json.loads((path / SPEC_FILE).read_text())
-        return ObsSpec(**doc["observation"]), N.NetConfig.from_dict(doc["network"]), doc
+        return ObsSpec(**doc["observation"]), networks.NetConfig.from_dict(doc["network"]), doc
     except (KeyError, TypeError, ValueError, json.JSONDecodeError) as e:
         raise ValueError(f"{key}: {path / SPEC_FILE} is not a policy spec ({e})") from None
 
@@ -119,9 +119,9 @@ def load(name: str | Path, expect: dict[str, Any] | None = None, base_dir: str |
     path = resolve(name, base_dir, key)
     spec, net_cfg, doc = read_spec(path, key)
     check_spec(spec, expect or {}, str(path), key)
-    net = N.PolicyNet(net_cfg)
+    net = networks.PolicyNet(net_cfg)
     obs = example_obs(spec, doc.get("meta", {}).get("image_shape"))
-    target = jax.eval_shape(lambda: N.init(net, obs, jax.random.key(0)))
+    target = jax.eval_shape(lambda: networks.init(net, obs, jax.random.key(0)))
     stored = doc.get("weights_dtype", "float32")
     target = jax.tree.map(lambda s: jax.ShapeDtypeStruct(s.shape, jnp.dtype(stored)), target)
     try:

@@ -26,7 +26,11 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from mjxrow import render
 from mjxrow.control.base import Controller, Obs, Policy, register
+from mjxrow.policies import checkpoint as policies_checkpoint
+from mjxrow.policies import observe as policies_observe
+from mjxrow.policies import perception
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,18 +57,16 @@ class PolicyState:
 
 @functools.lru_cache(maxsize=8)
 def _load(path: str, stamp: int, expect: tuple):
-    from mjxrow.policies import checkpoint as ckpt
 
-    return ckpt.load(path, dict(expect))
+    return policies_checkpoint.load(path, dict(expect))
 
 
 def load(cfg: PolicyConfig, image_hw: tuple[int, int] | None, base_dir: str = "."):
     """The checkpoint of `cfg`, checked against the camera's (height, width) unless None;
     cached until its policy.json changes (a retrained checkpoint in the same folder)."""
-    from mjxrow.policies import checkpoint as ckpt
 
-    path = ckpt.resolve(cfg.checkpoint, base_dir)
-    stamp = (path / ckpt.SPEC_FILE).stat().st_mtime_ns
+    path = policies_checkpoint.resolve(cfg.checkpoint, base_dir)
+    stamp = (path / policies_checkpoint.SPEC_FILE).stat().st_mtime_ns
     expect = () if image_hw is None else (("height", int(image_hw[0])),
                                           ("width", int(image_hw[1])))
     return _load(str(path), stamp, expect)
@@ -90,8 +92,6 @@ def image_policy(net, spec, seg_module, shape, intr, render_cfg, limits: tuple[f
     (cached: equal ones give the same Policy, hence one compile): the network module, the
     observation spec, the segmenter module (None: none), the field shape, the camera
     intrinsics, the render config, the action limits (v_max, ω_max) and the control period."""
-    from mjxrow import render
-    from mjxrow.policies import observe as O
 
     lim = jnp.asarray(limits, jnp.float32)
 
@@ -106,14 +106,16 @@ def image_policy(net, spec, seg_module, shape, intr, render_cfg, limits: tuple[f
         p = params[0]
         frame = render.render(obs.field, shape, obs.cam_pos, obs.cam_rot, intr, p.cond, None,
                               render_cfg, table=obs.aux)
-        seg = None if seg_module is None else O.Segmenter(
+        seg = None if seg_module is None else policies_observe.Segmenter(
             variables=p.variables["segmenter"], threshold=p.threshold, module=seg_module)
-        vel = jnp.where(state.started, O.odometry(state.prev_pose, obs.pose, dt), 0.0)
-        o = O.observe(spec, frame, seg, vel, state.prev_action, lim)
+        vel = jnp.where(
+            state.started, policies_observe.odometry(state.prev_pose, obs.pose, dt), 0.0
+        )
+        o = policies_observe.observe(spec, frame, seg, vel, state.prev_action, lim)
         mean, _, _ = net.apply(p.variables["policy"], o)
         a = jnp.clip(mean, -1.0, 1.0)
         return (PolicyState(prev_pose=obs.pose, prev_action=a, started=jnp.ones((), bool)),
-                O.scale_action(a, lim))
+                policies_observe.scale_action(a, lim))
 
     return Policy(init, act, prepare)
 
@@ -121,11 +123,9 @@ def image_policy(net, spec, seg_module, shape, intr, render_cfg, limits: tuple[f
 def make_policy(run, shape) -> tuple[Policy, Any]:
     """(Policy, base perception params) of a run whose controller is `policy`: the checkpoint
     loaded and checked, the segmenter its observation needs (env.observe.segmenter_for)."""
-    from mjxrow.policies import perception
-    from mjxrow.policies import observe as O
 
     ck = load(run.controller.params, (run.camera.height, run.camera.width), run.base_dir)
-    seg = O.segmenter_for(run, ck.spec)
+    seg = policies_observe.segmenter_for(run, ck.spec)
     policy = image_policy(ck.net, ck.spec, None if seg is None else seg.module, shape, run.camera,
                           run.render, ck.limits, run.episode.control_dt)
     variables = {"policy": ck.variables, "segmenter": None if seg is None else seg.variables}

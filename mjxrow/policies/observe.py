@@ -25,6 +25,8 @@ import jax.numpy as jnp
 from flax import struct
 
 from mjxrow.control.base import wrap_angle
+from mjxrow.policies import perception
+from mjxrow.seg import model as seg_model
 
 KINDS = ("rgb", "mask", "features")
 PROPRIO_DIM = 4  # (v / v_max, ω / ω_max, previous action v, previous action ω)
@@ -90,7 +92,6 @@ def normalise_command(cmd: jax.Array, limits: jax.Array) -> jax.Array:
 
 
 def _encoder(module):
-    from mjxrow.seg import model as seg_model
 
     return seg_model.MobileNetV3(module.resolved(), dw_impl=module.dw_impl,
                                  pw_impl=module.pw_impl,
@@ -105,7 +106,6 @@ def _encoder_cached(module):
 def features(seg: Segmenter, rgb: jax.Array) -> jax.Array:
     """The segmenter backbone's last feature map of `rgb` uint8 [H, W, 3]: float32
     [ceil(H/16), ceil(W/16), C] (frozen: no gradient)."""
-    from mjxrow.seg import model as seg_model
 
     x = (rgb[None].astype(jnp.float32) / 255.0 - jnp.array(seg_model.MEAN)) / jnp.array(
         seg_model.STD)
@@ -126,7 +126,6 @@ def image(spec: ObsSpec, frame, seg: Segmenter | None) -> jax.Array:
         if seg is None or seg.module is None:
             mask = frame.mask
         else:
-            from mjxrow.seg import model as seg_model
 
             mask = seg_model.predict_mask(seg.module, seg.variables, frame.rgb[None],
                                           seg.threshold)[0]
@@ -170,7 +169,6 @@ def segmenter_for(run, spec: ObsSpec) -> Segmenter | None:
         return None
     from pathlib import Path
 
-    from mjxrow.policies import perception
 
     ck = run.perception.checkpoint
     if ck == "shipped":

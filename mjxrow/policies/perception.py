@@ -26,8 +26,10 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from mjxrow import control
-from mjxrow import field as F
+from mjxrow import control, render
+from mjxrow import field as mjxrow_field
+from mjxrow.seg import checkpoint as seg_checkpoint
+from mjxrow.seg import model as seg_model
 
 SOURCES = ("ground_truth", "learned")
 CONDITION_NAMES = ("sunny", "cloudy", "crepuscular", "long_shadows")
@@ -77,7 +79,6 @@ def perception_params(condition: Any = "sunny", threshold: float = 0.7,
                       variables: Any = None) -> PerceptionParams:
     """PerceptionParams of one episode. condition: a `render.CONDITIONS` name or a
     `render.Conditions`; threshold in [0, 1]; variables: the segmenter's (learned source)."""
-    from mjxrow import render
 
     if isinstance(condition, str):
         condition = render.conditions(condition)
@@ -87,9 +88,15 @@ def perception_params(condition: Any = "sunny", threshold: float = 0.7,
                             variables=variables)
 
 
-def perception_policy(controller: str, shape: F.FieldShape, intr, source: str = "ground_truth",
-                      segmenter=None, render_cfg=None,
-                      sensor_noise: bool = False) -> control.Policy:
+def perception_policy(
+    controller: str,
+    shape: mjxrow_field.FieldShape,
+    intr,
+    source: str = "ground_truth",
+    segmenter=None,
+    render_cfg=None,
+    sensor_noise: bool = False,
+) -> control.Policy:
     """A mask controller ("segzeros", "segmin") fed by the renderer (pure policy; not jitted).
 
     shape: the fields' static shape; intr: render.Intrinsics; source: "ground_truth" (the
@@ -101,7 +108,6 @@ def perception_policy(controller: str, shape: F.FieldShape, intr, source: str = 
     The policy's params are `(PerceptionParams, controller params)`. Cached: equal arguments
     (a SegNet compares by its architecture) give the same Policy object, so `episode.rollout`
     reuses its compiled function across calls and checkpoints."""
-    from mjxrow import render
 
     if source not in SOURCES:
         raise ValueError(f"source: unknown {source!r}; expected one of {SOURCES}")
@@ -115,13 +121,12 @@ def perception_policy(controller: str, shape: F.FieldShape, intr, source: str = 
 
 
 @functools.lru_cache(maxsize=32)
-def _policy(controller: str, shape: F.FieldShape, intr, segmenter, rcfg,
+def _policy(controller: str, shape: mjxrow_field.FieldShape, intr, segmenter, rcfg,
             sensor_noise: bool) -> control.Policy:
-    from mjxrow import render
 
     c = control.get(controller)
 
-    def prepare(p: PerceptionParams, field: F.Field):
+    def prepare(p: PerceptionParams, field: mjxrow_field.Field):
         return render.plant_table(field, shape)  # the field's plants, once per episode
 
     def perceive(p: PerceptionParams, obs: control.Obs, key: jax.Array):
@@ -135,8 +140,6 @@ def _look(p: PerceptionParams, obs: control.Obs, key: jax.Array, shape, intr, se
           sensor_noise: bool):
     """One step's camera frame of the robot's field, and the segmenter's mask of it (None
     without a segmenter)."""
-    from mjxrow import render
-    from mjxrow.seg import model as seg_model
 
     with jax.named_scope("cl_render"):  # the scopes name the stages in profiles
         frame = render.render(obs.field, shape, obs.cam_pos, obs.cam_rot, intr, p.cond,
@@ -164,7 +167,7 @@ def mix_axes(n: int, sees: bool) -> MixParams:
                      controllers=(0,) * n)
 
 
-def mixed_policy(variants: tuple[tuple[str, str | None], ...], shape: F.FieldShape, intr,
+def mixed_policy(variants: tuple[tuple[str, str | None], ...], shape: mjxrow_field.FieldShape, intr,
                  segmenter=None, render_cfg=None, sensor_noise: bool = False
                  ) -> control.Policy:
     """One policy for episodes of several controllers: `variants` is a tuple of (controller
@@ -175,7 +178,6 @@ def mixed_policy(variants: tuple[tuple[str, str | None], ...], shape: F.FieldSha
     several controllers share one compiled program, each paying for all of their stages.
     `segmenter`: the SegNet module of the "learned" variants (their weights are traced, in
     `MixParams.perception.variables`). Cached like `perception_policy`."""
-    from mjxrow import render
 
     variants = tuple((str(n), s) for n, s in variants)
     for name, source in variants:
@@ -196,7 +198,6 @@ def mixed_policy(variants: tuple[tuple[str, str | None], ...], shape: F.FieldSha
 
 @functools.lru_cache(maxsize=32)
 def _mixed(variants, shape, intr, segmenter, rcfg, sensor_noise) -> control.Policy:
-    from mjxrow import render
 
     cs = [control.get(n) for n, _ in variants]
     sees = any(s is not None for _, s in variants)
@@ -204,7 +205,7 @@ def _mixed(variants, shape, intr, segmenter, rcfg, sensor_noise) -> control.Poli
     def init(p: MixParams):
         return tuple(c.init(cp) for c, cp in zip(cs, p.controllers, strict=True))
 
-    def prepare(p: MixParams, field: F.Field):
+    def prepare(p: MixParams, field: mjxrow_field.Field):
         return render.plant_table(field, shape)
 
     def act(p: MixParams, state, obs: control.Obs, key: jax.Array):
@@ -227,12 +228,11 @@ def _mixed(variants, shape, intr, segmenter, rcfg, sensor_noise) -> control.Poli
 def load_segmenter(checkpoint: str, crop: str):
     """(module, variables) of a checkpoint (seg.checkpoint.load): a crop name or directory;
     '' means the crop's shipped one."""
-    from mjxrow.seg import checkpoint as ckpt
 
-    return ckpt.load(checkpoint or crop)
+    return seg_checkpoint.load(checkpoint or crop)
 
 
-def make(controller: str, shape: F.FieldShape, intr, source: str = "ground_truth",
+def make(controller: str, shape: mjxrow_field.FieldShape, intr, source: str = "ground_truth",
          checkpoint: str = "", condition: Any = "sunny", threshold: float = 0.7,
          render_cfg=None, sensor_noise: bool = False
          ) -> tuple[control.Policy, PerceptionParams]:

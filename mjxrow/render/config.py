@@ -12,7 +12,7 @@ import jax
 import numpy as np
 
 from mjxrow import crops
-from mjxrow.render import pallas as RP
+from mjxrow.render import pallas
 
 __all__ = ["DEEP_DEFAULT", "DEFAULT_CONFIG", "KERNELS", "SETTLES", "Intrinsics", "RenderConfig",
            "deep_share_scale", "default_kernel", "default_settle", "default_tile", "resolve"]
@@ -149,7 +149,7 @@ def default_kernel(tile: int) -> str:
             raise ValueError(f"MJXROW_RENDER_KERNEL: one of {', '.join(KERNELS)}, got {env!r}")
         return env
     backend = jax.default_backend()
-    if backend == "gpu" and RP.supported(tile * tile):
+    if backend == "gpu" and pallas.supported(tile * tile):
         return "pallas"
     return "scan" if backend == "cpu" else "fused"
 

@@ -32,12 +32,10 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from mjxrow import field as F
-from mjxrow.render import geom as G
-from mjxrow.render import pallas as RP
-from mjxrow.render import shade as S
-from mjxrow.render import terrain as T
-from mjxrow.render import tiles as RT
+from mjxrow import field as mjxrow_field
+from mjxrow.render import geom, pallas, shade
+from mjxrow.render import terrain as render_terrain
+from mjxrow.render import tiles as render_tiles
 from mjxrow.render.config import DEFAULT_CONFIG, Intrinsics, RenderConfig, resolve
 from mjxrow.render.geom import PlantTable, plant_table
 from mjxrow.render.shade import (
@@ -61,7 +59,7 @@ SHADOW_REACH = 60.0  # m, how far a shadow ray looks for a plant toward the sun
 def _settle(tree, how: str):
     """The shading's per-pixel terms, kept as `how` says."""
     if how == "loop":
-        return G.materialise(tree)
+        return geom.materialise(tree)
     if how == "barrier":
         return jax.lax.optimization_barrier(tree)
     return tree
@@ -111,19 +109,27 @@ def _trace(field, shape, tab, obst, rays, cfg):
     far = jnp.full((n,), cfg.far, jnp.float32)
     with jax.named_scope("rd_terrain"):
         if cfg.kernel == "pallas":
-            t_ter, n_ter = RP.trace_terrain(field.terrain, field.terrain_size, o, d, t_min, far,
-                                            cfg.terrain_steps, cfg.terrain_refine, npx)
+            t_ter, n_ter = pallas.trace_terrain(field.terrain, field.terrain_size, o, d, t_min, far,
+                                                cfg.terrain_steps, cfg.terrain_refine, npx)
         else:
-            t_ter, n_ter = T.trace_terrain(field.terrain, field.terrain_size, o, d, t_min, far,
-                                           cfg.terrain_steps, cfg.terrain_refine)
-    sweep = RT.camera_sweep(cam, c, tan_a)
+            t_ter, n_ter = render_terrain.trace_terrain(
+                field.terrain,
+                field.terrain_size,
+                o,
+                d,
+                t_min,
+                far,
+                cfg.terrain_steps,
+                cfg.terrain_refine,
+            )
+    sweep = render_tiles.camera_sweep(cam, c, tan_a)
     oc = tuple(jnp.reshape(cam[i], (1, 1)) for i in range(3))
     with jax.named_scope("rd_obstacles"):
-        oid, oent = RT.cull_obstacles(obst, *sweep, jnp.full((nt,), cfg.far, jnp.float32),
-                                      cfg.obstacle_keep)
-        t_obs, n_obs, branch = G.trace_obstacles_tiled(obst, oid, oent, oc,
-                                                       G.xyz(d.reshape(nt, npx, 3)),
-                                                       t_min.reshape(nt, npx))
+        oid, oent = render_tiles.cull_obstacles(obst, *sweep, jnp.full((nt,), cfg.far, jnp.float32),
+                                                cfg.obstacle_keep)
+        t_obs, n_obs, branch = geom.trace_obstacles_tiled(obst, oid, oent, oc,
+                                                          geom.xyz(d.reshape(nt, npx, 3)),
+                                                          t_min.reshape(nt, npx))
         t_obs, branch = t_obs.reshape(-1), branch.reshape(-1)
     t_far = jnp.minimum(jnp.minimum(t_ter, t_obs), far)
     t_pl, plant, k = _trace_plants(shape, tab, sweep, oc, d.reshape(nt, npx, 3),
@@ -135,7 +141,7 @@ def _trace(field, shape, tab, obst, rays, cfg):
     t = jnp.where(cls == SKY, 0.0, t)
     p = o + t[:, None] * d
     with jax.named_scope("rd_plant_normal"):
-        n_pl, local = G.plant_normal(tab, plant, k, p)
+        n_pl, local = geom.plant_normal(tab, plant, k, p)
     normal = jnp.where((cls == PLANT)[:, None], n_pl,
                        jnp.where((cls == OBSTACLE)[:, None], n_obs, n_ter))
     return t, cls, p, normal, plant, k, branch, local
@@ -150,12 +156,12 @@ def _trace_plants(shape, tab, sweep, oc, d, t_far, cfg):
     P = shape.max_plants_per_row
     o, cc, g, tau = sweep
     with jax.named_scope("rd_cull"):
-        ids, entry, rest = RT.cull(tab, P, o, cc, g, tau, jnp.max(t_far, axis=1),
-                                   cfg.row_blocks, cfg.block_keep, cfg.keep)
+        ids, entry, rest = render_tiles.cull(tab, P, o, cc, g, tau, jnp.max(t_far, axis=1),
+                                             cfg.row_blocks, cfg.block_keep, cfg.keep)
     t_min = jnp.full(t_far.shape, cfg.near, jnp.float32)
     with jax.named_scope("rd_exact"):
-        t, plant, k = RT.exact(tab, ids, entry, oc, G.xyz(d), t_min, t_far,
-                               kernel=cfg.kernel)
+        t, plant, k = render_tiles.exact(tab, ids, entry, oc, geom.xyz(d), t_min, t_far,
+                                         kernel=cfg.kernel)
     n_deep = min(nt, int(np.ceil(cfg.deep_share * nt)))
     with jax.named_scope("rd_deep"):
         if cfg.deep_keep > 0 and n_deep > 0:
@@ -185,17 +191,17 @@ def _deep_pass(tab, P, sweep, d, t_min, u, live, oc, cfg):
     n = cfg.deep_split
     ts = int(round(np.sqrt(Q)))
     m = n * n
-    split = n > 1 and ts % n == 0 and RP.supported(Q // m)
+    split = n > 1 and ts % n == 0 and pallas.supported(Q // m)
     if split:  # the rays regrouped sub-tile-major: [D·m, Q/m]
         r = np.arange(ts).reshape(n, ts // n)
         order = (r[:, None, :, None] * ts + r[None, :, None, :]).reshape(-1)
         d, t_min, u = (x[:, order].reshape(D * m, Q // m, *x.shape[2:]) for x in (d, t_min, u))
-        sweep = RT.camera_sweep(sweep[0][:1], *RT.cone(d))
+        sweep = render_tiles.camera_sweep(sweep[0][:1], *render_tiles.cone(d))
         live = jnp.repeat(live, m)
-    ids, entry, _ = RT.cull(tab, P, *sweep, jnp.max(u, axis=1), cfg.deep_row_blocks,
-                            cfg.deep_block_keep, cfg.deep_keep)
+    ids, entry, _ = render_tiles.cull(tab, P, *sweep, jnp.max(u, axis=1), cfg.deep_row_blocks,
+                                      cfg.deep_block_keep, cfg.deep_keep)
     entry = jnp.where(live[:, None], entry, INF)
-    out = RT.exact(tab, ids, entry, oc, G.xyz(d), t_min, u, kernel=cfg.kernel)
+    out = render_tiles.exact(tab, ids, entry, oc, geom.xyz(d), t_min, u, kernel=cfg.kernel)
     if split:
         out = tuple(x.reshape(D, Q)[:, np.argsort(order)] for x in out)
     return out
@@ -212,17 +218,24 @@ def _shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, nt):
     seen = (cls != SKY).reshape(nt, -1, 1)
     lo = jnp.min(jnp.where(seen, ot, INF), axis=1)
     hi = jnp.max(jnp.where(seen, ot, -INF), axis=1)
-    sweep, live = RT.shadow_sweep(lo, hi, l)
+    sweep, live = render_tiles.shadow_sweep(lo, hi, l)
     t_max = jnp.where(live, SHADOW_REACH, -1.0)
     with jax.named_scope("rd_shadow_cull"):
-        ids, entry, _ = RT.cull(tab, shape.max_plants_per_row, *sweep, t_max,
-                                cfg.shadow_row_blocks, cfg.shadow_block_keep, cfg.shadow_keep)
+        ids, entry, _ = render_tiles.cull(
+            tab,
+            shape.max_plants_per_row,
+            *sweep,
+            t_max,
+            cfg.shadow_row_blocks,
+            cfg.shadow_block_keep,
+            cfg.shadow_keep,
+        )
     ls = tuple(jnp.reshape(l[i], (1, 1)) for i in range(3))
-    t_pl = RT.exact(tab, ids, entry, G.xyz(ot), ls, t_min.reshape(nt, -1),
-                    jnp.full(ot.shape[:2], SHADOW_REACH, jnp.float32),
+    t_pl = render_tiles.exact(tab, ids, entry, geom.xyz(ot), ls, t_min.reshape(nt, -1),
+                              jnp.full(ot.shape[:2], SHADOW_REACH, jnp.float32),
                     any_hit=True, kernel=cfg.kernel).reshape(-1)
-    oid, oent = RT.cull_obstacles(obst, *sweep, t_max, cfg.obstacle_keep)
-    t_ob = G.trace_obstacles_tiled(obst, oid, oent, G.xyz(ot), ls, t_min.reshape(nt, -1),
+    oid, oent = render_tiles.cull_obstacles(obst, *sweep, t_max, cfg.obstacle_keep)
+    t_ob = geom.trace_obstacles_tiled(obst, oid, oent, geom.xyz(ot), ls, t_min.reshape(nt, -1),
                                    any_hit=True).reshape(-1)
     return jnp.where(jnp.isfinite(t_pl) | jnp.isfinite(t_ob), 0.0, 1.0)
 
@@ -245,24 +258,30 @@ def _setup(field, shape, cam_pos, cam_rot, intr, cfg, table=None):
     directions [N, 3] tile-major, tile centres [T, 3], tan of the tile half-angles [T]),
     |z = −1 pixel ray| [N], tile grid."""
     # a terrain generated in the same jit must be in memory before the per-ray gathers
-    field = field.replace(terrain=G.materialise(field.terrain))
-    dirs, norm, centre, tan_a, tiles = RT.tile_layout(intr.width, intr.height, intr.fovy,
+    field = field.replace(terrain=geom.materialise(field.terrain))
+    dirs, norm, centre, tan_a, tiles = render_tiles.tile_layout(intr.width, intr.height, intr.fovy,
                                                       cfg.tile)
     cam_pos = jnp.asarray(cam_pos, jnp.float32)
     cam_rot = jnp.asarray(cam_rot, jnp.float32)
     d = _rotate(jnp.asarray(dirs.reshape(-1, 3)), cam_rot)
     c = _rotate(jnp.asarray(centre), cam_rot)
     with jax.named_scope("rd_table"):
-        tab = G.plant_table(field, shape) if table is None else table
-    obst = G.obstacle_table(field, cam_pos, -cam_rot[:, 2],
+        tab = geom.plant_table(field, shape) if table is None else table
+    obst = geom.obstacle_table(field, cam_pos, -cam_rot[:, 2],
                             min(cfg.obstacles, shape.obstacle_slots))
     rays = (cam_pos, d, c, jnp.asarray(tan_a))
     return field, tab, obst, rays, jnp.asarray(norm.reshape(-1)), tiles
 
 
-def geometry(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax.Array,
-             intr: Intrinsics, cfg: RenderConfig = DEFAULT_CONFIG,
-             table: PlantTable | None = None) -> tuple[jax.Array, jax.Array]:
+def geometry(
+    field: mjxrow_field.Field,
+    shape: mjxrow_field.FieldShape,
+    cam_pos: jax.Array,
+    cam_rot: jax.Array,
+    intr: Intrinsics,
+    cfg: RenderConfig = DEFAULT_CONFIG,
+    table: PlantTable | None = None,
+) -> tuple[jax.Array, jax.Array]:
     """What `render` sees, without shading: (depth float32 [H, W] (metres along the optical
     axis, SKY_DEPTH for sky), classes uint8 [H, W]). Same arguments as `render`."""
     cfg = resolve(cfg, shape.crop, intr)
@@ -277,12 +296,20 @@ def geometry(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: j
 def _image(x, tiles, intr):
     """Flat tile-major [N, ...] → [H, W, ...]."""
     nt = tiles[0] * tiles[1]
-    return RT.untile(x.reshape((nt, -1) + x.shape[1:]), tiles, intr.height, intr.width)
+    return render_tiles.untile(x.reshape((nt, -1) + x.shape[1:]), tiles, intr.height, intr.width)
 
 
-def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax.Array,
-           intr: Intrinsics, cond: Conditions, key: jax.Array | None = None,
-           cfg: RenderConfig = DEFAULT_CONFIG, table: PlantTable | None = None) -> Frame:
+def render(
+    field: mjxrow_field.Field,
+    shape: mjxrow_field.FieldShape,
+    cam_pos: jax.Array,
+    cam_rot: jax.Array,
+    intr: Intrinsics,
+    cond: Conditions,
+    key: jax.Array | None = None,
+    cfg: RenderConfig = DEFAULT_CONFIG,
+    table: PlantTable | None = None,
+) -> Frame:
     """Render ONE field from ONE camera (pure; jit and vmap outside).
 
     field: one `Field` (no batch axis); shape, intr, cfg: static. cam_pos float32 [3] [m],
@@ -304,7 +331,7 @@ def render(field: F.Field, shape: F.FieldShape, cam_pos: jax.Array, cam_rot: jax
 
     material = jnp.asarray(tab.material)[k]
     phase = tab.base[plant, 2]
-    albedo, normal, sky = S.surfaces(shape.crop, cls, material, p, local, phase, plant, k,
+    albedo, normal, sky = shade.surfaces(shape.crop, cls, material, p, local, phase, plant, k,
                                      is_branch, normal, d, cond,
                                      keep=functools.partial(_settle, how=cfg.settle))
     # light: sky ambient (occluded near plants and under canopies) + sun (shadowed)

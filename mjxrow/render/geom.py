@@ -16,9 +16,9 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from mjxrow import field as F
-from mjxrow.crops import prims as PL
-from mjxrow.field import params as FP
+from mjxrow import field as mjxrow_field
+from mjxrow.crops import prims as crops_prims
+from mjxrow.field import params as field_params
 
 INF = jnp.inf
 BLOCK = 4  # plants per block of the first culling level
@@ -128,7 +128,7 @@ def prim_hit(kind: int, o, d, q, t_min):
     """Nearest t > t_min where o + t·d meets one plant primitive of `kind` (plants.ELLIPSOID or
     plants.CAPSULE) whose 12 table values are q (a sequence of broadcastable arrays: centre,
     then A row-major for an ellipsoid, or axis, radius, half length for a capsule), else +inf."""
-    if kind == PL.CAPSULE:
+    if kind == crops_prims.CAPSULE:
         return capsule_hit(o, d, q[0:3], q[3:6], q[6], q[7], t_min)
     return ellipsoid_hit(o, d, q[0:3], q[3:12], t_min)
 
@@ -171,14 +171,14 @@ class PlantTable:
     material: np.ndarray = struct.field(pytree_node=False)  # int [K], plants.LEAF ...
 
 
-def plant_table(field: F.Field, shape: F.FieldShape) -> PlantTable:
+def plant_table(field: mjxrow_field.Field, shape: mjxrow_field.FieldShape) -> PlantTable:
     """Primitive table, bounding boxes and row bounds of one field (pure; cost ~R·P·K,
     small next to the rays). Every bound comes from the actual primitives, so culling never
     drops a plant that reaches into a box."""
-    pr = PL.plant_prims(field, shape)
+    pr = crops_prims.plant_prims(field, shape)
     R, P, K = pr.active.shape
     rot, size, c = pr.rot, pr.size, pr.centre
-    is_caps = jnp.asarray(pr.kind == PL.CAPSULE)[None, None, :]
+    is_caps = jnp.asarray(pr.kind == crops_prims.CAPSULE)[None, None, :]
     # ellipsoid A = diag(1/size) · rotᵀ ; capsule (axis, r, h)
     A = jnp.swapaxes(rot, -1, -2) / jnp.maximum(size[..., :, None], 1e-6)
     axis = rot[..., :, 2]
@@ -203,7 +203,7 @@ def plant_table(field: F.Field, shape: F.FieldShape) -> PlantTable:
         [0, 3, 1, 4, 2, 5])]
     lat = jnp.maximum(hi[..., 1] - field.row_y[:, None], field.row_y[:, None] - lo[..., 1])
     reach_y = jnp.max(jnp.where(act, lat, 0.0))
-    d_pp = FP._scaled(field.params)["d_pp"]
+    d_pp = field_params._scaled(field.params)["d_pp"]
     x0 = field.row_x[0]
     x_nom = x0 + jnp.arange(P, dtype=jnp.float32) * d_pp
     reach_x = jnp.max(jnp.where(act, jnp.maximum(hi[..., 0] - x_nom, x_nom - lo[..., 0]), 0.0))
@@ -229,7 +229,7 @@ def nearest_prim(tab: PlantTable, flat, o, d, t_min, t_max):
     Returns (t [N, C] (+inf: none in (t_min, t_max)), k int32 [N, C])."""
     t_best = jnp.full(flat.shape, INF)
     k_best = jnp.zeros(flat.shape, jnp.int32)
-    for kd in (PL.ELLIPSOID, PL.CAPSULE):
+    for kd in (crops_prims.ELLIPSOID, crops_prims.CAPSULE):
         ks = np.flatnonzero(tab.kind == kd)
         if len(ks) == 0:
             continue
@@ -262,7 +262,7 @@ def plant_normal(tab: PlantTable, plant, k, p):
     along = _dot3(r, axis)
     s = jnp.clip(along, -half, half)
     n_c = [r[j] - s * axis[j] for j in range(3)]
-    is_caps = jnp.asarray(tab.kind == PL.CAPSULE)[k]
+    is_caps = jnp.asarray(tab.kind == crops_prims.CAPSULE)[k]
     n = [jnp.where(is_caps, n_c[j], n_e[j]) for j in range(3)]
     inv = 1.0 / jnp.maximum(jnp.sqrt(_dot3(n, n)), 1e-12)
     u_c = along / jnp.maximum(half, 1e-6)
@@ -276,7 +276,7 @@ def plant_normal(tab: PlantTable, plant, k, p):
 # Obstacles (stones = capsules of zero length, branches = horizontal capsules)
 
 
-def obstacle_table(field: F.Field, cam_pos, forward, n: int):
+def obstacle_table(field: mjxrow_field.Field, cam_pos, forward, n: int):
     """The `n` active obstacles nearest the camera and not behind it: (centre [n, 3],
     axis [n, 3], radius [n], half length [n], ok bool [n], is_branch bool [n])."""
     rel = field.obst_pos - cam_pos
@@ -286,9 +286,9 @@ def obstacle_table(field: F.Field, cam_pos, forward, n: int):
     _, idx = jax.lax.top_k(-score, n)
     yaw = field.obst_yaw[idx]
     axis = jnp.stack([jnp.cos(yaw), jnp.sin(yaw), jnp.zeros_like(yaw)], -1)
-    half = jnp.where(field.obst_kind[idx] == F.BRANCH, field.obst_size[idx, 1], 0.0)
+    half = jnp.where(field.obst_kind[idx] == mjxrow_field.BRANCH, field.obst_size[idx, 1], 0.0)
     return (field.obst_pos[idx], axis, field.obst_size[idx, 0], half, jnp.isfinite(score[idx]),
-            field.obst_kind[idx] == F.BRANCH)
+            field.obst_kind[idx] == mjxrow_field.BRANCH)
 
 
 def obstacle_boxes(obst):

@@ -23,9 +23,9 @@ import jax.numpy as jnp
 import numpy as np
 from jax.experimental import pallas as pl
 
-from mjxrow.crops import prims as PL
-from mjxrow.render import geom as G
-from mjxrow.render import terrain as RTer
+from mjxrow.crops import prims as crops_prims
+from mjxrow.render import geom
+from mjxrow.render import terrain as render_terrain
 
 INF = jnp.inf
 BLOCK_RAYS = 512  # rays per program
@@ -44,7 +44,7 @@ def _inputs(args):
     """Kernel inputs; for the interpreter put in memory first (XLA on CPU would otherwise fuse
     their producers, e.g. a whole trace, into the interpreted kernel's loads, and its compile
     time explodes)."""
-    return G.materialise(args) if _interpret() else args
+    return geom.materialise(args) if _interpret() else args
 
 
 def _params():
@@ -90,7 +90,7 @@ def _exact_kernel(prim_ref, ids_ref, ent_ref, ray_ref, lo_ref, hi_ref, *out_refs
             ok = ent[:, None] < t_hi
             for k in ks:
                 q = [prim_ref[k, row, i][:, None] for i in range(12)]  # gathers of [TB]
-                t = G.prim_hit(kd, o, d, q, t_lo)
+                t = geom.prim_hit(kd, o, d, q, t_lo)
                 t = jnp.where(ok & (t < t_hi), t, INF)
                 better = t < best
                 best = jnp.where(better, t, best)
@@ -120,7 +120,7 @@ def _exact_kernel(prim_ref, ids_ref, ent_ref, ray_ref, lo_ref, hi_ref, *out_refs
         out_refs[2][...] = kbest
 
 
-def exact(tab: G.PlantTable, ids, entry, o, d, t_min, t_max, any_hit: bool = False,
+def exact(tab: geom.PlantTable, ids, entry, o, d, t_min, t_max, any_hit: bool = False,
           block_rays: int = BLOCK_RAYS):
     """`render_tiles.exact` as one kernel (same arguments and results): each program holds a
     block of tiles' rays and loops over their candidates, gathering each candidate's
@@ -138,7 +138,7 @@ def exact(tab: G.PlantTable, ids, entry, o, d, t_min, t_max, any_hit: bool = Fal
     lo = _pad(t_min.astype(jnp.float32), ntp)
     hi = _pad(t_max.astype(jnp.float32), ntp, -1.0)
     groups = tuple((kd, tuple(int(k) for k in np.flatnonzero(tab.kind == kd)))
-                   for kd in (PL.ELLIPSOID, PL.CAPSULE) if np.any(tab.kind == kd))
+                   for kd in (crops_prims.ELLIPSOID, crops_prims.CAPSULE) if np.any(tab.kind == kd))
     tile = pl.BlockSpec((tb, P), lambda i: (i, 0))
     cand = pl.BlockSpec((C, tb), lambda i: (0, i))
     out_shape = [jax.ShapeDtypeStruct((ntp, P), jnp.float32)]
@@ -162,9 +162,19 @@ def _terrain_kernel(sc_ref, hf_ref, ray_ref, lo_ref, hi_ref, t_ref, n_ref, *, sh
                     refine):
     o = tuple(ray_ref[i] for i in range(3))  # [TB, P]
     d = tuple(ray_ref[3 + i] for i in range(3))
-    t, n = RTer.march(lambda idx: hf_ref[idx], shape, (sc_ref[0], sc_ref[1]),
-                      (sc_ref[2], sc_ref[3]), o, d, lo_ref[...], hi_ref[...], steps, refine,
-                      unrolled=True)
+    t, n = render_terrain.march(
+        lambda idx: hf_ref[idx],
+        shape,
+        (sc_ref[0], sc_ref[1]),
+        (sc_ref[2], sc_ref[3]),
+        o,
+        d,
+        lo_ref[...],
+        hi_ref[...],
+        steps,
+        refine,
+        unrolled=True,
+    )
     t_ref[...] = t
     for i in range(3):
         n_ref[i] = n[i]

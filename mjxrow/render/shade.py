@@ -11,7 +11,7 @@ import numpy as np
 from flax import struct
 
 from mjxrow import crops
-from mjxrow.crops import prims as PL
+from mjxrow.crops import prims as crops_prims
 
 CONDITIONS = ("sunny", "cloudy", "crepuscular", "long_shadows")
 
@@ -192,8 +192,8 @@ def _noise_inputs(crop: str, cls, material, p, d):
     clumps = _octave_inputs(9.0 * (x + 0.5 * z), 9.0 * (y - 0.5 * z), 2, 9)
     s = 12.0
     bumps = [(s * (x + z), s * y, 12), (s * (y + z), s * x, 13), (s * (x - y), s * z, 14)]
-    canopy = material == PL.CANOPY
-    plant = [pick(material == PL.TRUNK, bark, mottle), pick(canopy, clumps[0], silver),
+    canopy = material == crops_prims.CANOPY
+    plant = [pick(material == crops_prims.TRUNK, bark, mottle), pick(canopy, clumps[0], silver),
              pick(canopy, clumps[1], pad)] + bumps
     by_class = {SKY: sky, SOIL: soil, PLANT: plant, OBSTACLE: obstacle}
     slots = []
@@ -243,7 +243,7 @@ def surfaces(crop: str, cls: jax.Array, material: jax.Array, p: jax.Array, local
     per_plant = 0.80 + 0.40 * phase
     yellow = 1.0 + 0.18 * (phase - 0.5)[:, None] * jnp.array([1.0, 0.3, -1.0])
     mottle = bark = v[0]
-    leaf = material == PL.LEAF
+    leaf = material == crops_prims.LEAF
     u0, u1 = local[:, 0], local[:, 1]
     midrib = jnp.exp(-((u1 / 0.07) ** 2)) * (u0 > -0.9)
     lateral = jnp.clip((jnp.cos(2 * jnp.pi * (3.5 * u0 - 2.2 * jnp.abs(u1))) - 0.8) * 5, 0, 1)
@@ -254,12 +254,12 @@ def surfaces(crop: str, cls: jax.Array, material: jax.Array, p: jax.Array, local
         f_leaf = f_leaf + 0.6 * jnp.clip((v[1] - 0.62) * 4, 0, 1)
     f_canopy = 0.55 + 0.9 * _octaves(v[1:3]) * (0.8 + 0.4 * mottle)
     f_trunk = 0.7 + 0.6 * bark
-    fine = jnp.where(leaf, f_leaf, jnp.where(material == PL.CANOPY, f_canopy,
-                                              jnp.where(material == PL.TRUNK, f_trunk,
-                                                        0.8 + 0.4 * mottle)))
+    fine = jnp.where(leaf, f_leaf, jnp.where(material == crops_prims.CANOPY, f_canopy,
+                                             jnp.where(material == crops_prims.TRUNK, f_trunk,
+                                                       0.8 + 0.4 * mottle)))
     a_plant = base * cond.leaf_tint * yellow * (per_plant * per_prim * fine)[:, None]
     bump = jnp.stack([v[3], v[4], v[5]], -1) - 0.5
-    amp = jnp.where(material == PL.CANOPY, 1.1, 0.35)[:, None]
+    amp = jnp.where(material == crops_prims.CANOPY, 1.1, 0.35)[:, None]
     m = normal + amp * bump
     bumped = m / jnp.maximum(jnp.linalg.norm(m, axis=-1, keepdims=True), 1e-6)
 

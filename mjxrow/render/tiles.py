@@ -39,9 +39,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxrow.crops import prims as PL
-from mjxrow.render import geom as G
-from mjxrow.render import pallas as RP
+from mjxrow.crops import prims as crops_prims
+from mjxrow.render import geom, pallas
 
 INF = jnp.inf
 
@@ -102,7 +101,7 @@ def _sweep_entry(o, c, g, tau, box, t_max):
     t_out = jnp.broadcast_to(t_max[:, None], cone.shape)
     for a in range(3):
         grow = cone + g[:, a:a + 1]
-        t0, t1 = G.slab(o[:, a:a + 1], c[:, a:a + 1], box[2 * a] - grow, box[2 * a + 1] + grow)
+        t0, t1 = geom.slab(o[:, a:a + 1], c[:, a:a + 1], box[2 * a] - grow, box[2 * a + 1] + grow)
         t_in, t_out = jnp.maximum(t_in, t0), jnp.minimum(t_out, t1)
     return jnp.where((box[0] <= box[1]) & (t_in <= t_out), t_in, INF)
 
@@ -121,7 +120,7 @@ def _span(o, c, g, tau, t_max, a: int, lo, hi):
     return s0, s1
 
 
-def _window(tab: G.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks: int):
+def _window(tab: geom.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks: int):
     """Blocks a tile's sweep can meet, through the row structure: per row, the stretch of the
     centre ray where the sweep reaches the row's slab (lateral reach, height band, the rows' x
     extent) gives the x range and so the plants it can meet; the first `row_blocks` blocks of
@@ -142,8 +141,8 @@ def _window(tab: G.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks: i
     i_lo = jnp.clip(jnp.ceil((jnp.minimum(xa, xb) - reach - tab.x0) / tab.d_pp), -1.0, lim)
     i_hi = jnp.clip(jnp.floor((jnp.maximum(xa, xb) + reach - tab.x0) / tab.d_pp), -1.0, lim)
     ok = ok & (i_lo <= i_hi) & (i_hi >= 0) & (i_lo <= lim - 1)
-    b_lo = jnp.floor(jnp.maximum(i_lo, 0.0) / G.BLOCK)
-    b_hi = jnp.floor(jnp.minimum(i_hi, lim - 1) / G.BLOCK)
+    b_lo = jnp.floor(jnp.maximum(i_lo, 0.0) / geom.BLOCK)
+    b_hi = jnp.floor(jnp.minimum(i_hi, lim - 1) / geom.BLOCK)
     j = jnp.arange(row_blocks, dtype=jnp.float32)
     fwd = (c[:, 0:1] >= 0)[..., None]
     b = jnp.where(fwd, b_lo[..., None] + j, b_hi[..., None] - j)  # [T, R, row_blocks]
@@ -159,7 +158,7 @@ def _first(key, ids, n: int):
     return jnp.take_along_axis(ids, j, 1), -neg
 
 
-def cull(tab: G.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks: int,
+def cull(tab: geom.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks: int,
          block_keep: int, n: int):
     """The n plants a tile's sweep enters first (see the module docstring).
     o, c [T, 3] (|c| = 1), g [T, 3], tau [T], t_max [T] (nothing beyond matters) [m].
@@ -174,7 +173,7 @@ def cull(tab: G.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks: int,
     R = tab.row_y.shape[0]
     nb = tab.block_t.shape[1] // R
     r, blk = bsel // nb, bsel % nb
-    i = blk[..., None] * G.BLOCK + jnp.arange(G.BLOCK)  # [T, KB, BLOCK]
+    i = blk[..., None] * geom.BLOCK + jnp.arange(geom.BLOCK)  # [T, KB, BLOCK]
     pok = jnp.isfinite(bent)[..., None] & (i < n_plants)
     flat = (r[..., None] * n_plants + jnp.minimum(i, n_plants - 1)).reshape(T, -1)
     key = jnp.where(pok.reshape(T, -1),
@@ -182,7 +181,7 @@ def cull(tab: G.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks: int,
                     INF)
     ids, ent = _first(key, flat, n)
     dropped = jnp.sum(jnp.isfinite(bkey), 1) - jnp.sum(jnp.isfinite(bent), 1)
-    rest = jnp.sum(jnp.isfinite(key), 1) - jnp.sum(jnp.isfinite(ent), 1) + G.BLOCK * dropped
+    rest = jnp.sum(jnp.isfinite(key), 1) - jnp.sum(jnp.isfinite(ent), 1) + geom.BLOCK * dropped
     return ids, ent, rest
 
 
@@ -190,7 +189,7 @@ def cull_obstacles(obst, o, c, g, tau, t_max, n: int):
     """The n obstacles of a frame's table (`render_geom.obstacle_table`) a tile's sweep enters
     first, by the same entry bound as the plants': (ids int32 [T, n], entry [T, n] (+inf:
     none))."""
-    ent = _sweep_entry(o, c, g, tau, G.obstacle_boxes(obst), t_max)
+    ent = _sweep_entry(o, c, g, tau, geom.obstacle_boxes(obst), t_max)
     ids = jnp.broadcast_to(jnp.arange(ent.shape[1], dtype=jnp.int32), ent.shape)
     return _first(ent, ids, n)
 
@@ -231,25 +230,25 @@ def _nearest(t):
     return jnp.where(hit, t_min, INF), jnp.where(hit, best & low, 0)
 
 
-def _exact_fused(tab: G.PlantTable, ids, entry, o, d, t_min, t_max, any_hit: bool = False):
+def _exact_fused(tab: geom.PlantTable, ids, entry, o, d, t_min, t_max, any_hit: bool = False):
     """`exact` as one [M = K·C, T, P] computation reduced over M in one pass (`_nearest`).
     The rays are put in memory first: computed in the same jit, they would otherwise be
     recomputed for each of the M tests."""
     nt, C = ids.shape
-    o, d, t_min, t_max = G.materialise((o, d, t_min, t_max))
+    o, d, t_min, t_max = geom.materialise((o, d, t_min, t_max))
     ray = lambda v: tuple(x[None] for x in v)  # noqa: E731  [T, P] → [1, T, P]
     o, d, t_lo, t_hi = ray(o), ray(d), t_min[None], t_max[None]
     t_best = jnp.full(t_max.shape, INF)
     plant = jnp.zeros(t_max.shape, jnp.int32)
     k_best = jnp.zeros(t_max.shape, jnp.int32)
-    for kd in (PL.ELLIPSOID, PL.CAPSULE):
+    for kd in (crops_prims.ELLIPSOID, crops_prims.CAPSULE):
         ks = np.flatnonzero(tab.kind == kd)
         if not len(ks):
             continue
         # [M, T, 12], m = j·C + c: primitive ks[j] of candidate c
         q = jnp.swapaxes(tab.prim[ks][:, ids], 1, 2).reshape(len(ks) * C, nt, 12)
         ok = jnp.tile(entry.T, (len(ks), 1))[..., None] < t_hi  # [M, T, P]
-        t = G.prim_hit(kd, o, d, [q[..., i:i + 1] for i in range(12)], t_lo)
+        t = geom.prim_hit(kd, o, d, [q[..., i:i + 1] for i in range(12)], t_lo)
         t = jnp.where(ok & (t < t_hi), t, INF)  # [M, T, P]
         if any_hit:
             t_best = jnp.minimum(t_best, jnp.min(t, axis=0))
@@ -264,7 +263,7 @@ def _exact_fused(tab: G.PlantTable, ids, entry, o, d, t_min, t_max, any_hit: boo
     return t_best, plant, k_best
 
 
-def _exact_scan(tab: G.PlantTable, ids, entry, o, d, t_min, t_max, any_hit: bool = False,
+def _exact_scan(tab: geom.PlantTable, ids, entry, o, d, t_min, t_max, any_hit: bool = False,
                 group: int = 4):
     """`exact` as a scan over `group` candidates at a time (one primitive slot k of each),
     elementwise over [T, group, P] (faster on CPU)."""
@@ -282,7 +281,7 @@ def _exact_scan(tab: G.PlantTable, ids, entry, o, d, t_min, t_max, any_hit: bool
     o, d, t_lo = ray(o), ray(d), t_min[:, None, :]
     t_best = jnp.full(t_max.shape, INF)
     s_best = jnp.zeros(t_max.shape, jnp.int32)
-    for kd in (PL.ELLIPSOID, PL.CAPSULE):
+    for kd in (crops_prims.ELLIPSOID, crops_prims.CAPSULE):
         ks = np.flatnonzero(tab.kind == kd)
         if not len(ks):
             continue
@@ -294,7 +293,7 @@ def _exact_scan(tab: G.PlantTable, ids, entry, o, d, t_min, t_max, any_hit: bool
         def body(carry, x, kd=kd):
             t_b, s_b = carry
             q, ent_q, b = x
-            t = G.prim_hit(kd, o, d, [q[..., i:i + 1] for i in range(12)], t_lo)
+            t = geom.prim_hit(kd, o, d, [q[..., i:i + 1] for i in range(12)], t_lo)
             t = jnp.where(ent_q < t_max[:, None, :], t, INF)  # [T, g, P]
             tm = jnp.min(t, axis=1)
             better = tm < jnp.minimum(t_b, t_max)
@@ -306,14 +305,14 @@ def _exact_scan(tab: G.PlantTable, ids, entry, o, d, t_min, t_max, any_hit: bool
 
         n_steps = base.shape[0]
         (t_best, s_best), _ = jax.lax.scan(body, (t_best, s_best), (data, ent, base),
-                                           unroll=min(n_steps, 64) if G.unroll() else 1)
+                                           unroll=min(n_steps, 64) if geom.unroll() else 1)
     if any_hit:
         return t_best
     plant = jnp.take_along_axis(ids, s_best // K, 1)
     return t_best, plant, s_best % K
 
 
-def exact(tab: G.PlantTable, ids, entry, o, d, t_min, t_max, any_hit: bool = False, *,
+def exact(tab: geom.PlantTable, ids, entry, o, d, t_min, t_max, any_hit: bool = False, *,
           kernel: str):
     """Nearest exact primitive hit of tile rays among their tile's candidates.
     ids int32 [T, C]; entry float32 [T, C]: a lower bound of every tile ray's distance to
@@ -325,5 +324,5 @@ def exact(tab: G.PlantTable, ids, entry, o, d, t_min, t_max, any_hit: bool = Fal
     kernel (`render.KERNELS`; `render.resolve` picks it): "fused" (every ray against every
     candidate primitive in one reduction, `_exact_fused`), "scan" (over groups of candidates,
     `_exact_scan`) or "pallas" (one Triton kernel, `render_pallas.exact`)."""
-    fn = {"fused": _exact_fused, "scan": _exact_scan, "pallas": RP.exact}[kernel]
+    fn = {"fused": _exact_fused, "scan": _exact_scan, "pallas": pallas.exact}[kernel]
     return fn(tab, ids, jnp.asarray(entry, jnp.float32), o, d, t_min, t_max, any_hit=any_hit)

@@ -29,12 +29,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxrow import control, runtime
-from mjxrow import field as F
-from mjxrow.policies import perception
+from mjxrow import control, crops, runtime
+from mjxrow import field as mjxrow_field
 from mjxrow.field.generate import PATH_LENGTH
 from mjxrow.physics import sim
-from mjxrow.rollout import episode as E
+from mjxrow.policies import perception
+from mjxrow.rollout import episode as rollout_episode
+from mjxrow.rollout import step as rollout_step
 from mjxrow.rollout.config import RunConfig
 from mjxrow.rollout.metrics import Log
 
@@ -86,13 +87,13 @@ def _split_fn():
 @functools.lru_cache(maxsize=4)
 def lanes_fn(mode: str):
     """jit(vmap(field.robot_lane)) for one lane choice (`sim.lane`): fields [B] → int32 [B]."""
-    return jax.jit(jax.vmap(lambda f: F.robot_lane(f, mode=mode)))
+    return jax.jit(jax.vmap(lambda f: mjxrow_field.robot_lane(f, mode=mode)))
 
 
 @functools.lru_cache(maxsize=1)
 def summarise_fn():
     """jit(episode.summarise) (config static): Log [B] → per-episode metrics."""
-    return jax.jit(E.summarise, static_argnums=1)
+    return jax.jit(rollout_episode.summarise, static_argnums=1)
 
 
 @functools.lru_cache(maxsize=1)
@@ -102,7 +103,7 @@ def generate_fn():
     zone lies, field.generate), default field.generate's."""
 
     def gen(params, shape, keys, path_length=PATH_LENGTH):
-        return jax.vmap(lambda p, k: F.generate(p, shape, k, path_length))(params, keys)
+        return jax.vmap(lambda p, k: mjxrow_field.generate(p, shape, k, path_length))(params, keys)
 
     return jax.jit(gen, static_argnums=1)
 
@@ -110,13 +111,13 @@ def generate_fn():
 def stack(trees: Sequence[Any]) -> Any:
     """Pytrees → one pytree with a leading [N] axis (field.stack_leaves: numpy for host
     leaves)."""
-    return jax.tree.map(lambda *xs: F.stack_leaves(xs), *trees)
+    return jax.tree.map(lambda *xs: mjxrow_field.stack_leaves(xs), *trees)
 
 
-def fit_shape(runs: Sequence[RunConfig]) -> F.FieldShape:
+def fit_shape(runs: Sequence[RunConfig]) -> mjxrow_field.FieldShape:
     """The static FieldShape that holds every run's field (rounded up by field.fit_shape)."""
-    params = F.stack_params([r.field_params(host=True) for r in runs])
-    return F.fit_shape(params, runs[0].preset)
+    params = mjxrow_field.stack_params([r.field_params(host=True) for r in runs])
+    return mjxrow_field.fit_shape(params, runs[0].preset)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -124,7 +125,7 @@ class Batch:
     """The arguments of one compiled call, placed on the devices: B episodes (padded), of
     which the first `n` are real."""
 
-    fields: F.Field  # [B]
+    fields: mjxrow_field.Field  # [B]
     lanes: jax.Array  # int32 [B]
     keys: jax.Array  # rollout keys [B]
     noise: sim.PoseNoise  # [B]
@@ -140,8 +141,8 @@ class Built:
     """Everything a group of runs sharing static values needs (see `build`)."""
 
     run: RunConfig  # the group's first run: its static values are everyone's
-    shape: F.FieldShape
-    episode: E.EpisodeConfig  # static part (no start noise)
+    shape: mjxrow_field.FieldShape
+    episode: rollout_step.EpisodeConfig  # static part (no start noise)
     mj: Any  # mujoco.MjModel
     mx: Any  # mjx.Model, replicated over the devices
     policy: control.Policy
@@ -190,7 +191,7 @@ class Built:
     def _put_params(self, params: Any) -> Any:
         """Per-episode parts sharded on the batch, shared parts replicated once (cached by
         object identity in `placed`)."""
-        treedef, leaves = E.canonical_axes(self.axes)
+        treedef, leaves = rollout_episode.canonical_axes(self.axes)
         out = []
         for a, x in zip(leaves, treedef.flatten_up_to(params), strict=True):
             if a is not None:
@@ -220,15 +221,17 @@ class Built:
         fparams = put(stack([cache[r][0] for r, _ in full]))
         sim_cfg = self.episode.sim
         fields = generate_fn()(fparams, self.shape, put(fkeys), sim_cfg.path_length)
-        E.check_fields(fields.replace(valid=runtime.to_host(fields.valid)))
+        rollout_episode.check_fields(fields.replace(valid=runtime.to_host(fields.valid)))
         lanes = lanes_fn(sim_cfg.lane)(fields)
-        pol = self._put_params(E.stack_params([cache[r][1] for r, _ in full], self.axes))
-        noise = put(E.batch_noise(stack([cache[r][2] for r, _ in full]), B))
+        pol = self._put_params(
+            rollout_episode.stack_params([cache[r][1] for r, _ in full], self.axes)
+        )
+        noise = put(rollout_episode.batch_noise(stack([cache[r][2] for r, _ in full]), B))
         return Batch(fields, lanes, put(rkeys), noise, pol, len(items))
 
     def compiled(self):
         """The jitted rollout of this group: `(mx, fields, lanes, keys, noise, params) -> Log`."""
-        return E.compiled(self.policy, self.episode, self.axes)
+        return rollout_episode.compiled(self.policy, self.episode, self.axes)
 
     def program(self, args: tuple):
         """`compiled()` for `args` (a Batch's `args(mx)`), or the same program traced by an
@@ -265,7 +268,7 @@ def program_count() -> int:
     return len(_PROGRAMS)
 
 
-def build(runs: RunConfig | Sequence[RunConfig], shape: F.FieldShape | None = None,
+def build(runs: RunConfig | Sequence[RunConfig], shape: mjxrow_field.FieldShape | None = None,
           devices: Sequence[Any] | None = None) -> Built:
     """Assemble a group of runs that share every static value (their `static_key`): the
     field shape (fitted to all of them unless given), the MJX model, the policy and the axes
@@ -297,7 +300,7 @@ def build(runs: RunConfig | Sequence[RunConfig], shape: F.FieldShape | None = No
                  fillers=tuple(r.controller_params() for r in reps.values()) if mixed else ())
 
 
-def _policy(reps: list[RunConfig], shape: F.FieldShape):
+def _policy(reps: list[RunConfig], shape: mjxrow_field.FieldShape):
     """(policy, params axes, base params, segmenter module or None) of a group whose variants
     `reps` stand for (one run each; several: a mixed policy). The segmenter is loaded once."""
     first = reps[0]
@@ -355,14 +358,18 @@ def _stable(x: Any) -> str:
     return repr(x)
 
 
-def program_key(run: RunConfig | Sequence[RunConfig], shape: F.FieldShape,
-                episode: E.EpisodeConfig, model_xml: str, segmenter: Any = None) -> str:
+def program_key(
+    run: RunConfig | Sequence[RunConfig],
+    shape: mjxrow_field.FieldShape,
+    episode: rollout_step.EpisodeConfig,
+    model_xml: str,
+    segmenter: Any = None,
+) -> str:
     """What fixes a group's closed-loop program, as text: the run's static values, the field
     shape, the static episode config, the MJX model, the controller and the crop as
     registered, the segmenter's architecture; for a mixed group (a list of runs, one per
     variant) every variant's static values and controller. '' when a controller is code from
     outside the mjxrow package (then the program is traced every run)."""
-    from mjxrow import crops
 
     runs = [run] if isinstance(run, RunConfig) else list(run)
     try:

@@ -14,14 +14,13 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
-from mjxrow import field as F
-from mjxrow import runtime
+from mjxrow import field, runtime
 from mjxrow.files import atomic_write_text
-from mjxrow.rollout import build as B
-from mjxrow.rollout import metrics as M
+from mjxrow.rollout import build as rollout_build
+from mjxrow.rollout import metrics
 from mjxrow.rollout.config import RunConfig
 
-CSV_METRICS = M.METRICS
+CSV_METRICS = metrics.METRICS
 
 
 @contextlib.contextmanager
@@ -59,10 +58,10 @@ def results_table(run: RunConfig, episodes: np.ndarray, lanes: np.ndarray,
     """One row per episode: episode index, lane, field parameters, metrics (reason by name)."""
     cols: dict[str, Any] = {"episode": episodes, "lane": lanes}
     fv = run.field_values()
-    cols.update({k: np.full(len(episodes), fv[k], np.float32) for k in F.PARAM_NAMES})
+    cols.update({k: np.full(len(episodes), fv[k], np.float32) for k in field.PARAM_NAMES})
     for k in CSV_METRICS:
         v = np.asarray(summary[k])
-        cols[k] = np.asarray(M.REASONS)[v] if k == "reason" else v
+        cols[k] = np.asarray(metrics.REASONS)[v] if k == "reason" else v
     return pd.DataFrame(cols)
 
 
@@ -74,7 +73,7 @@ def run_episodes(run: RunConfig, n: int, out: str | Path, progress: bool = True
         raise ValueError(f"--n: must be at least 1, got {n}")
     out = Path(out)
     with ticker(f"fields and model ({n} × {run.preset})", progress):
-        built = B.build(run)
+        built = rollout_build.build(run)
         batch = built.batch([(run, e) for e in range(n)])
     t0 = time.perf_counter()
     with ticker("compiling", progress):
@@ -91,6 +90,6 @@ def run_episodes(run: RunConfig, n: int, out: str | Path, progress: bool = True
     atomic_write_text(out / "episodes.csv", table.to_csv(index=False))
     print(f"{run.controller.name} on {run.preset}: {n} episodes, compile {t1 - t0:.1f} s, "
           f"run {t2 - t1:.1f} s ({n * built.episode.n_steps / (t2 - t1):.0f} env-steps/s)")
-    print(M.format_table({k: summary[k] for k in CSV_METRICS}))
+    print(metrics.format_table({k: summary[k] for k in CSV_METRICS}))
     print(f"wrote {out / 'episodes.csv'}")
     return table

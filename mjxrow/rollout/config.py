@@ -7,7 +7,7 @@
 | `robot`      | `physics.robot.RobotConfig`                     | static            |
 | `camera`     | `render.Intrinsics`                             | static            |
 | `render`     | `render.RenderConfig`                           | static            |
-| `episode`    | `rollout.episode.EpisodeConfig`                 | static but start noise |
+| `episode`    | `rollout.step.EpisodeConfig`                    | static but start noise |
 | `controller` | `name` + the registered controller's `config`   | per controller    |
 | `perception` | `control.perception.PerceptionConfig`           | static but threshold, condition |
 
@@ -35,15 +35,15 @@ from typing import Any
 
 import yaml
 
-from mjxrow import control, crops
-from mjxrow import field as F
-from mjxrow.policies.perception import PerceptionConfig
-from mjxrow.field import params as FP
+from mjxrow import control, crops, limits
+from mjxrow import field as mjxrow_field
+from mjxrow.field import params as mjxrow_field_params
 from mjxrow.physics.robot import RobotConfig
 from mjxrow.physics.sim import SimConfig
+from mjxrow.policies.perception import PerceptionConfig
 from mjxrow.render import Intrinsics, RenderConfig
-from mjxrow import limits
-from mjxrow.rollout.episode import EpisodeConfig
+from mjxrow.rollout.step import EpisodeConfig
+from mjxrow.seg import checkpoint as seg_checkpoint
 
 SECTIONS: dict[str, type] = {"sim": SimConfig, "robot": RobotConfig, "camera": Intrinsics,
                              "render": RenderConfig, "episode": EpisodeConfig,
@@ -128,10 +128,10 @@ FIELD_INTEGERS = ("rows_per_group",)  # FieldParams values that are counts
 
 @functools.cache
 def _field_keys() -> dict[str, Key]:
-    docs = comment_docs(FP.FieldParams)
+    docs = comment_docs(mjxrow_field_params.FieldParams)
     return {f"field.{n}": Key(f"field.{n}", "int" if n in FIELD_INTEGERS else "float", True,
                               None, docs.get(n, "") + " (null: the preset's value)", False)
-            for n in FP.PARAM_NAMES}
+            for n in mjxrow_field_params.PARAM_NAMES}
 
 
 def controller_keys(names: tuple[str, ...] | None = None) -> dict[str, Key]:
@@ -245,9 +245,9 @@ class RunConfig:
         over = {k: v for k, v in self.field.items() if v is not None}
         return {**crops.get(self.preset).preset, **over}
 
-    def field_params(self, host: bool = False) -> F.FieldParams:
+    def field_params(self, host: bool = False) -> mjxrow_field.FieldParams:
         """The run's FieldParams; `host`: numpy arrays (field.make_params)."""
-        return F.make_params(self.preset, host=host, **self.field_values())
+        return mjxrow_field.make_params(self.preset, host=host, **self.field_values())
 
     def get(self, dotted: str) -> Any:
         if dotted in ("preset", "seed"):
@@ -311,7 +311,6 @@ class RunConfig:
         if self.perception.source != "learned" or not control.get(
                 self.controller.name).needs_mask:
             return ""
-        from mjxrow.seg import checkpoint as ckpt
 
         ck = self.perception.checkpoint
         if ck == "shipped":
@@ -319,7 +318,7 @@ class RunConfig:
         else:
             p = Path(ck).expanduser()
             ck = str(p if p.is_absolute() or p.exists() else Path(self.base_dir) / p)
-        return str(ckpt.resolve(ck))
+        return str(seg_checkpoint.resolve(ck))
 
 
 def _section(name: str, cls: type, kw: dict[str, Any]) -> Any:
@@ -356,7 +355,7 @@ def build_run(values: dict[str, Any], seed: int = 0, base_dir: str | Path = ".")
             raise ConfigError(f"controller.{key}: unknown key")
     ctrl = _section("controller", c.config,
                     {k: v for k, v in by["controller"].items() if k in own})
-    unknown = set(by["field"]) - set(F.PARAM_NAMES)
+    unknown = set(by["field"]) - set(mjxrow_field.PARAM_NAMES)
     if unknown:
         raise ConfigError(f"field.{sorted(unknown)[0]}: unknown key")
     try:
@@ -367,15 +366,20 @@ def build_run(values: dict[str, Any], seed: int = 0, base_dir: str | Path = ".")
         raise ConfigError(str(e)) from None
     sim_cfg = _section("sim", SimConfig, by["sim"])
     run = RunConfig(
-        preset=preset, field=Section("field", {n: by["field"].get(n) for n in F.PARAM_NAMES}),
-        sim=sim_cfg, robot=_section("robot", RobotConfig, by["robot"]),
+        preset=preset,
+        field=Section("field", {n: by["field"].get(n) for n in mjxrow_field.PARAM_NAMES}),
+        sim=sim_cfg,
+        robot=_section("robot", RobotConfig, by["robot"]),
         camera=_section("camera", Intrinsics, by["camera"]),
         render=_section("render", RenderConfig, by["render"]),
-        episode=_section("episode", EpisodeConfig, {**by["episode"], "crop": preset,
-                                                    "sim": sim_cfg}),
+        episode=_section(
+            "episode", EpisodeConfig, {**by["episode"], "crop": preset, "sim": sim_cfg}
+        ),
         controller=ControllerChoice(name, ctrl),
         perception=_section("perception", PerceptionConfig, by["perception"]),
-        seed=int(seed), base_dir=str(base_dir))
+        seed=int(seed),
+        base_dir=str(base_dir),
+    )
     check_sizes(run, values)
     return run
 

@@ -10,16 +10,11 @@ arrays, so new FieldParams, gains, noise or segmenter weights never retrace. `TR
 the traces. Perception policies (render → segment → SegZeros) come from `closed_loop`.
 
 An episode starts at rest `sim_cfg.path_length` before the end of its lane (sim.reset), the goal
-is the lane's end point (row end x, lane centre y). Each step: observation → policy → one
-control period of physics → events. It ends at the first event, in this order of precedence:
-sim_error (NaN or exploded state), flipped, collision (robot footprint touching a plant's
-collision footprint, metrics.collides), goal (within `goal_radius`), missed_goal (past the
-goal's line: x beyond the goal's x + `goal_radius`, beside the goal; the row has ended there,
-so a robot that drives on along +x can no longer reach it), off_patch (the robot left the
-simulated terrain), stuck (moved less than `stuck_dist` over `stuck_window` steps), timeout
-(after `n_steps`). Once ended, the state stays frozen and the remaining steps are masked; a
-batch stops stepping once every one of its episodes has ended (checked every `CHUNK` steps), so
-the timeout costs only batches in which some episode runs that long.
+is the lane's end point (row end x, lane centre y). Each step: observation → policy →
+`rollout.step.step` (physics, end events, log row; its docstring lists the events and their
+precedence). Once ended, the state stays frozen and the remaining steps are masked; a batch
+stops stepping once every one of its episodes has ended (checked every `CHUNK` steps), so the
+timeout costs only batches in which some episode runs that long.
 
 The assembly of model, fields, policy and keys from a config is `rollout.build`; the CLI is
 `python -m mjxrow.episode`.
@@ -27,131 +22,34 @@ The assembly of model, fields, policy and keys from a config is `rollout.build`;
 
 from __future__ import annotations
 
-import dataclasses
 import functools
-import math
-from typing import Any, ClassVar
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxrow import control, crops
-from mjxrow import field as F
+from mjxrow import control
+from mjxrow import field as mjxrow_field
 from mjxrow.physics import sim
-from mjxrow.rollout import metrics as M
+from mjxrow.rollout import metrics
+from mjxrow.rollout import step as rollout_step
 from mjxrow.rollout.metrics import Log
 
 TRACES = 0  # times the episode function was traced (each one is a compile)
 CHUNK = 25  # control steps per scan between checks for the end of every episode of a batch
-CMD_SHAPE = (2,)  # a policy's command: (v [m/s], omega [rad/s])
 
 
-@dataclasses.dataclass(frozen=True)
-class EpisodeConfig:
-    """Episode settings (YAML section `episode`; hashable). `crop` picks the plants' collision
-    footprint and `sim` holds the physics (control rate, path length, flip threshold); the YAML
-    sets those through `preset` and the `sim` section. Everything is static except the
-    start-pose noise (`TRACED`), which the rollout takes per episode."""
-
-    crop: str
-    max_time: float = 60.0  # s, timeout; an episode has ceil(max_time · sim.control_hz)
-    # control steps
-    goal_radius: float = 0.40  # m, goal reached within this distance
-    stuck_window: int = 45  # control steps between stuck checks (3 s at 15 Hz)
-    stuck_dist: float = 0.05  # m, moving less than this over a window is stuck
-    collision_window: int = 4  # plants checked each side along a row (metrics.collides)
-    end_off_patch: bool = True  # end an episode that leaves the terrain patch as off_patch
-    end_missed_goal: bool = True  # end an episode that passes the goal's line as missed_goal
-    start_offset_std: float = 0.0  # m, std of the start's lateral offset from the lane centre
-    start_yaw_std: float = 0.0  # deg, std of the start heading about the row direction
-    sim: sim.SimConfig = sim.SimConfig()
-
-    TRACED: ClassVar[tuple[str, ...]] = ("start_offset_std", "start_yaw_std")
-
-    def __post_init__(self):
-        if self.crop not in crops.CROPS:
-            raise ValueError(f"episode.crop: unknown crop {self.crop!r}; expected one of "
-                             f"{crops.names()}")
-        for name in ("stuck_window", "collision_window"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"episode.{name}: must be at least 1, got {getattr(self, name)}")
-        for name in ("max_time", "goal_radius", "stuck_dist"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"episode.{name}: must be positive, got {getattr(self, name)}")
-        for name in ("start_offset_std", "start_yaw_std"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"episode.{name}: must be finite and non-negative, got {v}")
-
-    @property
-    def n_steps(self) -> int:
-        """Control steps before the timeout: ceil(max_time · control_hz)."""
-        return max(1, math.ceil(self.max_time * self.sim.control_hz - 1e-9))
-
-    @property
-    def control_dt(self) -> float:
-        """s, one control period."""
-        return 1.0 / self.sim.control_hz
-
-    @property
-    def path_length(self) -> float:
-        """m, start → goal along the lane (sim.path_length)."""
-        return self.sim.path_length
-
-    @property
-    def noise(self) -> sim.PoseNoise:
-        """The start-pose noise (traced): lateral std [m], heading std [rad]."""
-        return sim.pose_noise(self.start_offset_std, math.radians(self.start_yaw_std))
-
-    def static(self) -> EpisodeConfig:
-        """This config with the traced fields at their defaults: the compile key."""
-        return dataclasses.replace(self, start_offset_std=0.0, start_yaw_std=0.0)
-
-
-def end_reason(m, s_new: sim.SimState, bad: jax.Array, t: jax.Array, anchor: jax.Array,
-               goal: jax.Array, field: F.Field, half: tuple[float, float],
-               cfg: EpisodeConfig) -> jax.Array:
-    """int32 [] `metrics.REASONS` code of the step that produced `s_new` (RUNNING if none), for
-    the episode here and the training environment alike. m: the world's model; bad: the step
-    failed (NaN, exploded, non-finite command); t: int32 [] index of the step; anchor [2]: the
-    position at the last stuck check; goal [2]; half: the robot's half length and width [m].
-    Precedence: sim_error > flipped > collision > goal > missed_goal > off_patch > stuck >
-    timeout."""
-    scfg = cfg.sim
-    p = sim.pose(s_new)
-    check = (t + 1) % cfg.stuck_window == 0
-    events = [  # lowest precedence first: later entries win
-        (t >= cfg.n_steps - 1, M.TIMEOUT),
-        (check & (jnp.linalg.norm(p[:2] - anchor) < cfg.stuck_dist), M.STUCK),
-        (sim.off_patch(m, s_new, scfg) if cfg.end_off_patch else False, M.OFF_PATCH),
-        (p[0] > goal[0] + cfg.goal_radius if cfg.end_missed_goal else False, M.MISSED_GOAL),
-        (jnp.linalg.norm(p[:2] - goal) <= cfg.goal_radius, M.GOAL),
-        (M.collides(p, field, cfg.crop, half, cfg.collision_window), M.COLLISION),
-        (sim.is_flipped(s_new, scfg), M.FLIPPED),
-        (bad, M.SIM_ERROR),
-    ]
-    reason = jnp.int32(M.RUNNING)
-    for happened, code in events:
-        reason = jnp.where(happened, code, reason)
-    return reason
-
-
-def _select(c, a, b):
-    """Per leaf: a where c else b."""
-    return jax.tree.map(lambda x, y: jnp.where(c, x, y), a, b)
-
-
-def _world(mx, field: F.Field, lane: jax.Array, key: jax.Array, noise: sim.PoseNoise,
-           policy: control.Policy, policy_params: Any, cfg: EpisodeConfig):
-    """One world's set-up: (context for every step, initial carry, start pose [3])."""
+def _world(mx, field: mjxrow_field.Field, lane: jax.Array, key: jax.Array, noise: sim.PoseNoise,
+           policy: control.Policy, policy_params: Any, cfg: rollout_step.EpisodeConfig):
+    """One world's set-up: (context for every step, initial carry (step carry, policy state),
+    start pose [3])."""
     scfg = cfg.sim
     m = sim.world_model(mx, field, lane, scfg)
     k_reset, k_policy = jax.random.split(key)
     s0 = sim.reset(m, field, lane, k_reset, scfg, noise)
     lane_y = field.lane_y[lane]
     goal = jnp.stack([field.row_x[1], lane_y])
-    p0 = sim.pose(s0)
     init = getattr(policy, "init", None)
     ps0 = init(policy_params) if init is not None else None
     prepare = getattr(policy, "prepare", None)
@@ -159,39 +57,20 @@ def _world(mx, field: F.Field, lane: jax.Array, key: jax.Array, noise: sim.PoseN
     rn = sim.robot_numbers(mx)
     half = (0.5 * rn["length"], 0.5 * rn["width"])
     ctx = dict(m=m, field=field, lane_y=lane_y, goal=goal, aux=aux, k_policy=k_policy, half=half)
-    return ctx, (s0, ps0, jnp.zeros((), bool), p0[:2]), p0
+    return ctx, (rollout_step.start(m, s0), ps0), sim.pose(s0)
 
 
 def _step(ctx: dict, policy_params: Any, carry: tuple, t: jax.Array, policy: control.Policy,
-          cfg: EpisodeConfig) -> tuple[tuple, dict]:
-    """One world's control step t: observation → policy → physics → events."""
-    scfg = cfg.sim
-    m, field, goal, half = ctx["m"], ctx["field"], ctx["goal"], ctx["half"]
-    s, ps, done, anchor = carry
-    cam_pos, cam_rot = sim.camera_pose(s)
-    obs = control.Obs(pose=sim.pose(s), lane_y=ctx["lane_y"], lane_end_x=goal[0], goal=goal,
-                      cam_pos=cam_pos, cam_rot=cam_rot, field=field, aux=ctx["aux"])
+          cfg: rollout_step.EpisodeConfig) -> tuple[tuple, dict]:
+    """One world's control step t: observation → policy → `rollout.step.step`."""
+    c, ps = carry
+    obs = rollout_step.observation(c.sim, ctx["field"], ctx["goal"], ctx["aux"])
     with jax.named_scope("cl_policy"):  # the scopes name the stages in profiles
         ps_new, cmd = policy(policy_params, ps, obs, jax.random.fold_in(ctx["k_policy"], t))
-    cmd = jnp.asarray(cmd, jnp.float32)
-    if cmd.shape != CMD_SHAPE:
-        raise ValueError(f"policy: the command must be float [2] = (v [m/s], omega [rad/s]), "
-                         f"got shape {cmd.shape}")
-    with jax.named_scope("cl_physics"):
-        s_new = sim.step(m, s, cmd, scfg)
-    bad = sim.is_bad(s_new, scfg) | ~jnp.all(jnp.isfinite(cmd))
-    p = sim.pose(s_new)
-    check = (t + 1) % cfg.stuck_window == 0
-    with jax.named_scope("cl_events"):
-        reason = end_reason(m, s_new, bad, t, anchor, goal, field, half, cfg)
-    event = jnp.where(done, M.RUNNING, reason).astype(jnp.int32)
-    keep_old = done | bad
-    s_next = _select(keep_old, s, s_new)
-    ps_next = _select(done, ps, ps_new)
-    anchor = jnp.where(check, p[:2], anchor)
-    out = dict(pose=jnp.where(done, jnp.nan, p), cmd=cmd, alive=~done, event=event,
-               vel=jnp.where(done | bad, jnp.nan, sim.velocity(s_new)))
-    return (s_next, ps_next, done | (reason != M.RUNNING), anchor), out
+    c_new, row, _ = rollout_step.step(ctx["m"], ctx["field"], ctx["goal"], ctx["half"], c, cmd,
+                                      t, cfg)
+    ps_next = jax.tree.map(lambda x, y: jnp.where(c.done, x, y), ps, ps_new)
+    return (c_new, ps_next), row._asdict()
 
 
 def _log(out: dict, p0: jax.Array, goal: jax.Array, lane_y: jax.Array) -> Log:
@@ -204,13 +83,13 @@ def _log(out: dict, p0: jax.Array, goal: jax.Array, lane_y: jax.Array) -> Log:
 def _out_shapes(s0: sim.SimState) -> dict:
     """Shapes of one world's per-step outputs (without tracing the step)."""
     one = lambda f: jax.eval_shape(f, s0)  # noqa: E731
-    return dict(pose=one(sim.pose), cmd=jax.ShapeDtypeStruct(CMD_SHAPE, jnp.float32),
+    return dict(pose=one(sim.pose), cmd=jax.ShapeDtypeStruct(rollout_step.CMD_SHAPE, jnp.float32),
                 alive=jax.ShapeDtypeStruct((), jnp.bool_),
                 event=jax.ShapeDtypeStruct((), jnp.int32), vel=one(sim.velocity))
 
 
-def episode(mx, field: F.Field, lane: jax.Array, key: jax.Array, noise: sim.PoseNoise,
-            policy: control.Policy, policy_params: Any, cfg: EpisodeConfig) -> Log:
+def episode(mx, field: mjxrow_field.Field, lane: jax.Array, key: jax.Array, noise: sim.PoseNoise,
+            policy: control.Policy, policy_params: Any, cfg: rollout_step.EpisodeConfig) -> Log:
     """One world's episode (pure; not jitted; `compiled` runs a batch of them).
 
     mx: the shape's MJX model (sim.make_model); field: one Field; lane: int32 [] lane index;
@@ -222,13 +101,21 @@ def episode(mx, field: F.Field, lane: jax.Array, key: jax.Array, noise: sim.Pose
     TRACES += 1
     ctx, carry, p0 = _world(mx, field, lane, key, noise, policy, policy_params, cfg)
     body = functools.partial(_step, ctx, policy_params, policy=policy, cfg=cfg)
-    out = _run_until_done(body, carry, cfg.n_steps, _out_shapes(carry[0]))
+    out = _run_until_done(body, carry, cfg.n_steps, _out_shapes(carry[0].sim))
     return _log(out, p0, ctx["goal"], ctx["lane_y"])
 
 
-def episodes(mx, fields: F.Field, lanes: jax.Array, keys: jax.Array, noise: sim.PoseNoise,
-             policy: control.Policy, policy_params: Any, cfg: EpisodeConfig,
-             params_axes: Any = None) -> Log:
+def episodes(
+    mx,
+    fields: mjxrow_field.Field,
+    lanes: jax.Array,
+    keys: jax.Array,
+    noise: sim.PoseNoise,
+    policy: control.Policy,
+    policy_params: Any,
+    cfg: rollout_step.EpisodeConfig,
+    params_axes: Any = None,
+) -> Log:
     """A batch of episodes: `vmap(episode)` (the same numbers), written as a loop over the
     control steps of the whole batch with the step vmapped inside it, so that JAX traces the
     step once and never batches the loops afterwards (half the tracing time).
@@ -244,7 +131,7 @@ def episodes(mx, fields: F.Field, lanes: jax.Array, keys: jax.Array, noise: sim.
     step = jax.vmap(functools.partial(_step, policy=policy, cfg=cfg),
                     in_axes=(ctx_axes, p_axes, 0, None))
     body = functools.partial(step, ctx, policy_params)
-    s0 = jax.tree.map(lambda x: x[0], carry[0])
+    s0 = jax.tree.map(lambda x: x[0], carry[0].sim)
     out = _run_until_done(body, carry, cfg.n_steps, _out_shapes(s0))
     return jax.vmap(_log)(out, p0, ctx["goal"], ctx["lane_y"])
 
@@ -258,7 +145,7 @@ def steps_run(n_steps: int) -> int:
 
 def _run_until_done(body, carry, n_steps: int, shapes: dict) -> dict:
     """`lax.scan(body, carry, arange(n_steps))[1]`, stopped early once the episode is done,
-    for one world or a batch (`carry[2]` (done) [] or [B]; outputs [T, ...] or [B, T, ...]).
+    for one world or a batch (`carry[0].done` [] or [B]; outputs [T, ...] or [B, T, ...]).
 
     Steps run in chunks of CHUNK (a scan each) inside a while loop that ends after the chunk
     in which the last episode became done, so a batch whose episodes all end early skips the
@@ -268,14 +155,14 @@ def _run_until_done(body, carry, n_steps: int, shapes: dict) -> dict:
     shapes: one world's per-step outputs (`_out_shapes`)."""
     chunk = min(n_steps, CHUNK)
     n_chunks = steps_run(n_steps) // chunk
-    lead = jnp.shape(carry[2])  # () or (B,)
-    fill = dict(pose=jnp.nan, vel=jnp.nan, cmd=0, alive=False, event=M.RUNNING)
+    lead = jnp.shape(carry[0].done)  # () or (B,)
+    fill = dict(pose=jnp.nan, vel=jnp.nan, cmd=0, alive=False, event=metrics.RUNNING)
     buf0 = {k: jnp.full((n_chunks * chunk,) + lead + v.shape, fill[k], v.dtype)
             for k, v in shapes.items()}
 
     def more(state):
-        c, (_, _, done, _), _ = state
-        return (c < n_chunks) & ~jnp.all(done)
+        c, carry, _ = state
+        return (c < n_chunks) & ~jnp.all(carry[0].done)
 
     def per_world(on, a, b):  # a where `on` [B] (broadcast over the trailing axes) else b
         return jnp.where(on.reshape(on.shape + (1,) * (a.ndim - on.ndim)), a, b)
@@ -284,7 +171,7 @@ def _run_until_done(body, carry, n_steps: int, shapes: dict) -> dict:
         c, carry, buf = state
         new, out = jax.lax.scan(body, carry, c * chunk + jnp.arange(chunk))
         if lead:  # the episodes done before this chunk keep their carry and record nothing
-            on = ~carry[2]
+            on = ~carry[0].done
             new = jax.tree.map(functools.partial(per_world, on), new, carry)
             out = {k: per_world(on[None], v, jnp.full_like(v, fill[k])) for k, v in out.items()}
         buf = {k: jax.lax.dynamic_update_slice_in_dim(buf[k], out[k], c * chunk, 0) for k in buf}
@@ -305,7 +192,7 @@ def canonical_axes(params_axes: Any) -> tuple:
     return treedef, tuple(leaves)
 
 
-def compiled(policy, cfg: EpisodeConfig, params_axes: Any = None):
+def compiled(policy, cfg: rollout_step.EpisodeConfig, params_axes: Any = None):
     """jit(episodes) for one policy, static config and policy-params axes: a function
     `(mx, fields [B], lanes [B], keys [B], noise [B], policy_params) -> Log [B]`. params_axes:
     vmap in_axes prefix of the policy params (None: all shared, 0: all per episode, or a
@@ -315,7 +202,7 @@ def compiled(policy, cfg: EpisodeConfig, params_axes: Any = None):
 
 
 @functools.lru_cache(maxsize=64)
-def _compiled(policy, cfg: EpisodeConfig, axes: tuple):
+def _compiled(policy, cfg: rollout_step.EpisodeConfig, axes: tuple):
     treedef, leaves = axes
 
     def batch(mx, fields, lanes, keys, noise, params):
@@ -355,7 +242,7 @@ def stack_params(trees: list, params_axes: Any = 0) -> Any:
     for i, axis in enumerate(leaves):
         parts = [c[i] for c in cut]
         out.append(parts[0] if axis is None else jax.tree.map(
-            lambda *xs: F.stack_leaves(xs), *parts))
+            lambda *xs: mjxrow_field.stack_leaves(xs), *parts))
     return treedef.unflatten(out)
 
 
@@ -376,7 +263,7 @@ def batch_noise(noise: sim.PoseNoise | None, batch: int) -> sim.PoseNoise:
     return sim.PoseNoise(**out)
 
 
-def check_fields(fields: F.Field) -> int:
+def check_fields(fields: mjxrow_field.Field) -> int:
     """The batch size of `fields` (host); ValueError unless it is a batch of valid fields."""
     valid = np.asarray(fields.valid)
     if valid.ndim != 1:
@@ -388,7 +275,7 @@ def check_fields(fields: F.Field) -> int:
     return valid.shape[0]
 
 
-def rollout_args(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array,
+def rollout_args(mx, fields: mjxrow_field.Field, lanes: jax.Array | None, keys: jax.Array,
                  policy_params: Any = None, params_axes: Any = None,
                  noise: sim.PoseNoise | None = None) -> tuple:
     """Checked arguments of the compiled function (host): (mx, fields, lanes, keys, noise [B],
@@ -397,7 +284,7 @@ def rollout_args(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array,
     if keys.shape[0] != B:
         raise ValueError(f"keys: {keys.shape[0]} keys for {B} fields")
     if lanes is None:
-        lanes = jax.vmap(F.robot_lane)(fields)
+        lanes = jax.vmap(mjxrow_field.robot_lane)(fields)
     lanes = jnp.asarray(lanes, jnp.int32)
     if lanes.shape != (B,):
         raise ValueError(f"lanes: expected shape ({B},), got {lanes.shape}")
@@ -406,8 +293,8 @@ def rollout_args(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array,
     return mx, fields, lanes, keys, noise, policy_params
 
 
-def rollout(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array, policy,
-            policy_params: Any, ep_cfg: EpisodeConfig, params_axes: Any = None,
+def rollout(mx, fields: mjxrow_field.Field, lanes: jax.Array | None, keys: jax.Array, policy,
+            policy_params: Any, ep_cfg: rollout_step.EpisodeConfig, params_axes: Any = None,
             noise: sim.PoseNoise | None = None) -> Log:
     """B episodes in one compiled call (`compiled`).
 
@@ -427,6 +314,6 @@ def rollout(mx, fields: F.Field, lanes: jax.Array | None, keys: jax.Array, polic
     return compiled(policy, ep_cfg, params_axes)(*args)
 
 
-def summarise(log: Log, ep_cfg: EpisodeConfig) -> dict[str, jax.Array]:
+def summarise(log: Log, ep_cfg: rollout_step.EpisodeConfig) -> dict[str, jax.Array]:
     """metrics.summarise with this config's control period."""
-    return M.summarise(log, ep_cfg.control_dt)
+    return metrics.summarise(log, ep_cfg.control_dt)

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from mjxrow.crops import prims as plants
+from mjxrow.crops import prims as crops_prims
 from mjxrow.field import Field
 
 # Termination reasons; code 0 marks a step at which the episode is still running. `off_patch`:
@@ -139,7 +139,7 @@ def collides(pose: jax.Array, field: Field, crop: str, half: tuple[float, float]
     window · d_pp ≥ √(half[0]² + half[1]²) + plant half length + 3·plant_jitter, true for
     every preset with the default window (chard is the tightest: 4 · 0.3 m ≥ 0.62 m)."""
     pxy, rows, cols = near_plants(field, pose[:2], window)
-    axes = plants.footprint(crop, field.plant_size[rows, cols])
+    axes = crops_prims.footprint(crop, field.plant_size[rows, cols])
     hit = rect_ellipse_overlap(pose[:2], pose[2], jnp.asarray(half, jnp.float32), pxy,
                                jnp.maximum(axes, 1e-4))
     return jnp.any(hit & field.plant_active[rows, cols])

@@ -20,6 +20,11 @@ import pandas as pd
 from PIL import Image
 from tqdm.auto import tqdm
 
+from mjxrow import crops as mjxrow_crops
+from mjxrow import render
+from mjxrow.physics.robot import RobotConfig
+from mjxrow.seg import synth
+
 INDEX_COLUMNS = ("rgb", "mask", "crop", "condition", "x", "y", "z", "yaw", "pitch", "lateral",
                  "split")
 REQUIRED = ("rgb", "mask", "crop", "condition", "split")
@@ -225,24 +230,20 @@ def onthefly(crop: str, size: int, batch: int, fovy: float | None = None):
     """Jittable `fn(key) -> (rgb uint8 [batch, size, size, 3], mask bool [batch, size, size])`
     rendered by `mjxrow.seg.synth.make_batch_fn`; crop "all" mixes every crop in equal parts.
     fovy: vertical field of view [deg], default the robot camera's."""
-    from mjxrow import crops as registry
-    from mjxrow import render
-    from mjxrow.seg import synth as dataset
 
-    crops = registry.names() if crop == "all" else (crop,)
-    if crop != "all" and crop not in registry.CROPS:
-        raise ValueError(f"crop: unknown crop {crop!r}; expected one of {registry.names()} or "
+    crops = mjxrow_crops.names() if crop == "all" else (crop,)
+    if crop != "all" and crop not in mjxrow_crops.CROPS:
+        raise ValueError(f"crop: unknown crop {crop!r}; expected one of {mjxrow_crops.names()} or "
                          "'all'")
     if batch % len(crops):
         raise ValueError(f"batch: {batch} must be a multiple of {len(crops)} with crop {crop!r}")
     if fovy is None:
         try:
-            from mjxrow.physics.robot import RobotConfig
             fovy = float(RobotConfig().cam_fovy)
         except ImportError:
             fovy = 42.0
     intr = render.Intrinsics(size, size, fovy)
-    fns = [dataset.make_batch_fn(c, intr) for c in crops]
+    fns = [synth.make_batch_fn(c, intr) for c in crops]
     n = batch // len(crops)
 
     def fn(key: jax.Array) -> tuple[jax.Array, jax.Array]:

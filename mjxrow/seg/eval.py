@@ -19,10 +19,9 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
-from mjxrow import crops
-from mjxrow import files as FS
-from mjxrow.seg import checkpoint as C
-from mjxrow.seg import data as D
+from mjxrow import crops, files
+from mjxrow.seg import checkpoint
+from mjxrow.seg import data as seg_data
 from mjxrow.seg.model import SegNet, apply
 
 THRESHOLD = 0.7  # the paper's threshold on sigmoid(logit)
@@ -112,11 +111,11 @@ def evaluate_folder(module: SegNet, variables: dict, root: str | Path, crop: str
                     split: str | None = "test", size: int | None = None, batch: int = 32,
                     threshold: float = THRESHOLD, workers: int = 4) -> pd.DataFrame:
     """Per-image counts with the index columns (crop, condition, ...) of the selected rows."""
-    rows = D.select(D.read_index(root), crop, split)
+    rows = seg_data.select(seg_data.read_index(root), crop, split)
     if len(rows) == 0:
         raise ValueError(f"dataset {str(root)!r}: no images of crop {crop!r} in split {split!r}")
-    rgb, mask = D.load_arrays(root, rows, size, workers)
-    counts = count_batches(module, variables, D.batches(rgb, mask, batch), threshold)
+    rgb, mask = seg_data.load_arrays(root, rows, size, workers)
+    counts = count_batches(module, variables, seg_data.batches(rgb, mask, batch), threshold)
     return pd.concat([rows.reset_index(drop=True), counts], axis=1)
 
 
@@ -124,8 +123,8 @@ def evaluate_renders(module: SegNet, variables: dict, crop: str, n: int, size: i
                      batch: int = 32, seed: int = 0,
                      threshold: float = THRESHOLD) -> pd.DataFrame:
     """Per-image counts on ⌈n / batch⌉ batches rendered on the fly (fixed seed 20,000 + seed)."""
-    fn = D.onthefly(crop, size, batch)
-    batches = D.fixed_set(fn, max(1, -(-n // batch)), 20_000 + seed)
+    fn = seg_data.onthefly(crop, size, batch)
+    batches = seg_data.fixed_set(fn, max(1, -(-n // batch)), 20_000 + seed)
     counts = count_batches(module, variables, batches, threshold)
     names = crops.names()
     per_batch = [crop] * batch if crop != "all" else list(np.repeat(names, batch // len(names)))
@@ -161,11 +160,13 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
     p.add_argument("--csv", help="also write the summary table here")
     args = p.parse_args(argv)
     if args.csv:
-        FS.check_out_file(args.csv, "--csv")
+        files.check_out_file(args.csv, "--csv")
     if args.ckpt and not Path(args.ckpt).exists():
-        raise C.CheckpointError(f"--ckpt {args.ckpt}: no such folder")
-    module, variables = C.load(args.ckpt or args.crop)
-    size = args.size or C.read_config(args.ckpt or args.crop)["meta"].get("image_size", 224)
+        raise checkpoint.CheckpointError(f"--ckpt {args.ckpt}: no such folder")
+    module, variables = checkpoint.load(args.ckpt or args.crop)
+    size = args.size or checkpoint.read_config(args.ckpt or args.crop)["meta"].get(
+        "image_size", 224
+    )
     if args.data:
         df = evaluate_folder(module, variables, args.data, args.crop,
                              None if args.split == "all" else args.split, size, args.batch,
@@ -177,7 +178,7 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
     with pd.option_context("display.float_format", "{:.4f}".format, "display.width", 120):
         print(table.to_string(index=False))
     if args.csv:
-        FS.atomic_write_text(args.csv, table.to_csv(index=False))
+        files.atomic_write_text(args.csv, table.to_csv(index=False))
     return table
 
 

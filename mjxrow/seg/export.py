@@ -16,7 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from mjxrow.seg.model import BN_EPS, MEAN, STD, SegNet
+from mjxrow import files
+from mjxrow.seg import checkpoint
+from mjxrow.seg.model import BN_EPS, MEAN, STD, SegNet, apply
 
 OPSET = 17
 
@@ -201,9 +203,6 @@ def main(argv: list[str] | None = None) -> None:
 
     import jax
 
-    from mjxrow import files as FS
-    from mjxrow.seg import checkpoint as C
-    from mjxrow.seg.model import apply
 
     p = argparse.ArgumentParser(prog="python -m mjxrow.seg.export", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -216,8 +215,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--check", type=int, default=4, help="random images compared with Flax")
     args = p.parse_args(argv)
     require_onnx()
-    FS.check_out_file(args.out, "--out")
-    module, variables = C.load(args.crop or args.ckpt)
+    files.check_out_file(args.out, "--out")
+    module, variables = checkpoint.load(args.crop or args.ckpt)
     path = save_onnx(module, variables, args.out, args.size,
                      None if args.dynamic_batch else 1)
     print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)")

@@ -41,12 +41,10 @@ import pandas as pd
 from PIL import Image
 from tqdm.auto import tqdm
 
-from mjxrow import crops, interrupt
-from mjxrow import field as F
-from mjxrow import files as FS
-from mjxrow import render as RD
-from mjxrow.field import params as FP
-from mjxrow import limits
+from mjxrow import crops, files, interrupt, limits
+from mjxrow import field as mjxrow_field
+from mjxrow import render as mjxrow_render
+from mjxrow.field import params as field_params
 
 COLUMNS = ("rgb", "mask", "crop", "condition", "x", "y", "z", "yaw", "pitch", "lateral", "split")
 
@@ -60,14 +58,14 @@ _ABSOLUTE = {"p_missing": (0.0, 0.08), "plant_size_var": (0.04, 0.14),
 _MORE_WITH_LESS = ("d_rr", "d_RR", "d_pp")  # counts grow as these shrink
 
 
-def dataset_shape(crop: str) -> F.FieldShape:
+def dataset_shape(crop: str) -> mjxrow_field.FieldShape:
     """Static shape that holds every field the sampler can draw for `crop`."""
     pre = crops.get(crop).preset
     ext = {k: pre[k] * (lo if k in _MORE_WITH_LESS else hi) for k, (lo, hi) in _FACTORS.items()}
-    return F.fit_shape(F.make_params(crop, **ext), crop)
+    return mjxrow_field.fit_shape(mjxrow_field.make_params(crop, **ext), crop)
 
 
-def random_params(crop: str, key: jax.Array) -> F.FieldParams:
+def random_params(crop: str, key: jax.Array) -> mjxrow_field.FieldParams:
     """The crop's preset with geometry, terrain and obstacle numbers drawn around it."""
     pre = crops.get(crop).preset
     ks = jax.random.split(key, len(_FACTORS) + len(_ABSOLUTE))
@@ -76,16 +74,18 @@ def random_params(crop: str, key: jax.Array) -> F.FieldParams:
         vals[name] = pre[name] * jax.random.uniform(kk, (), minval=lo, maxval=hi)
     for kk, (name, (lo, hi)) in zip(ks[len(_FACTORS):], _ABSOLUTE.items(), strict=True):
         vals[name] = jax.random.uniform(kk, (), minval=lo, maxval=hi)
-    return F.make_params(crop, **vals)
+    return mjxrow_field.make_params(crop, **vals)
 
 
-def sample_pose(field: F.Field, key: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+def sample_pose(
+    field: mjxrow_field.Field, key: jax.Array
+) -> tuple[jax.Array, jax.Array, jax.Array]:
     """A camera pose in `field`: (cam_pos float32 [3], cam_rot float32 [3, 3],
     meta float32 [6] = x, y, z [m], yaw, pitch [rad], lateral offset from the lane centre [m])."""
     ks = jax.random.split(key, 10)
-    q = FP._scaled(field.params)
+    q = field_params._scaled(field.params)
     free = field.lane_width - q["plant_width"]
-    fits = field.lane_active & (free >= F.ROBOT_WIDTH + F.LANE_CLEARANCE)
+    fits = field.lane_active & (free >= mjxrow_field.ROBOT_WIDTH + mjxrow_field.LANE_CLEARANCE)
     robot_lanes = jnp.any(fits)
     pick_fit = (jax.random.uniform(ks[0]) < 0.8) & robot_lanes
     pool = jnp.where(pick_fit, fits, field.lane_active)
@@ -107,34 +107,42 @@ def sample_pose(field: F.Field, key: jax.Array) -> tuple[jax.Array, jax.Array, j
     p_low = jnp.deg2rad(jnp.clip(-10.0 + 5.0 * jax.random.normal(kp), -25.0, 3.0))
     p_high = jnp.deg2rad(jax.random.uniform(kp, (), minval=-35.0, maxval=-12.0))
     pitch = jnp.where(high, p_high, p_low)
-    z = F.terrain_height(field.terrain, field.terrain_size, x, y) + height
+    z = mjxrow_field.terrain_height(field.terrain, field.terrain_size, x, y) + height
     pos = jnp.stack([x, y, z]).astype(jnp.float32)
     meta = jnp.stack([x, y, z, jnp.mod(yaw + jnp.pi, 2 * jnp.pi) - jnp.pi, pitch, lateral])
-    return pos, RD.camera_rot(yaw, pitch), meta.astype(jnp.float32)
+    return pos, mjxrow_render.camera_rot(yaw, pitch), meta.astype(jnp.float32)
 
 
-def sample(crop: str, shape: F.FieldShape, intr: RD.Intrinsics, key: jax.Array,
-           condition: jax.Array, augment: bool = True,
-           cfg: RD.RenderConfig = RD.DEFAULT_CONFIG):
+def sample(
+    crop: str,
+    shape: mjxrow_field.FieldShape,
+    intr: mjxrow_render.Intrinsics,
+    key: jax.Array,
+    condition: jax.Array,
+    augment: bool = True,
+    cfg: mjxrow_render.RenderConfig = mjxrow_render.DEFAULT_CONFIG,
+):
     """One sample (pure): its own field, pose and lighting from `key`; condition: int index
     into render.CONDITIONS. Returns (rgb uint8 [H, W, 3], mask bool [H, W], meta float32 [6])."""
     k_par, k_fld, k_pose, k_cond, k_img = jax.random.split(key, 5)
-    field = F.generate(random_params(crop, k_par), shape, k_fld)
+    field = mjxrow_field.generate(random_params(crop, k_par), shape, k_fld)
     pos, rot, meta = sample_pose(field, k_pose)
-    cond = RD.condition_by_index(condition, k_cond)
-    frame = RD.render(field, shape, pos, rot, intr, cond, k_img if augment else None, cfg)
+    cond = mjxrow_render.condition_by_index(condition, k_cond)
+    frame = mjxrow_render.render(
+        field, shape, pos, rot, intr, cond, k_img if augment else None, cfg
+    )
     return frame.rgb, frame.mask, meta
 
 
-def sample_meta(crop: str, shape: F.FieldShape, key: jax.Array) -> jax.Array:
+def sample_meta(crop: str, shape: mjxrow_field.FieldShape, key: jax.Array) -> jax.Array:
     """The pose meta of `sample` without rendering (same key ⇒ same numbers)."""
     k_par, k_fld, k_pose, _, _ = jax.random.split(key, 5)
-    field = F.generate(random_params(crop, k_par), shape, k_fld)
+    field = mjxrow_field.generate(random_params(crop, k_par), shape, k_fld)
     return sample_pose(field, k_pose)[2]
 
 
-def make_batch_fn(crop: str, intr: RD.Intrinsics, augment: bool = True,
-                  cfg: RD.RenderConfig = RD.DEFAULT_CONFIG):
+def make_batch_fn(crop: str, intr: mjxrow_render.Intrinsics, augment: bool = True,
+                  cfg: mjxrow_render.RenderConfig = mjxrow_render.DEFAULT_CONFIG):
     """On-the-fly training data: `fn(key, batch) -> (rgb uint8 [B, H, W, 3], mask bool [B, H, W])`
     with `batch` a static int; fields, poses and conditions (uniform over the four) drawn from
     `key`. Jittable (`jax.jit(fn, static_argnums=1)`); called as is, it runs one compiled
@@ -144,7 +152,7 @@ def make_batch_fn(crop: str, intr: RD.Intrinsics, augment: bool = True,
     def fn(key: jax.Array, batch: int):
         k_s, k_c = jax.random.split(key)
         keys = jax.random.split(k_s, batch)
-        conds = jax.random.randint(k_c, (batch,), 0, len(RD.CONDITIONS))
+        conds = jax.random.randint(k_c, (batch,), 0, len(mjxrow_render.CONDITIONS))
         rgb, mask, _ = core(keys, conds)
         return rgb, mask
 
@@ -152,7 +160,9 @@ def make_batch_fn(crop: str, intr: RD.Intrinsics, augment: bool = True,
 
 
 @functools.lru_cache(maxsize=16)
-def _render_fn(crop: str, intr: RD.Intrinsics, augment: bool, cfg: RD.RenderConfig):
+def _render_fn(
+    crop: str, intr: mjxrow_render.Intrinsics, augment: bool, cfg: mjxrow_render.RenderConfig
+):
     """jit(vmap(sample)): (keys [B], conditions int [B]) -> (rgb, mask, meta), one compile per
     argument set (and batch size)."""
     shape = dataset_shape(crop)
@@ -176,7 +186,7 @@ def sample_keys(seed: int, index: jax.Array) -> jax.Array:
 
 
 def rel_paths(crop: str, i: int) -> tuple[str, str]:
-    cond = RD.CONDITIONS[i % len(RD.CONDITIONS)]
+    cond = mjxrow_render.CONDITIONS[i % len(mjxrow_render.CONDITIONS)]
     return f"{cond}/rgb/{crop}_{i:06d}.png", f"{cond}/mask/{crop}_{i:06d}.png"
 
 
@@ -184,7 +194,7 @@ def splits(n: int, seed: int, test_frac: float) -> np.ndarray:
     """'train' / 'test' per sample: round(test_frac · n_c) test samples in each condition."""
     out = np.full(n, "train", dtype=object)
     rng = np.random.default_rng(seed)
-    nc = len(RD.CONDITIONS)
+    nc = len(mjxrow_render.CONDITIONS)
     for c in range(nc):
         idx = np.arange(c, n, nc)
         test = rng.permutation(idx)[: int(round(test_frac * len(idx)))]
@@ -238,18 +248,29 @@ def _batches(indices: np.ndarray, batch: int):
         yield chunk, pad.astype(np.int32)
 
 
-def write_dataset(crop: str, n: int, out: str | Path, seed: int = 0, size: int = 224,
-                  test_frac: float | None = None, batch: int = 64, workers: int = 4,
-                  cfg: RD.RenderConfig = RD.DEFAULT_CONFIG, progress: bool = True) -> Path:
+def write_dataset(
+    crop: str,
+    n: int,
+    out: str | Path,
+    seed: int = 0,
+    size: int = 224,
+    test_frac: float | None = None,
+    batch: int = 64,
+    workers: int = 4,
+    cfg: mjxrow_render.RenderConfig = mjxrow_render.DEFAULT_CONFIG,
+    progress: bool = True,
+) -> Path:
     """Render and write `n` samples of `crop` into `out` (resumable); returns the index path.
     test_frac: share of each condition in the test split (None: the crop's `test_frac`)."""
     out = Path(out)
     test_frac = crops.get(crop).test_frac if test_frac is None else test_frac
-    for cond in RD.CONDITIONS:
+    for cond in mjxrow_render.CONDITIONS:
         (out / cond / "rgb").mkdir(parents=True, exist_ok=True)
         (out / cond / "mask").mkdir(parents=True, exist_ok=True)
     meta_fn = _meta_fn(crop)
-    render_fn = _render_fn(crop, RD.Intrinsics(size, size, RD.Intrinsics().fovy), True, cfg)
+    render_fn = _render_fn(
+        crop, mjxrow_render.Intrinsics(size, size, mjxrow_render.Intrinsics().fovy), True, cfg
+    )
     batch = min(batch, n)
     all_idx = np.arange(n)
     metas = []
@@ -260,7 +281,7 @@ def write_dataset(crop: str, n: int, out: str | Path, seed: int = 0, size: int =
     meta = np.concatenate(metas)
 
     paths = [rel_paths(crop, i) for i in range(n)]
-    for folder in [out] + [out / c / k for c in RD.CONDITIONS for k in ("rgb", "mask")]:
+    for folder in [out] + [out / c / k for c in mjxrow_render.CONDITIONS for k in ("rgb", "mask")]:
         for tmp in folder.glob(".tmp_*"):  # temp files of a killed run
             tmp.unlink(missing_ok=True)
     damaged = remove_damaged(out, paths, size)
@@ -274,7 +295,7 @@ def write_dataset(crop: str, n: int, out: str | Path, seed: int = 0, size: int =
     with cf.ThreadPoolExecutor(max(1, workers)) as pool:
         pending: list[cf.Future] = []
         for chunk, pad in _batches(todo, batch) if len(todo) else ():
-            conds = jnp.asarray(pad % len(RD.CONDITIONS), jnp.int32)
+            conds = jnp.asarray(pad % len(mjxrow_render.CONDITIONS), jnp.int32)
             rgb, mask, _ = render_fn(sample_keys(seed, jnp.asarray(pad)), conds)
             rgb, mask = np.asarray(rgb), np.asarray(mask)
             for done in pending:
@@ -292,11 +313,23 @@ def write_dataset(crop: str, n: int, out: str | Path, seed: int = 0, size: int =
             done.result()
     bar.close()
 
-    table = pd.DataFrame({
-        "rgb": [p[0] for p in paths], "mask": [p[1] for p in paths], "crop": crop,
-        "condition": [RD.CONDITIONS[i % len(RD.CONDITIONS)] for i in range(n)],
-        "x": meta[:, 0], "y": meta[:, 1], "z": meta[:, 2], "yaw": meta[:, 3],
-        "pitch": meta[:, 4], "lateral": meta[:, 5], "split": splits(n, seed, test_frac)})
+    table = pd.DataFrame(
+        {
+            "rgb": [p[0] for p in paths],
+            "mask": [p[1] for p in paths],
+            "crop": crop,
+            "condition": [
+                mjxrow_render.CONDITIONS[i % len(mjxrow_render.CONDITIONS)] for i in range(n)
+            ],
+            "x": meta[:, 0],
+            "y": meta[:, 1],
+            "z": meta[:, 2],
+            "yaw": meta[:, 3],
+            "pitch": meta[:, 4],
+            "lateral": meta[:, 5],
+            "split": splits(n, seed, test_frac),
+        }
+    )
     text = table.to_csv(index=False, float_format="%.4f", columns=list(COLUMNS))
     index = out / "index.csv"
     if not index.exists() or index.read_text() != text:
@@ -315,10 +348,10 @@ def contact_sheet(crop: str, path: str | Path, per_condition: int = 3, size: int
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    intr = RD.Intrinsics(size, size, RD.Intrinsics().fovy)
-    nc = len(RD.CONDITIONS)
+    intr = mjxrow_render.Intrinsics(size, size, mjxrow_render.Intrinsics().fovy)
+    nc = len(mjxrow_render.CONDITIONS)
     idx = np.array([c + nc * j for c in range(nc) for j in range(per_condition)], np.int32)
-    fn = _render_fn(crop, intr, True, RD.DEFAULT_CONFIG)
+    fn = _render_fn(crop, intr, True, mjxrow_render.DEFAULT_CONFIG)
     rgb, mask, _ = fn(sample_keys(seed, jnp.asarray(idx)), jnp.asarray(idx % nc))
     rgb, mask = np.asarray(rgb), np.asarray(mask)
     fig, axes = plt.subplots(nc, 2 * per_condition, figsize=(2.0 * 2 * per_condition, 2.1 * nc))
@@ -331,7 +364,7 @@ def contact_sheet(crop: str, path: str | Path, per_condition: int = 3, size: int
                 ax.set_xticks([])
                 ax.set_yticks([])
             if j == 0:
-                axes[r, 0].set_ylabel(RD.CONDITIONS[r].replace("_", " "), fontsize=11)
+                axes[r, 0].set_ylabel(mjxrow_render.CONDITIONS[r].replace("_", " "), fontsize=11)
     fig.suptitle(f"{crop}: synthetic RGB and plant mask ({size}×{size})", fontsize=12)
     fig.tight_layout()
     path = Path(path)
@@ -389,8 +422,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--n {args.n} / --size {args.size}: beyond the bounds of "
                  f"{limits.EPISODES:,} samples and {limits.VALUES['camera.width'][0]} px")
     try:
-        FS.check_out_dir(args.out, "--out")
-    except FS.OutputError as e:
+        files.check_out_dir(args.out, "--out")
+    except files.OutputError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     with interrupt.HardStop():  # Ctrl-C: exit 130; a re-run resumes (and cleans up)

@@ -29,10 +29,13 @@ import orbax.checkpoint as ocp
 from flax import struct
 from tqdm.auto import tqdm
 
-from mjxrow.seg import checkpoint as C
+from mjxrow import crops
+from mjxrow.files import check_out_dir
+from mjxrow.seg import checkpoint
+from mjxrow.seg import data as seg_data
 from mjxrow.seg.data import augment
 from mjxrow.seg.eval import THRESHOLD, evaluate, make_eval
-from mjxrow.seg.model import SegNet
+from mjxrow.seg.model import ARCHS, SegNet, create
 
 
 def iou_loss(logits: jax.Array, mask: jax.Array, weight: jax.Array | None = None,
@@ -273,9 +276,9 @@ def fit(module: SegNet, variables: dict, data: Data, cfg: TrainConfig, out: str 
                     best = jax.device_put(np.float32(last_scores["iou"]), state.best_iou.sharding)
                     state = state.replace(best_iou=best)  # committed like the rest: no recompile
                     best_step = done
-                    C.save(out / "best", module, jax.device_get(state.variables()),
-                           meta={**run_meta, "step": done, "val_iou": last_scores["iou"],
-                                 "val_acc": last_scores["acc"]})
+                    checkpoint.save(out / "best", module, jax.device_get(state.variables()),
+                                    meta={**run_meta, "step": done, "val_iou": last_scores["iou"],
+                                          "val_acc": last_scores["acc"]})
                 log.write(json.dumps({"step": done, "val_iou": last_scores["iou"],
                                       "val_acc": last_scores["acc"],
                                       "best_iou": float(state.best_iou)}) + "\n")
@@ -299,9 +302,9 @@ def export(out: str | Path, dest: str | Path, weights_dtype: str = "float16",
     """Copy the best checkpoint of run `out` to `dest` (a shipped-checkpoint folder), stored as
     `weights_dtype`, with the run's training log beside it."""
     out = Path(out)
-    module, variables = C.load(out / "best")
-    meta = {**C.read_config(out / "best")["meta"], **(extra_meta or {})}
-    path = C.save(dest, module, variables, weights_dtype=weights_dtype, meta=meta)
+    module, variables = checkpoint.load(out / "best")
+    meta = {**checkpoint.read_config(out / "best")["meta"], **(extra_meta or {})}
+    path = checkpoint.save(dest, module, variables, weights_dtype=weights_dtype, meta=meta)
     if (out / "train_log.jsonl").is_file():
         (path / "train_log.jsonl").write_text((out / "train_log.jsonl").read_text())
     return path
@@ -309,22 +312,27 @@ def export(out: str | Path, dest: str | Path, weights_dtype: str = "float16",
 
 def build_data(args) -> Data:
     """Data for the CLI: the dataset folder (`--data`) or the renderer (`--on-the-fly`)."""
-    from mjxrow.seg import data as D
 
     sizes = "x".join(map(str, args.size))
     if args.data:
-        df = D.select(D.read_index(args.data), args.crop)
-        train_df, val_df = D.train_val(df, args.val_frac, args.seed)
-        loader = D.Loader(args.data, train_df, args.batch, args.size, args.seed, args.workers)
+        df = seg_data.select(seg_data.read_index(args.data), args.crop)
+        train_df, val_df = seg_data.train_val(df, args.val_frac, args.seed)
+        loader = seg_data.Loader(
+            args.data, train_df, args.batch, args.size, args.seed, args.workers
+        )
         val = []
         for size in args.size:
-            val += D.batches(*D.load_arrays(args.data, val_df, size, args.workers), args.batch)
+            val += seg_data.batches(
+                *seg_data.load_arrays(args.data, val_df, size, args.workers), args.batch
+            )
         return Data(val=val, batches=loader,
                     describe=f"folder {Path(args.data).resolve()} crop {args.crop}: "
                              f"{len(train_df)} train / {len(val_df)} val images, sizes {sizes}")
-    fns = tuple(D.onthefly(args.crop, size, args.batch) for size in args.size)
+    fns = tuple(seg_data.onthefly(args.crop, size, args.batch) for size in args.size)
     n_val = max(1, -(-args.val_n // args.batch))
-    val = [b for i, fn in enumerate(fns) for b in D.fixed_set(fn, n_val, 10_000 + args.seed + i)]
+    val = [
+        b for i, fn in enumerate(fns) for b in seg_data.fixed_set(fn, n_val, 10_000 + args.seed + i)
+    ]
     return Data(val=val, batch_fn=fns,
                 describe=f"on-the-fly renders crop {args.crop}, sizes {sizes}, "
                          f"{n_val * args.batch} val images per size (seed {10_000 + args.seed})")
@@ -335,8 +343,6 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     import shutil
     import sys
 
-    from mjxrow import crops
-    from mjxrow.seg.model import ARCHS, create
 
     p = argparse.ArgumentParser(prog="python -m mjxrow.seg.train", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -373,7 +379,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                                   "shipped model, or a checkpoint folder) instead of random "
                                   "ones; its architecture replaces --arch/--width")
     p.add_argument("--export-to", help="write the best model here as a shipped checkpoint")
-    p.add_argument("--export-dtype", default="float16", choices=C.WEIGHT_DTYPES)
+    p.add_argument("--export-dtype", default="float16", choices=checkpoint.WEIGHT_DTYPES)
     args = p.parse_args(argv)
     for name in ("steps", "batch", "eval_every", "log_every"):
         if getattr(args, name) < 1:
@@ -382,14 +388,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         if size < 16 or size % 16:
             raise ValueError(f"--size: {size} is not a positive multiple of 16 (output stride)")
     out = Path(args.out or f"runs/seg_{args.crop}_{args.arch}")
-    from mjxrow.files import check_out_dir
 
     check_out_dir(out, "--out")  # OutputError (a ValueError) before any work
     if args.restart and out.exists():
         shutil.rmtree(out)
     if args.init:
-        module, variables = C.load(args.init)  # ValueError names a missing checkpoint
-        init_from = str(C.resolve(args.init))
+        module, variables = checkpoint.load(args.init)  # ValueError names a missing checkpoint
+        init_from = str(checkpoint.resolve(args.init))
     else:
         module, variables = create(args.arch, args.width, jax.random.key(args.seed),
                                    args.size[0], reduced_tail=args.reduced_tail, dtype=args.dtype)
@@ -410,7 +415,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         if result["best_step"] < 0 and not (out / "best").exists():
             raise ValueError(f"--export-to: run {out} has no best checkpoint to export")
         path = export(out, args.export_to, args.export_dtype)
-        print(f"exported {path} ({C.size_bytes(path) / 1e6:.2f} MB)")
+        print(f"exported {path} ({checkpoint.size_bytes(path) / 1e6:.2f} MB)")
     return result
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from mjxrow import files as FS
+from mjxrow import files
 
 IDENTITY = ("cell", "episode", "cell_hash")
 
@@ -53,7 +53,7 @@ def finished_cells(cells_dir: Path, seeds: int | None = None, report: bool = Fal
     the cell is recomputed."""
     if not cells_dir.is_dir():
         return set()
-    for tmp in FS.temp_files(cells_dir) if report else ():
+    for tmp in files.temp_files(cells_dir) if report else ():
         tmp.unlink(missing_ok=True)
     done = set()
     for p in sorted(cells_dir.glob("*.csv")):

@@ -29,11 +29,10 @@ from typing import Any
 
 import numpy as np
 
-from mjxrow import control, crops
-from mjxrow import field as F
+from mjxrow import control, crops, limits
+from mjxrow import field as mjxrow_field
 from mjxrow.physics import sim
-from mjxrow.rollout import config as schema
-from mjxrow import limits
+from mjxrow.rollout import config as rollout_config
 from mjxrow.rollout.config import (
     ConfigError,
     ControllerChoice,
@@ -42,6 +41,7 @@ from mjxrow.rollout.config import (
     apply_sets,
     build_run,
 )
+from mjxrow.seg import checkpoint as seg_checkpoint
 from mjxrow.sweep.yamlfile import read_yaml
 
 
@@ -75,9 +75,9 @@ class SweepConfig:
         return dict(self.values).get("preset", "zucchini")
 
     def __getattr__(self, section: str):
-        if section in schema.ORDER:
+        if section in rollout_config.ORDER:
             vals = dict(self.values)
-            keys = schema.section_keys(section)
+            keys = rollout_config.section_keys(section)
             return Section(section, {k.split(".", 1)[1]: vals.get(k, key.default)
                                      for k, key in keys.items()})
         raise AttributeError(section)
@@ -108,7 +108,7 @@ def _unknown_key(path: str, key: str, known) -> ConfigError:
     another section (a key that moved: `episode.path_length` → `sim.path_length`)."""
     if difflib.get_close_matches(str(key), list(known), n=1):
         return _unknown(path, key, known)
-    others = {k.split(".", 1)[1]: k for k in schema.all_keys()}
+    others = {k.split(".", 1)[1]: k for k in rollout_config.all_keys()}
     near = difflib.get_close_matches(str(key), list(others), n=1, cutoff=0.8)
     if near:
         return ConfigError(f"{path}: unknown key; did you mean {others[near[0]]}?")
@@ -198,16 +198,18 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
     axes: list[str] = []
     meta = {f.name: f.metadata for f in dataclasses.fields(SweepConfig) if f.metadata}
     for key, v in raw.items():
-        if key in schema.ORDER:
+        if key in rollout_config.ORDER:
             if not isinstance(v, dict):
                 raise ConfigError(f"{key}: expected a mapping of keys, got {type(v).__name__}")
-            known = schema.section_keys(key, _controllers_named(raw) if key == "controller"
-                                        else None)
-            everything = schema.section_keys(key) if key == "controller" else known
+            known = rollout_config.section_keys(key, _controllers_named(raw) if key == "controller"
+                                                else None)
+            everything = rollout_config.section_keys(key) if key == "controller" else known
             for k2, v2 in v.items():
                 path = f"{key}.{k2}"
-                if path in schema.REJECTED:
-                    raise ConfigError(f"{path}: cannot be set here: {schema.REJECTED[path]}")
+                if path in rollout_config.REJECTED:
+                    raise ConfigError(
+                        f"{path}: cannot be set here: {rollout_config.REJECTED[path]}"
+                    )
                 if path not in everything:
                     raise _unknown_key(path, k2, [k.split(".", 1)[1] for k in known])
                 spec = everything[path]  # another controller's key: that controller's only
@@ -229,7 +231,7 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
             except limits.LimitError as e:
                 raise ConfigError(str(e)) from None
         else:
-            raise _unknown(key, key, TOP_KEYS + schema.ORDER)
+            raise _unknown(key, key, TOP_KEYS + rollout_config.ORDER)
         for k, val in list(values.items()):
             if isinstance(val, tuple) and k not in axes:
                 axes.append(k)
@@ -290,14 +292,14 @@ def with_values(cfg: SweepConfig, **updates: Any) -> SweepConfig:
     return dataclasses.replace(cfg, values=tuple(vals.items()))
 
 
-def leaf_keys() -> list[tuple[str, schema.Key | dict]]:
+def leaf_keys() -> list[tuple[str, rollout_config.Key | dict]]:
     """Every dotted key with its spec, top-level keys first."""
     out: list[tuple[str, Any]] = [(k, {}) for k in TOP_KEYS]
-    return out + list(schema.all_keys().items())
+    return out + list(rollout_config.all_keys().items())
 
 
 def is_static(dotted: str) -> bool:
-    return schema.is_static(dotted)
+    return rollout_config.is_static(dotted)
 
 
 def shrink(cfg: SweepConfig) -> SweepConfig:
@@ -434,18 +436,20 @@ def checkpoint_id(path: str) -> str:
     return h.hexdigest()[:16]
 
 
-def _blame(cfg: RunConfig, name: str, shape: F.FieldShape) -> str:
+def _blame(cfg: RunConfig, name: str, shape: mjxrow_field.FieldShape) -> str:
     """The dotted key to name for a failed field check `name`: the key itself when it was given
     (or is not a field key); else the given field key whose preset value makes the check pass
     (`d_rr: 1e9` fails the terrain_width check: the key to name is field.d_rr)."""
-    key = f"field.{name}" if name in F.PARAM_NAMES else name
+    key = f"field.{name}" if name in mjxrow_field.PARAM_NAMES else name
     given = [k for k, v in cfg.field.items() if v is not None]
     if name in given or not given:
         return key
     preset = crops.get(cfg.preset).preset
     for k in given:
         values = {**cfg.field_values(), k: preset[k]}
-        ok, _ = F.checks(F.make_params(cfg.preset, host=True, **values), shape)[name]
+        ok, _ = mjxrow_field.checks(
+            mjxrow_field.make_params(cfg.preset, host=True, **values), shape
+        )[name]
         if bool(np.all(np.asarray(ok))):
             return f"field.{k}"
     return key
@@ -455,10 +459,9 @@ def _blame(cfg: RunConfig, name: str, shape: F.FieldShape) -> str:
 def _verified(path: str) -> str:
     """`path` once seg.checkpoint.verify passes (config readable, weights present)."""
     if path:
-        from mjxrow.seg import checkpoint as ckpt
 
         try:
-            ckpt.verify(path)
+            seg_checkpoint.verify(path)
         except ValueError as e:
             raise ConfigError(f"perception.checkpoint: {e}") from None
     return path
@@ -471,11 +474,12 @@ def check(cfg: SweepConfig) -> None:
     against each cell's field (physics.sim.check_params). Raises ConfigError naming the dotted
     key and the cell."""
     cells = expand(cfg)
-    params = F.stack_params([F.make_params(c.cfg.preset, host=True, **c.cfg.field_values())
-                             for c in cells])
-    roomy = F.FieldShape(crop="zucchini", max_rows=10**9, max_plants_per_row=10**9,
-                         obstacle_slots=10**9)
-    for name, (ok, reason) in F.checks(params, roomy).items():
+    params = mjxrow_field.stack_params(
+        [mjxrow_field.make_params(c.cfg.preset, host=True, **c.cfg.field_values()) for c in cells]
+    )
+    roomy = mjxrow_field.FieldShape(crop="zucchini", max_rows=10**9, max_plants_per_row=10**9,
+                                    obstacle_slots=10**9)
+    for name, (ok, reason) in mjxrow_field.checks(params, roomy).items():
         if name in ("max_rows", "max_plants_per_row", "obstacle_slots"):
             continue
         ok = np.asarray(ok).reshape(-1)
@@ -493,7 +497,7 @@ def check(cfg: SweepConfig) -> None:
                 f"sim.lane: 'auto' drives the {first[0]} lane{_where(first[1].point)} but the "
                 f"{kind} lane{_where(cell.point)}; set sim.lane to in_group or between_groups "
                 "so that every cell drives the same kind of lane")
-    shape = F.fit_shape(params, cells[0].cfg.preset)
+    shape = mjxrow_field.fit_shape(params, cells[0].cfg.preset)
     for size, bound, what, keys in (
             (shape.max_rows, limits.ROWS, "rows", ("d_rr", "d_RR", "terrain_width")),
             (shape.max_plants_per_row, limits.PLANTS_PER_ROW, "plants per row",

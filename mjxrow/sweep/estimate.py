@@ -20,7 +20,8 @@ import json
 import os
 from pathlib import Path
 
-from mjxrow.rollout import episode as E
+from mjxrow.rollout import build as rollout_build
+from mjxrow.rollout import episode as rollout_episode
 
 PHYSICS_BYTES = 1 << 20  # MJX model data + state of one world, with the solver's temporaries
 RENDER_BYTES_PER_PIXEL = 512  # rays, depth, colour, candidate plants per tile
@@ -61,7 +62,7 @@ def _duration(s: float) -> str:
 def episode_bytes(cell_cfg, shape) -> int:
     """Upper figure of the bytes one episode of a cell holds during its rollout."""
     ep = cell_cfg.episode.static()
-    steps = -(-ep.n_steps // E.CHUNK) * E.CHUNK
+    steps = -(-ep.n_steps // rollout_episode.CHUNK) * rollout_episode.CHUNK
     log = steps * LOG_FLOATS_PER_STEP * 4 * 2
     ny, nx = shape.terrain_cells
     field = (shape.max_rows * shape.max_plants_per_row * FIELD_FLOATS_PER_PLANT
@@ -141,9 +142,8 @@ def check(est: Estimate, force: bool = False, key: str = "batch_size") -> str:
 
 def check_episodes(run, n: int, force: bool = False) -> str:
     """`check` for one batch of `n` episodes of one RunConfig (the episode command)."""
-    from mjxrow.rollout import build as B
 
-    e = episode_bytes(run, B.fit_shape([run]))
+    e = episode_bytes(run, rollout_build.fit_shape([run]))
     steps = n * run.episode.static().n_steps
     return check(Estimate(2 * n * e + OVERHEAD, e, n, steps, None, 1), force, "--n")
 

@@ -18,8 +18,8 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from mjxrow.rollout import metrics as M
-from mjxrow.sweep import config as C
+from mjxrow.rollout import metrics as rollout_metrics
+from mjxrow.sweep import config
 from mjxrow.sweep.figures import fmt_tick, metric_info, surfaces
 
 
@@ -44,12 +44,14 @@ def summary_table(results: pd.DataFrame, axes: list[str], metric_names: list[str
         row: dict[str, Any] = {"cell": cell, **{a: rows[a].iloc[0] for a in axes},
                                "n": len(rows)}
         table = {m: rows[m].to_numpy() for m in metric_names if m != "reason"}
-        for m, agg in M.aggregate(table).items():
+        for m, agg in rollout_metrics.aggregate(table).items():
             row.update({m: agg["mean"], f"{m}_lo": agg["lo"], f"{m}_hi": agg["hi"],
                         f"{m}_n": agg["n"]})
         if "reason" in rows:
             shares = rows["reason"].value_counts(normalize=True)
-            row.update({f"reason_{r}": float(shares.get(r, 0.0)) for r in M.REASONS[1:]})
+            row.update(
+                {f"reason_{r}": float(shares.get(r, 0.0)) for r in rollout_metrics.REASONS[1:]}
+            )
         out.append(row)
     return pd.DataFrame(out)
 
@@ -136,12 +138,12 @@ ID_COLUMNS = ("cell", "episode", "cell_hash", "group", "lane")
 def metric_columns(results: pd.DataFrame) -> list[str]:
     """The metric columns of a results table: all but identity and parameter columns
     (parameters are dotted, `field.d_rr`, or top-level config keys)."""
-    params = {k for k, _ in C.leaf_keys()}
+    params = {k for k, _ in config.leaf_keys()}
     return [c for c in results.columns
             if c not in params and c not in ID_COLUMNS and "." not in c]
 
 
-def write_outputs(results: pd.DataFrame, cfg: C.SweepConfig, out: Path, info: dict[str, Any],
+def write_outputs(results: pd.DataFrame, cfg: config.SweepConfig, out: Path, info: dict[str, Any],
                   figures: bool = True, pool: Executor | None = None) -> dict[str, Path]:
     """summary.csv and config.yaml from a results table (one row per episode); with `figures`
     also one PNG per numeric metric (drawn in `pool`'s processes if given) and report.md.
@@ -151,12 +153,12 @@ def write_outputs(results: pd.DataFrame, cfg: C.SweepConfig, out: Path, info: di
     numeric = [m for m in names if m != "reason" and pd.api.types.is_numeric_dtype(results[m])]
     summary = summary_table(results, axes, names)
     atomic_write_text(out / "summary.csv", summary.to_csv(index=False))
-    config_yaml = yaml.safe_dump(C.to_dict(cfg), sort_keys=False, allow_unicode=True)
+    config_yaml = yaml.safe_dump(config.to_dict(cfg), sort_keys=False, allow_unicode=True)
     atomic_write_text(out / "config.yaml", config_yaml)
     files = {"summary": out / "summary.csv", "config": out / "config.yaml"}
     if not figures:
         return files
     images = surfaces(summary, axes, numeric, out, cfg.name, pool)
     report(out / "report.md", cfg.name, info, config_yaml, summary, axes, numeric, images,
-           list(M.REASONS[1:]))
+           list(rollout_metrics.REASONS[1:]))
     return {**files, "report": out / "report.md", **images}

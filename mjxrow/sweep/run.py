@@ -40,19 +40,20 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 import mjxrow
-from mjxrow import field as F
-from mjxrow import files as FS
-from mjxrow import interrupt
-from mjxrow import runtime as R
-from mjxrow.rollout import build as B
-from mjxrow.rollout import metrics as M
-from mjxrow.sweep import cells as CF
-from mjxrow.sweep import config as C
-from mjxrow.sweep import estimate as EST
-from mjxrow.sweep import figures as FG
-from mjxrow.sweep import report as plots
+from mjxrow import field, interrupt, runtime
+from mjxrow import files as mjxrow_files
+from mjxrow import render as mjxrow_render
+from mjxrow.rollout import build as rollout_build
+from mjxrow.rollout import metrics as rollout_metrics
+from mjxrow.sweep import cells as sweep_cells
+from mjxrow.sweep import config as sweep_config
+from mjxrow.sweep import estimate as sweep_estimate
+from mjxrow.sweep import figures as sweep_figures
+from mjxrow.sweep import report as sweep_report
 
-Evaluator = Callable[["Group", C.SweepConfig, Callable[[pd.DataFrame], None]], pd.DataFrame]
+Evaluator = Callable[
+    ["Group", sweep_config.SweepConfig, Callable[[pd.DataFrame], None]], pd.DataFrame
+]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,72 +63,76 @@ class Group:
     `episodes` lists the (cell index, episode index) pairs still to run, cell by cell."""
 
     index: int
-    shape: F.FieldShape
-    cells: tuple[C.Cell, ...]
+    shape: field.FieldShape
+    cells: tuple[sweep_config.Cell, ...]
     hashes: tuple[str, ...]
     episodes: tuple[tuple[int, int], ...]
 
     @property
-    def cfg(self) -> C.SweepConfig:
+    def cfg(self) -> sweep_config.SweepConfig:
         """A config with this group's static values (those of its first cell)."""
         return self.cells[0].cfg
 
-    def cell(self, index: int) -> C.Cell:
+    def cell(self, index: int) -> sweep_config.Cell:
         return next(c for c in self.cells if c.index == index)
 
 
-def group_shape(cells: list[C.Cell]) -> F.FieldShape:
+def group_shape(cells: list[sweep_config.Cell]) -> field.FieldShape:
     """The static FieldShape that holds every cell's field (rounded up by field.fit_shape)."""
-    return B.fit_shape([c.cfg for c in cells])
+    return rollout_build.fit_shape([c.cfg for c in cells])
 
 
-def plan(cfg: C.SweepConfig, done: set[str] = frozenset()) -> list[Group]:
+def plan(cfg: sweep_config.SweepConfig, done: set[str] = frozenset()) -> list[Group]:
     """Group the cells by static values (with `mix_controllers`, by those but the
     controller's and the mask source: `RunConfig.share_key`), fit one field shape per group,
     hash every cell, and list the episodes of the cells whose hash is not in `done`."""
-    by_key: dict[tuple, list[C.Cell]] = {}
-    for cell in C.expand(cfg):
-        key = cell.cfg.share_key() if cfg.mix_controllers else C.static_key(cell.cfg)
+    by_key: dict[tuple, list[sweep_config.Cell]] = {}
+    for cell in sweep_config.expand(cfg):
+        key = cell.cfg.share_key() if cfg.mix_controllers else sweep_config.static_key(cell.cfg)
         by_key.setdefault(key, []).append(cell)
     groups = []
     for gi, cells in enumerate(by_key.values()):
         shape = group_shape(cells)
-        hashes = tuple(C.cell_hash(c, shape) for c in cells)
+        hashes = tuple(sweep_config.cell_hash(c, shape) for c in cells)
         eps = tuple((c.index, e) for c, h in zip(cells, hashes, strict=True) if h not in done
                     for e in range(cfg.seeds))
         groups.append(Group(gi, shape, tuple(cells), hashes, eps))
     return groups
 
 
-def pending(cfg: C.SweepConfig, out: Path, report: bool = False) -> list[Group]:
+def pending(cfg: sweep_config.SweepConfig, out: Path, report: bool = False) -> list[Group]:
     """`plan` against the cells already finished in `out/cells` (process 0 reads them, every
     process gets its answer; `report`: as `finished_cells`, only under the folder's lock)."""
-    done = sorted(finished_cells(out / "cells", cfg.seeds, report=report)) if R.writer() else []
-    return plan(cfg, set(R.agree(done)))
+    done = (
+        sorted(finished_cells(out / "cells", cfg.seeds, report=report)) if runtime.writer() else []
+    )
+    return plan(cfg, set(runtime.agree(done)))
 
 
 # ---------------------------------------------------------------------------------------------
 # Files
 
 
-atomic_write_text = plots.atomic_write_text
+atomic_write_text = sweep_report.atomic_write_text
 
 
 def atomic_write_csv(path: Path, df: pd.DataFrame) -> None:
     atomic_write_text(path, df.to_csv(index=False))
 
 
-cell_file_problem, finished_cells = CF.cell_file_problem, CF.finished_cells  # resume checks
+cell_file_problem, finished_cells = (
+    sweep_cells.cell_file_problem,
+    sweep_cells.finished_cells,
+)  # resume checks
 
 
-def resolved_params(run: C.RunConfig) -> dict[str, Any]:
+def resolved_params(run: sweep_config.RunConfig) -> dict[str, Any]:
     """C.resolved with the render knobs left at None (by crop, by resolution, by backend) set
     to the values the renderer used (render.resolve), so that results.csv says what ran. The
     cell hash keeps the given values."""
-    from mjxrow import render as RD
 
-    out = C.resolved(run)
-    used = RD.resolve(run.render, run.preset, run.camera)
+    out = sweep_config.resolved(run)
+    used = mjxrow_render.resolve(run.render, run.preset, run.camera)
     for k, v in dataclasses.asdict(used).items():
         if out.get(f"render.{k}", 0) is None:
             out[f"render.{k}"] = v
@@ -150,8 +155,14 @@ def cell_rows(group: Group, cell_index: int, rows: pd.DataFrame) -> pd.DataFrame
 # Summary
 
 
-def write_outputs(cfg: C.SweepConfig, groups: list[Group], out: Path, info: dict[str, Any],
-                  figures: bool = True, pool: Any = None) -> dict[str, Path]:
+def write_outputs(
+    cfg: sweep_config.SweepConfig,
+    groups: list[Group],
+    out: Path,
+    info: dict[str, Any],
+    figures: bool = True,
+    pool: Any = None,
+) -> dict[str, Path]:
     """results.csv rebuilt from this sweep's cell files, then summary.csv, config.yaml and
     (with `figures`) the PNGs and report.md (plots.write_outputs)."""
     frames = []
@@ -164,7 +175,7 @@ def write_outputs(cfg: C.SweepConfig, groups: list[Group], out: Path, info: dict
         return {}
     results = pd.concat(frames, ignore_index=True).sort_values(["cell", "episode"])
     atomic_write_csv(out / "results.csv", results)
-    return {"results": out / "results.csv", **plots.write_outputs(results, cfg, out, info,
+    return {"results": out / "results.csv", **sweep_report.write_outputs(results, cfg, out, info,
                                                                    figures, pool)}
 
 
@@ -172,22 +183,25 @@ def write_outputs(cfg: C.SweepConfig, groups: list[Group], out: Path, info: dict
 # Evaluation of one group: fields → rollout → metrics
 
 
-def evaluate_group(group: Group, cfg: C.SweepConfig,
+def evaluate_group(group: Group, cfg: sweep_config.SweepConfig,
                    on_batch_done: Callable[[pd.DataFrame], None]) -> pd.DataFrame:
     """Run `group.episodes` in batches of `cfg.batch_size` (the last one padded, so one compile
     per group), sharded over all local devices (rollout.build), calling `on_batch_done(rows)`
     after each batch. Rows: cell, episode, lane and every metric of `metrics.summarise`
     (reason as its name)."""
     by_cell = {c.index: c.cfg for c in group.cells}
-    built = B.build(list(by_cell.values()), group.shape)
+    built = rollout_build.build(list(by_cell.values()), group.shape)
     size = built.padded(min(cfg.batch_size, len(group.episodes)))
     return evaluate_episodes(built, [(by_cell[c], c, e) for c, e in group.episodes], size,
                              on_batch_done)
 
 
-def evaluate_episodes(built: B.Built, items: list[tuple[C.RunConfig, int, int]], size: int,
-                      on_batch_done: Callable[[pd.DataFrame], None] | None = None
-                      ) -> pd.DataFrame:
+def evaluate_episodes(
+    built: rollout_build.Built,
+    items: list[tuple[sweep_config.RunConfig, int, int]],
+    size: int,
+    on_batch_done: Callable[[pd.DataFrame], None] | None = None,
+) -> pd.DataFrame:
     """Run `items` ((run, cell index, episode index) triples of runs `built` was built for)
     in batches of `size` (the last one padded), calling `on_batch_done(rows)` after each.
     Rows in the order of `items`: cell, episode, lane and every metric of
@@ -198,8 +212,8 @@ def evaluate_episodes(built: B.Built, items: list[tuple[C.RunConfig, int, int]],
         batch = built.batch([(r, e) for r, _, e in real], size)
         met = built.summarise(built.rollout(batch), len(real))
         rows = pd.DataFrame({"cell": [c for _, c, _ in real], "episode": [e for *_, e in real],
-                             "lane": R.to_host(batch.lanes)[:len(real)],
-                             **{k: (np.asarray(M.REASONS)[v] if k == "reason" else v)
+                             "lane": runtime.to_host(batch.lanes)[:len(real)],
+                             **{k: (np.asarray(rollout_metrics.REASONS)[v] if k == "reason" else v)
                                 for k, v in met.items() if np.ndim(v) == 1}})
         if on_batch_done is not None:
             on_batch_done(rows)
@@ -227,9 +241,9 @@ class _CellWriter:
     (atomically) as soon as all its episodes are in; advances the progress bar."""
 
     def __init__(self, group: Group, seeds: int, cells_dir: Path, bar,
-                 watch: R.Stopwatch | None = None, lock=None):
+                 watch: runtime.Stopwatch | None = None, lock=None):
         self.group, self.seeds, self.dir, self.bar = group, seeds, cells_dir, bar
-        self.watch = watch or R.Stopwatch()
+        self.watch = watch or runtime.Stopwatch()
         self.lock = lock or contextlib.nullcontext()
         self.pending: dict[int, list[pd.DataFrame]] = {}
         self.times = [time.perf_counter()]
@@ -255,7 +269,7 @@ class _CellWriter:
             parts.append(part)
             if sum(len(p) for p in parts) >= self.seeds:
                 df = cell_rows(self.group, int(ci), pd.concat(self.pending.pop(int(ci))))
-                if R.writer():
+                if runtime.writer():
                     with self.lock, self.watch.writing():
                         atomic_write_csv(self.dir / f"{df['cell_hash'].iloc[0]}.csv", df)
         self.episodes += len(rows)
@@ -303,7 +317,7 @@ def _ticking(bar, enabled: bool):
             thread.join()
 
 
-def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
+def run(cfg: sweep_config.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
         progress: bool = True, command: str = "", figures: bool = True,
         hard_stop: bool = False, started: float | None = None,
         figure_workers: int = 0) -> dict[str, Any]:
@@ -322,23 +336,31 @@ def run(cfg: C.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
     needs an `if __name__ == "__main__":` guard to pass them."""
     evaluate = evaluate or evaluate_group
     out = Path(out)
-    if R.writer():  # several processes: process 0 writes, locks and decides what is finished
+    if runtime.writer():  # several processes: process 0 writes, locks and decides what is finished
         (out / "cells").mkdir(parents=True, exist_ok=True)
     with contextlib.ExitStack() as stack:
-        if R.writer():
-            stack.enter_context(FS.OutLock(out))
+        if runtime.writer():
+            stack.enter_context(mjxrow_files.OutLock(out))
         stop = stack.enter_context(interrupt.HardStop()) if hard_stop else None
-        with FG.figure_pool(figures and R.writer(), figure_workers) as pool:
+        with sweep_figures.figure_pool(figures and runtime.writer(), figure_workers) as pool:
             return _run(cfg, out, evaluate, progress, command, figures, stop, started, pool)
 
 
 FACTS = "run.json"  # the facts (date, command, device, timings) of the last run that ran episodes
 
 
-def _run(cfg: C.SweepConfig, out: Path, evaluate: Evaluator, progress: bool, command: str,
-         figures: bool, stop: interrupt.HardStop | None,
-         started: float | None = None, pool: Any = None) -> dict[str, Any]:
-    watch = R.Stopwatch(started=started)
+def _run(
+    cfg: sweep_config.SweepConfig,
+    out: Path,
+    evaluate: Evaluator,
+    progress: bool,
+    command: str,
+    figures: bool,
+    stop: interrupt.HardStop | None,
+    started: float | None = None,
+    pool: Any = None,
+) -> dict[str, Any]:
+    watch = runtime.Stopwatch(started=started)
     groups = pending(cfg, out, report=True)
     n_cells = sum(len(g.cells) for g in groups)
     total, todo = n_cells * cfg.seeds, sum(len(g.episodes) for g in groups)
@@ -354,7 +376,7 @@ def _run(cfg: C.SweepConfig, out: Path, evaluate: Evaluator, progress: bool, com
         bar.close()
         if pool is not None:  # the figure processes end first (no leaked semaphores on exit)
             pool.shutdown(wait=True, cancel_futures=True)
-        if R.writer():
+        if runtime.writer():
             write_outputs(cfg, groups, out, info, figures=False)
         kept = len(finished_cells(out / "cells") & {h for g in groups for h in g.hashes})
         print(f"interrupted: {kept} of {n_cells} cells finished and kept in {out}; run the "
@@ -396,7 +418,7 @@ def _run(cfg: C.SweepConfig, out: Path, evaluate: Evaluator, progress: bool, com
     if started is not None:
         info["time"] = f"start-up {split['startup']:.1f} s, " + info["time"]
     files: dict[str, Any] = {}
-    if R.writer():
+    if runtime.writer():
         with lock, watch.writing():
             info = _facts(out, info, ran, todo)
             files = write_outputs(cfg, groups, out, info, figures, pool)
@@ -409,7 +431,7 @@ def _facts(out: Path, info: dict[str, Any], ran: int, todo: int) -> dict[str, An
     says when it was re-run."""
     path = out / FACTS
     if ran or todo:
-        FS.atomic_write_text(path, json.dumps(info, indent=1, ensure_ascii=False) + "\n")
+        mjxrow_files.atomic_write_text(path, json.dumps(info, indent=1, ensure_ascii=False) + "\n")
         return info
     try:
         saved = json.loads(path.read_text())
@@ -432,7 +454,7 @@ def _device() -> str:
 # CLI
 
 
-cpu_devices = R.cpu_devices  # one XLA CPU device per core (runtime.cpu_devices)
+cpu_devices = runtime.cpu_devices  # one XLA CPU device per core (runtime.cpu_devices)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -450,22 +472,22 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a dotted key, e.g. --set field.d_rr=[1.2,1.8] (repeatable)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    R.add_args(p)
+    runtime.add_args(p)
     p.add_argument("--force", action="store_true",
                    help="run even when the memory estimate exceeds this machine's memory")
     args = p.parse_args(argv)
     try:
-        R.setup(args, cpu_split=True)
-        cfg = C.load(args.config, args.set, args.smoke)
+        runtime.setup(args, cpu_split=True)
+        cfg = sweep_config.load(args.config, args.set, args.smoke)
         out = Path(args.out or cfg.out)
         if args.smoke and not args.out:
             out = out.with_name(out.name + "_smoke")
-        FS.check_out_dir(out, "--out")
+        mjxrow_files.check_out_dir(out, "--out")
         cells = out / "cells"
-        est = EST.estimate(plan(cfg, finished_cells(cells, cfg.seeds)), cfg.seeds,
-                           cfg.batch_size, _device_name())
-        line = EST.check(est, args.force)
-        workers = FG.figure_workers()
+        est = sweep_estimate.estimate(plan(cfg, finished_cells(cells, cfg.seeds)), cfg.seeds,
+                                      cfg.batch_size, _device_name())
+        line = sweep_estimate.check(est, args.force)
+        workers = sweep_figures.figure_workers()
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -475,12 +497,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         res = run(cfg, out, progress=not args.no_progress, command=command, hard_stop=True,
                   started=mjxrow.STARTED, figure_workers=workers)
-    except FS.OutputError as e:
+    except mjxrow_files.OutputError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
-    if R.writer():
+    if runtime.writer():
         print(f"{res['ran']} episodes run, {res['skipped']} cells skipped; report: "
               f"{res['files'].get('report', out)}")
         print(res["time"].line())

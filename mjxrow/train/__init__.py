@@ -4,10 +4,10 @@ cloning and DAgger from a teacher controller (`bc`), policy checkpoints and resu
 states (`checkpoint`), and the loop with its budget, progress bar, log and learning curve
 (`loop`). `experiments/train_policy.py` is the command."""
 
-from mjxrow.train.bc import BCConfig
 from mjxrow.policies.checkpoint import PolicyCheckpoint
-from mjxrow.train.loop import TrainConfig, Trainer, plot_curve, train
 from mjxrow.policies.networks import TINY, NetConfig, PolicyNet
+from mjxrow.train.bc import BCConfig
+from mjxrow.train.loop import TrainConfig, Trainer, plot_curve, train
 from mjxrow.train.ppo import PPOConfig
 
 __all__ = ["TINY", "BCConfig", "NetConfig", "PPOConfig", "PolicyCheckpoint", "PolicyNet",

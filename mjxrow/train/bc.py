@@ -17,7 +17,7 @@ import dataclasses
 
 import jax.numpy as jnp
 
-from mjxrow.policies import networks as N
+from mjxrow.policies import networks as policies_networks
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,7 +53,7 @@ class BCConfig:
         return float(max(0.0, 1.0 - progress / self.beta_until))
 
 
-def loss(net: N.PolicyNet, value_cost: float):
+def loss(net: policies_networks.PolicyNet, value_cost: float):
     """`(params, batch) -> (loss, metrics)`: MSE of the mean action to the teacher's plus
     `value_cost` · the value head's squared error to the λ-return targets."""
 

@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from mjxrow.rollout import build as B
-from mjxrow.rollout import metrics as M
+from mjxrow.rollout import build as rollout_build
+from mjxrow.rollout import metrics as rollout_metrics
 from mjxrow.rollout.config import RunConfig, build_run
 
 SCENARIO = Path(__file__).resolve().parents[2] / "sweeps" / "presets.yaml"
@@ -80,7 +80,7 @@ class Evaluation:
         self.compile_checkpoint = compile_checkpoint
 
     def _build(self, b: Block, run: RunConfig):
-        built = B.build(run)
+        built = rollout_build.build(run)
         batch = built.batch([(run, e) for e in range(b.n)])
         return built, batch
 
@@ -112,7 +112,7 @@ class Evaluation:
             out = b.exe(*batch.args(built.mx))
             b.summary = built.summarise(out, b.n)
             b.run_s = time.perf_counter() - t0
-            a = M.aggregate({"success": b.summary["success"]})["success"]
+            a = rollout_metrics.aggregate({"success": b.summary["success"]})["success"]
             log(f"{b.controller} on {b.preset}: success {a['mean']:.2f} "
                 f"[{a['lo']:.2f}, {a['hi']:.2f}] ({b.n} episodes, {b.run_s:.1f} s)")
         return self.blocks
@@ -124,13 +124,20 @@ def table(blocks: list[Block]) -> tuple[str, list[dict]]:
     rows = []
     for b in blocks:
         s = b.summary
-        agg = M.aggregate({k: s[k] for k in ("success", "collision", "mae", "cha",
-                                             "omega_std")})
-        rows.append({"preset": b.preset, "controller": b.controller,
-                     "label": CONTROLLERS[b.controller][0], "episodes": b.n,
-                     **{f"{k}_{q}": agg[k][q] for k in agg for q in ("mean", "lo", "hi")},
-                     "reasons": M.reason_counts(s["reason"]), "compile_s": b.compile_s,
-                     "run_s": b.run_s})
+        agg = rollout_metrics.aggregate({k: s[k] for k in ("success", "collision", "mae", "cha",
+                                                           "omega_std")})
+        rows.append(
+            {
+                "preset": b.preset,
+                "controller": b.controller,
+                "label": CONTROLLERS[b.controller][0],
+                "episodes": b.n,
+                **{f"{k}_{q}": agg[k][q] for k in agg for q in ("mean", "lo", "hi")},
+                "reasons": rollout_metrics.reason_counts(s["reason"]),
+                "compile_s": b.compile_s,
+                "run_s": b.run_s,
+            }
+        )
     lines = ["| preset | controller | success [95 % CI] | collision | MAE [m] | CHA [rad] | "
              "ω std [rad/s] | episodes |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:

@@ -28,13 +28,13 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
-from mjxrow import env as E
+from mjxrow import env as mjxrow_env
+from mjxrow.policies import checkpoint as policies_checkpoint
+from mjxrow.policies import networks as policies_networks
 from mjxrow.rollout.config import build_run
-from mjxrow.train import bc as BC
-from mjxrow.policies import checkpoint as CK
-from mjxrow.policies import networks as N
-from mjxrow.train import ppo as P
-from mjxrow.train import rollout as R
+from mjxrow.train import bc as train_bc
+from mjxrow.train import ppo as train_ppo
+from mjxrow.train import rollout
 from mjxrow.train import state as train_state
 
 
@@ -52,10 +52,10 @@ class TrainConfig:
     seed: int = 0  # PRNG seed of the network, the worlds and the rollouts
     save_every: int = 25  # iterations between training-state checkpoints
     run: tuple[tuple[str, Any], ...] = ()  # RunConfig keys of every preset's environment
-    env: E.EnvConfig = E.EnvConfig()
-    net: N.NetConfig = N.NetConfig()
-    ppo: P.PPOConfig = P.PPOConfig()
-    bc: BC.BCConfig = BC.BCConfig()
+    env: mjxrow_env.EnvConfig = mjxrow_env.EnvConfig()
+    net: policies_networks.NetConfig = policies_networks.NetConfig()
+    ppo: train_ppo.PPOConfig = train_ppo.PPOConfig()
+    bc: train_bc.BCConfig = train_bc.BCConfig()
 
     def __post_init__(self):
         if not self.presets:
@@ -80,16 +80,20 @@ class TrainConfig:
         return build_run({"preset": preset, **dict(self.run)}, seed=self.seed)
 
 
-def make_envs(cfg: TrainConfig) -> tuple[list[E.Env], tuple]:
+def make_envs(cfg: TrainConfig) -> tuple[list[mjxrow_env.Env], tuple]:
     """The raw environments and their training wrappers (episode, vmap, auto-reset)."""
-    raw = [E.Env(cfg.run_config(p), cfg.env) for p in cfg.presets]
+    raw = [mjxrow_env.Env(cfg.run_config(p), cfg.env) for p in cfg.presets]
     specs = {e.spec for e in raw}
     if len(specs) > 1:
         raise ValueError(f"train.presets: the environments observe differently: {specs}")
     B = cfg.per_env
     k = cfg.max_resets or max(1, B // 16)
-    wrapped = tuple(E.AutoResetWrapper(E.VmapWrapper(E.EpisodeWrapper(e, cfg.episode_length)),
-                                       B, k) for e in raw)
+    wrapped = tuple(
+        mjxrow_env.AutoResetWrapper(
+            mjxrow_env.VmapWrapper(mjxrow_env.EpisodeWrapper(e, cfg.episode_length)), B, k
+        )
+        for e in raw
+    )
     return raw, wrapped
 
 
@@ -100,33 +104,41 @@ class Trainer:
         self.cfg = cfg
         self.raw, self.envs = make_envs(cfg)
         self.spec = self.raw[0].spec
-        self.net = N.PolicyNet(cfg.net)
+        self.net = policies_networks.PolicyNet(cfg.net)
         self.obs_example = jax.eval_shape(self.raw[0].reset, jax.random.key(0)).obs
         self.limits = tuple(float(x) for x in np.asarray(self.raw[0].limits))
-        self.unroll = jax.jit(functools.partial(R.unroll, self.net, self.envs,
+        self.unroll = jax.jit(functools.partial(rollout.unroll, self.net, self.envs,
                                                 length=cfg.unroll))
         self.reset = jax.jit(lambda key: tuple(
             e.reset(k) for e, k in zip(self.envs, jax.random.split(key, len(self.envs)),
                                        strict=True)))
-        self.bc_tx = P.optimizer(cfg.bc.learning_rate, cfg.bc.max_grad_norm)
-        self.ppo_tx = P.optimizer(cfg.ppo.learning_rate, cfg.ppo.max_grad_norm)
+        self.bc_tx = train_ppo.optimizer(cfg.bc.learning_rate, cfg.bc.max_grad_norm)
+        self.ppo_tx = train_ppo.optimizer(cfg.ppo.learning_rate, cfg.ppo.max_grad_norm)
         self.bc_update = jax.jit(functools.partial(self._update, "bc"))
         self.ppo_update = jax.jit(functools.partial(self._update, "ppo"))
 
     def init_params(self, key: jax.Array) -> Any:
         shapes = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), self.obs_example)
-        return N.init(self.net, shapes, key)
+        return policies_networks.init(self.net, shapes, key)
 
     def _update(self, phase, params, opt_state, traj, boot, key):
         c = self.cfg.ppo
-        adv, target = P.gae(traj, boot, c.discount, c.gae_lambda, c.reward_scale)
-        data = P.batch(traj, adv, target)
+        adv, target = train_ppo.gae(traj, boot, c.discount, c.gae_lambda, c.reward_scale)
+        data = train_ppo.batch(traj, adv, target)
         if phase == "bc":
             b = self.cfg.bc
-            return P.sgd(params, opt_state, data, key, BC.loss(self.net, b.value_cost),
-                         self.bc_tx, b.epochs, b.minibatches)
-        return P.sgd(params, opt_state, data, key, P.loss(self.net, c), self.ppo_tx,
-                     c.epochs, c.minibatches)
+            return train_ppo.sgd(
+                params,
+                opt_state,
+                data,
+                key,
+                train_bc.loss(self.net, b.value_cost),
+                self.bc_tx,
+                b.epochs,
+                b.minibatches,
+            )
+        return train_ppo.sgd(params, opt_state, data, key, train_ppo.loss(self.net, c), self.ppo_tx,
+                             c.epochs, c.minibatches)
 
     def about(self) -> dict:
         """What a saved training state must match to be resumed."""
@@ -215,13 +227,13 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
                    "elapsed_s": elapsed, "rollout_s": t1 - t0, "update_s": t2 - t1,
                    "rollout_steps_per_s": n / (t1 - t0), "steps_per_s": n / (t2 - t0),
                    **{k: float(v) for k, v in m.items()},
-                   **R.summarise_stats(jax.device_get(sums))}
+                   **rollout.summarise_stats(jax.device_get(sums))}
             logf.write(json.dumps(row) + "\n")
             logf.flush()
             rates.append((row["rollout_steps_per_s"], row["steps_per_s"]))
             last = row
             window.append(jax.device_get(sums))
-            recent = R.summarise_stats(jax.tree.map(lambda *x: sum(x), *window))
+            recent = rollout.summarise_stats(jax.tree.map(lambda *x: sum(x), *window))
             bar.set_postfix_str(f"{phase} return {recent['return']:.2f} success "
                                 f"{recent['nav/success']:.2f} {row['steps_per_s']:,.0f} "
                                 f"env-steps/s", refresh=False)
@@ -229,8 +241,8 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             if it % cfg.save_every == 0:
                 _save(out, tr, params, bc_opt, ppo_opt, it, env_steps, elapsed, key)
     _save(out, tr, params, bc_opt, ppo_opt, it, env_steps, elapsed, key)
-    policy_dir = CK.save(out / "policy", params, tr.spec, cfg.net, tr.limits,
-                         meta=_meta(cfg, tr, it, env_steps, elapsed))
+    policy_dir = policies_checkpoint.save(out / "policy", params, tr.spec, cfg.net, tr.limits,
+                                          meta=_meta(cfg, tr, it, env_steps, elapsed))
     curve = plot_curve(log_path, out / "learning_curve.png")
     steady = rates[1:] or rates
     return {"out": str(out), "policy": str(policy_dir), "curve": str(curve),
@@ -314,9 +326,13 @@ def initial_policy(cfg: TrainConfig, path: str | Path) -> Path | None:
     if cfg.env.observation == "features":
         return None
     run = cfg.run_config(cfg.presets[0])
-    spec = E.ObsSpec(cfg.env.observation, run.camera.height, run.camera.width, cfg.env.proprio)
-    obs = CK.example_obs(spec)
+    spec = mjxrow_env.ObsSpec(
+        cfg.env.observation, run.camera.height, run.camera.width, cfg.env.proprio
+    )
+    obs = policies_checkpoint.example_obs(spec)
     robot = run.robot_config()
-    params = N.init(N.PolicyNet(cfg.net), obs, jax.random.key(cfg.seed))
-    return CK.save(path, params, spec, cfg.net, (robot.v_max, robot.omega_max),
-                   meta={"untrained": True})
+    params = policies_networks.init(
+        policies_networks.PolicyNet(cfg.net), obs, jax.random.key(cfg.seed)
+    )
+    return policies_checkpoint.save(path, params, spec, cfg.net, (robot.v_max, robot.omega_max),
+                                    meta={"untrained": True})

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from mjxrow.policies import networks as N
+from mjxrow.policies import networks as policies_networks
 from mjxrow.train.rollout import Transition
 
 
@@ -71,20 +71,20 @@ def gae(traj: Transition, bootstrap: jax.Array, discount: float, lam: float,
     return adv, adv + traj.value
 
 
-def loss(net: N.PolicyNet, cfg: PPOConfig):
+def loss(net: policies_networks.PolicyNet, cfg: PPOConfig):
     """The clipped PPO loss on a minibatch dict (obs, action, log_prob, advantage, target):
     `(params, batch) -> (loss, metrics)`."""
 
     def fn(params, b):
         mean, log_std, value = net.apply(params, b["obs"])
-        logp = N.log_prob(mean, log_std, b["action"])
+        logp = policies_networks.log_prob(mean, log_std, b["action"])
         adv = b["advantage"]
         adv = (adv - adv.mean()) / (adv.std() + 1e-8)
         ratio = jnp.exp(logp - b["log_prob"])
         pg = -jnp.mean(jnp.minimum(ratio * adv,
                                    jnp.clip(ratio, 1 - cfg.clip, 1 + cfg.clip) * adv))
         v_loss = 0.5 * jnp.mean((b["target"] - value) ** 2)
-        ent = N.entropy(log_std)
+        ent = policies_networks.entropy(log_std)
         total = pg + cfg.value_cost * v_loss - cfg.entropy_cost * ent
         return total, {"loss": total, "policy_loss": pg, "value_loss": v_loss,
                        "entropy": ent, "approx_kl": jnp.mean(b["log_prob"] - logp),

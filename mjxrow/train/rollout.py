@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from mjxrow.policies import networks as N
+from mjxrow.policies import networks as policies_networks
 
 EPISODE_KEYS = ("return", "nav/success", "nav/collision", "nav/cha", "nav/mae", "nav/mse",
                 "nav/omega_std", "nav/time", "nav/max_offset")
@@ -58,8 +58,17 @@ def _stats(state, sums: dict) -> dict:
     return out
 
 
-def unroll(net: N.PolicyNet, envs: tuple, params: Any, states: tuple, key: jax.Array,
-           beta: jax.Array, noise_std: jax.Array, ppo: jax.Array, length: int):
+def unroll(
+    net: policies_networks.PolicyNet,
+    envs: tuple,
+    params: Any,
+    states: tuple,
+    key: jax.Array,
+    beta: jax.Array,
+    noise_std: jax.Array,
+    ppo: jax.Array,
+    length: int,
+):
     """Run `length` steps in every env of `envs` (batched, auto-resetting; `states` their
     states). Returns (new states, Transition [length, ΣB, ...] with the envs' worlds
     concatenated, bootstrap values [ΣB] of the final observations, episode stats {name: (sum,
@@ -73,7 +82,7 @@ def unroll(net: N.PolicyNet, envs: tuple, params: Any, states: tuple, key: jax.A
         base = jnp.where(use_teacher[:, None], teacher, mean)
         scale = jnp.where(ppo, jnp.exp(log_std), noise_std)
         a = base + scale * jax.random.normal(k_noise, mean.shape)
-        return a, N.log_prob(mean, log_std, a), value, teacher
+        return a, policies_networks.log_prob(mean, log_std, a), value, teacher
 
     def body(carry, k):
         states, sums = carry

@@ -19,10 +19,15 @@ import argparse
 import sys
 from pathlib import Path
 
+from mjxrow import crops
+from mjxrow.files import check_out_dir, check_out_file
+from mjxrow.rollout import build as rollout_build
+from mjxrow.sweep import config as sweep_config
+from mjxrow.worlds import export as worlds_export
+from mjxrow.worlds import replay
+
 
 def _parser() -> argparse.ArgumentParser:
-    from mjxrow import crops
-    from mjxrow.worlds import export as X
 
     ap = argparse.ArgumentParser(prog="python -m mjxrow.worlds",
                                  description=__doc__.split("\n")[0].split(": ", 1)[1],
@@ -40,9 +45,9 @@ def _parser() -> argparse.ArgumentParser:
                     help="set a dotted config key, e.g. --set field.d_rr=2.0 (repeatable)")
     ap.add_argument("--lane", type=int, help="start the robot in this lane (0..n-1 by y, as in "
                     "<name>_lanes.csv) without pose noise; default: the episode's lane and start")
-    ap.add_argument("--gazebo", choices=X.GAZEBO, default="sim",
+    ap.add_argument("--gazebo", choices=worlds_export.GAZEBO, default="sim",
                     help="Gazebo flavour(s) to write (default: sim)")
-    ap.add_argument("--sdf-collisions", choices=X.SDF_COLLISIONS, default="footprint",
+    ap.add_argument("--sdf-collisions", choices=worlds_export.SDF_COLLISIONS, default="footprint",
                     help="plant collisions in the Gazebo worlds (see field.sdf.field_sdf)")
     ap.add_argument("--from-run", metavar="RUN_DIR", help="export one episode of a finished "
                     "sweep run (with --cell and --episode)")
@@ -55,16 +60,16 @@ def resolve_run(preset: str, seed: int = 0, sets: list[str] | tuple[str, ...] = 
     """(RunConfig, FieldShape) of one preset with `--set` items (the sweep's grammar and
     checks; the controller defaults to `oracle` with ground-truth perception, which need no
     checkpoint). ConfigError (a ValueError) naming the key."""
-    from mjxrow.rollout import build as B
-    from mjxrow.sweep import config as C
 
     base = [f"preset={preset}", f"seed={seed}", "controller.name=oracle",
             "perception.source=ground_truth"]
-    cfg = C.from_dict({}, ".", [*base, *sets])
+    cfg = sweep_config.from_dict({}, ".", [*base, *sets])
     if cfg.axis_order:
-        raise C.ConfigError(f"{cfg.axis_order[0]}: one world needs one value, got a list")
-    run = C.expand(cfg)[0].cfg
-    return run, B.fit_shape([run])
+        raise sweep_config.ConfigError(
+            f"{cfg.axis_order[0]}: one world needs one value, got a list"
+        )
+    run = sweep_config.expand(cfg)[0].cfg
+    return run, rollout_build.fit_shape([run])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -84,10 +89,6 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--cell needs --from-run")
     from tqdm import tqdm
 
-    from mjxrow import crops
-    from mjxrow.worlds import export as X
-    from mjxrow.worlds import replay
-    from mjxrow.files import check_out_dir, check_out_file
 
     try:
         check_out_dir(args.out, "--out")
@@ -102,14 +103,14 @@ def main(argv: list[str] | None = None) -> int:
                     for r in resolved]
         for job in tqdm(jobs, desc="export", disable=len(jobs) < 2):
             ep = job()
-            paths = X.export(ep.field, ep.shape, args.out, ep.name, ep.robot, ep.start,
-                             args.gazebo, args.sdf_collisions)
+            paths = worlds_export.export(ep.field, ep.shape, args.out, ep.name, ep.robot, ep.start,
+                                         args.gazebo, args.sdf_collisions)
             kb = sum(p.stat().st_size for p in set(paths.values())) / 1024
             tqdm.write(f"{ep.name}: {int(ep.field.plant_active.sum())} plants in "
                        f"{int(ep.field.n_rows)} rows, robot in lane {ep.start.lane}, "
                        f"{kb:.0f} KiB → {Path(args.out) / ep.name}.*")
             if args.picture:
-                X.snapshot(paths["xml"], args.picture)
+                worlds_export.snapshot(paths["xml"], args.picture)
     except ValueError as e:
         msg = str(e).splitlines()[0] if str(e) else type(e).__name__
         print(f"error: {msg}", file=sys.stderr)

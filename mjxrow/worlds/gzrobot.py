@@ -24,9 +24,9 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
-from mjxrow import field as F
-from mjxrow.worlds import scene as S
+from mjxrow import field
 from mjxrow.physics import sim
+from mjxrow.worlds import scene
 
 CAMERA_HZ = 15.0  # Hz, camera update rate (the closed loop's control rate)
 CAMERA_CLIP = (0.05, 60.0)  # m, near and far clip
@@ -44,23 +44,23 @@ def _inertia(mass: float, diag: np.ndarray) -> str:
 
 
 def _material(rgba: np.ndarray) -> str:
-    c = S.nums(rgba, 3)
+    c = scene.nums(rgba, 3)
     return (f"<material><ambient>{c}</ambient><diffuse>{c}</diffuse>"
             "<specular>0.1 0.1 0.1 1</specular></material>")
 
 
-def camera_sensor(robot: S.Robot, flavour: str, cam: ET.Element) -> str:
+def camera_sensor(robot: scene.Robot, flavour: str, cam: ET.Element) -> str:
     """`<sensor type="camera">` from the MJCF camera `cam` (pos, xyaxes in the chassis frame):
     Gazebo cameras look along their +x with +z up, so the frame is (forward, left, up) =
     (−z, −x, y) of MuJoCo's camera axes."""
     xy = _floats(cam, "xyaxes", "1 0 0 0 1 0").reshape(2, 3)
     right, up = xy[0] / np.linalg.norm(xy[0]), xy[1] / np.linalg.norm(xy[1])
     rot = np.stack([np.cross(up, right), -right, up], 1)  # columns: forward, left, up
-    pose = np.r_[_floats(cam, "pos", "0 0 0"), S.euler_zyx(rot)[::-1]]
+    pose = np.r_[_floats(cam, "pos", "0 0 0"), scene.euler_zyx(rot)[::-1]]
     w, h = robot.image
     topic = "<topic>front/image</topic>" if flavour == "sim" else ""
     near, far = CAMERA_CLIP
-    return (f'<sensor name="front" type="camera"><pose>{S.nums(pose, 5)}</pose>'
+    return (f'<sensor name="front" type="camera"><pose>{scene.nums(pose, 5)}</pose>'
             f"<always_on>1</always_on><update_rate>{CAMERA_HZ:g}</update_rate>"
             f"<visualize>false</visualize>{topic}<camera><horizontal_fov>{robot.hfov:.6f}"
             f"</horizontal_fov><image><width>{w}</width><height>{h}</height>"
@@ -68,7 +68,7 @@ def camera_sensor(robot: S.Robot, flavour: str, cam: ET.Element) -> str:
             "</camera></sensor>")
 
 
-def _drive_plugin(flavour: str, robot: S.Robot, radius: float) -> str:
+def _drive_plugin(flavour: str, robot: scene.Robot, radius: float) -> str:
     if flavour == "classic":
         return '<plugin name="skid_steer" filename="libSkidSteerDrivePlugin.so"/>'
     sep = robot.robot.track * robot.robot.turn_factor
@@ -80,7 +80,7 @@ def _drive_plugin(flavour: str, robot: S.Robot, radius: float) -> str:
             "</odom_publish_frequency></plugin>")
 
 
-def robot_sdf(shape: F.FieldShape, robot: S.Robot, flavour: str, name: str) -> str:
+def robot_sdf(shape: field.FieldShape, robot: scene.Robot, flavour: str, name: str) -> str:
     """SDF text (a `<model name=name>`, with its `<sdf>` root) of the robot (module doc)."""
     root = ET.fromstring(sim.model_xml(shape, robot.sim, robot.robot))
     body = root.find("./worldbody/body[@name='chassis']")
@@ -94,12 +94,12 @@ def robot_sdf(shape: F.FieldShape, robot: S.Robot, flavour: str, name: str) -> s
     ext = 2 * half
     diag = mass / 12 * np.array([ext[1] ** 2 + ext[2] ** 2, ext[0] ** 2 + ext[2] ** 2,
                                  ext[0] ** 2 + ext[1] ** 2])
-    geom = f"<geometry><box><size>{S.nums(ext, 4)}</size></box></geometry>"
+    geom = f"<geometry><box><size>{scene.nums(ext, 4)}</size></box></geometry>"
     rgba = _floats(box, "rgba", "0.85 0.65 0.1 1")
-    links = [f'<link name="chassis"><inertial><pose>{S.nums(pos, 4)} 0 0 0</pose>'
+    links = [f'<link name="chassis"><inertial><pose>{scene.nums(pos, 4)} 0 0 0</pose>'
              + _inertia(mass, diag).removeprefix("<inertial>")
-             + f'<collision name="chassis_collision"><pose>{S.nums(pos, 4)} 0 0 0</pose>{geom}'
-             f'</collision><visual name="chassis"><pose>{S.nums(pos, 4)} 0 0 0</pose>{geom}'
+             + f'<collision name="chassis_collision"><pose>{scene.nums(pos, 4)} 0 0 0</pose>{geom}'
+             f'</collision><visual name="chassis"><pose>{scene.nums(pos, 4)} 0 0 0</pose>{geom}'
              f"{_material(rgba)}</visual>{camera_sensor(robot, flavour, cam)}</link>"]
     joints, radius = [], 0.0
     for wb in wheels:
@@ -111,7 +111,7 @@ def robot_sdf(shape: F.FieldShape, robot: S.Robot, flavour: str, name: str) -> s
         jname = ("left" if at[1] > 0 else "right") + ("_front" if at[0] > 0 else "_rear")
         sphere = f"<geometry><sphere><radius>{radius:.6g}</radius></sphere></geometry>"
         links.append(
-            f'<link name="wheel_{jname}"><pose>{S.nums(at, 4)} 0 0 0</pose>'
+            f'<link name="wheel_{jname}"><pose>{scene.nums(at, 4)} 0 0 0</pose>'
             f"{_inertia(m, np.full(3, 0.4 * m * radius ** 2))}"
             f'<collision name="collision">{sphere}<surface><friction><ode><mu>{mu:g}</mu>'
             f"<mu2>{mu:g}</mu2></ode></friction></surface></collision>"
@@ -119,7 +119,7 @@ def robot_sdf(shape: F.FieldShape, robot: S.Robot, flavour: str, name: str) -> s
             "</visual></link>")
         joints.append(f'<joint name="{jname}" type="revolute"><parent>chassis</parent>'
                       f"<child>wheel_{jname}</child><axis><xyz>"
-                      f'{S.nums(_floats(j, "axis", "0 0 1"))}</xyz><limit><lower>-1e16</lower>'
+                      f'{scene.nums(_floats(j, "axis", "0 0 1"))}</xyz><limit><lower>-1e16</lower>'
                       "<upper>1e16</upper></limit></axis></joint>")
     version = "1.6" if flavour == "classic" else "1.9"
     return "\n".join([f'<?xml version="1.0"?>\n<sdf version="{version}">',

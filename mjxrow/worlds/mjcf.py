@@ -27,11 +27,11 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxrow import field as F
-from mjxrow.crops import prims as PL
-from mjxrow.worlds import scene as S
-from mjxrow.physics import robot as R
+from mjxrow import field as mjxrow_field
+from mjxrow.crops import prims as crops_prims
+from mjxrow.physics import robot as physics_robot
 from mjxrow.physics import sim
+from mjxrow.worlds import scene
 
 PLANT_RGB = {"leaf": (0.23, 0.50, 0.14), "stem": (0.42, 0.60, 0.22), "trunk": (0.36, 0.25, 0.16),
              "canopy": (0.17, 0.40, 0.12), "fruit": (0.85, 0.75, 0.25)}
@@ -42,16 +42,16 @@ HFIELD_BASE = 0.5  # m, thickness of the MuJoCo heightfield below its lowest sam
 KEYS = {"start": (0.0, 0.0), "forward": (1.0, 0.0), "left": (0.5, 0.5), "right": (0.5, -0.5)}
 
 
-def lane_camera(field: F.Field, height: float = 1.0, back: float = 1.0,
+def lane_camera(field: mjxrow_field.Field, height: float = 1.0, back: float = 1.0,
                 pitch_deg: float = -15.0) -> tuple[np.ndarray, np.ndarray]:
     """A camera at the start of the default lane (`field.robot_lane`), `back` metres before the
     rows, `height` metres above the terrain, looking along +x pitched by `pitch_deg` (negative
     = down). Returns (cam_pos float32 [3], cam_rot float32 [3, 3]) in MuJoCo's convention
     (columns: right, up, backwards)."""
-    f = S.host(field)
-    lane = int(F.robot_lane(f))
+    f = scene.host(field)
+    lane = int(mjxrow_field.robot_lane(f))
     x, y = float(f.row_x[0]) - back, float(f.lane_y[lane])
-    z = float(F.terrain_height(f.terrain, f.terrain_size, x, y)) + height
+    z = float(mjxrow_field.terrain_height(f.terrain, f.terrain_size, x, y)) + height
     p = np.deg2rad(pitch_deg)
     right = np.array([0.0, -1.0, 0.0])
     up = np.array([-np.sin(p), 0.0, np.cos(p)])
@@ -68,7 +68,9 @@ def terrain_bin(terrain: np.ndarray) -> tuple[bytes, float, float]:
     return data, lo, max(span, 1e-4)
 
 
-def robot_parts(shape: F.FieldShape, robot: S.Robot, start: S.Start) -> dict[str, str]:
+def robot_parts(
+    shape: mjxrow_field.FieldShape, robot: scene.Robot, start: scene.Start
+) -> dict[str, str]:
     """MJCF pieces of the robot from `sim.model_xml`: {'option', 'custom', 'body', 'actuator',
     'keys'} (XML text), the chassis placed at `start.qpos` and the actuators given a
     `ctrlrange` (module doc)."""
@@ -77,11 +79,11 @@ def robot_parts(shape: F.FieldShape, robot: S.Robot, start: S.Start) -> dict[str
     parts = {k: root.find(k) for k in ("option", "custom", "actuator")}
     if body is None or any(v is None for v in parts.values()):
         raise ValueError("robot: sim.model_xml has no chassis body, option, custom or actuator")
-    body.set("pos", S.nums(start.qpos[:3], 6))
-    body.set("quat", S.nums(start.qpos[3:], 6))
+    body.set("pos", scene.nums(start.qpos[:3], 6))
+    body.set("quat", scene.nums(start.qpos[3:], 6))
     corners = np.array([[a, b] for a in (-1, 1) for b in (-1, 1)])
     lim = np.array([robot.robot.v_max, robot.robot.omega_max])
-    top = float(np.max(np.abs(R.wheel_speeds(corners * lim, robot.robot))))
+    top = float(np.max(np.abs(physics_robot.wheel_speeds(corners * lim, robot.robot))))
     # the closed loop drives <motor>s with its own implicit servo (robot.servo); the viewer gets
     # MuJoCo's velocity actuators with the same gain and torque limit, integrated implicitly
     parts["option"].set("integrator", "implicitfast")
@@ -89,40 +91,45 @@ def robot_parts(shape: F.FieldShape, robot: S.Robot, start: S.Start) -> dict[str
         act.tag = "velocity"
         act.set("kv", f"{robot.robot.kv:.6g}")
         act.set("ctrlrange", f"{-top:.6g} {top:.6g}")
-    nq = 7 + len(R.WHEELS)
-    qpos = S.nums(np.r_[start.qpos, np.zeros(nq - 7)], 6)
+    nq = 7 + len(physics_robot.WHEELS)
+    qpos = scene.nums(np.r_[start.qpos, np.zeros(nq - 7)], 6)
     keys = [f'    <key name="{k}" qpos="{qpos}" ctrl="'
-            f'{S.nums(R.wheel_speeds(np.array(c) * lim, robot.robot), 4)}"/>'
+            f'{scene.nums(physics_robot.wheel_speeds(np.array(c) * lim, robot.robot), 4)}"/>'
             for k, c in KEYS.items()]
     text = {k: ET.tostring(v, encoding="unicode").strip() for k, v in parts.items()}
     return {**text, "body": ET.tostring(body, encoding="unicode").strip(),
             "keys": "\n".join(["  <keyframe>", *keys, "  </keyframe>"])}
 
 
-def to_mjcf(field: F.Field, shape: F.FieldShape, name: str = "field", robot: S.Robot | None = None,
-            start: S.Start | None = None) -> tuple[str, dict]:
+def to_mjcf(
+    field: mjxrow_field.Field,
+    shape: mjxrow_field.FieldShape,
+    name: str = "field",
+    robot: scene.Robot | None = None,
+    start: scene.Start | None = None,
+) -> tuple[str, dict]:
     """MJCF text and its assets ({file name: bytes}) for ONE field (numpy or jax arrays, no batch
     axis); load with `mujoco.MjModel.from_xml_string(xml, assets)`. The world has a camera `eye`
     (`lane_camera`), a sun (no shadows: they alias in software rendering), a sky box and a
     soil material; with `robot`, the robot at `start` (default: `scene.default_start`)."""
-    f = S.host(field)
-    order, new_row = S.active_rows(f)
+    f = scene.host(field)
+    order, new_row = scene.active_rows(f)
     hbin, z_lo, z_top = terrain_bin(f.terrain)
     L, W = (float(s) for s in f.terrain_size)
     hfile = f"{name}_terrain.bin"
-    prims = jax.tree.map(np.asarray, PL.plant_prims(f, shape))
-    classes = [PL.MATERIAL_NAMES[m] + ("_capsule" if k == PL.CAPSULE else "")
+    prims = jax.tree.map(np.asarray, crops_prims.plant_prims(f, shape))
+    classes = [crops_prims.MATERIAL_NAMES[m] + ("_capsule" if k == crops_prims.CAPSULE else "")
                for k, m in zip(prims.kind, prims.material, strict=True)]
     cam_pos, cam_rot = lane_camera(f)
     parts = {}
     if robot is not None:
-        parts = robot_parts(shape, robot, start or S.default_start(f, shape, robot))
+        parts = robot_parts(shape, robot, start or scene.default_start(f, shape, robot))
 
     out = [f'<mujoco model="{name}">',
            '  <compiler angle="radian" eulerseq="zyx" autolimits="true"/>']
     if parts:
         out += ["  " + parts["option"], "  " + parts["custom"]]
-    out += [f'  <statistic center="0 0 0" extent="{S.num(0.5 * max(L, W), 1)}"/>',
+    out += [f'  <statistic center="0 0 0" extent="{scene.num(0.5 * max(L, W), 1)}"/>',
             '  <visual>',
             '    <headlight ambient="0.35 0.35 0.35" diffuse="0.25 0.25 0.25" specular="0 0 0"/>',
             '    <map znear="0.0005" zfar="4"/>',
@@ -131,55 +138,59 @@ def to_mjcf(field: F.Field, shape: F.FieldShape, name: str = "field", robot: S.R
             '  <asset>',
             '    <texture name="sky" type="skybox" builtin="gradient" rgb1="0.55 0.72 0.92" '
             'rgb2="0.95 0.97 1" width="256" height="1536"/>',
-            f'    <texture name="soil" type="2d" builtin="flat" rgb1="{S.nums(SOIL_RGB, 2)}" '
+            f'    <texture name="soil" type="2d" builtin="flat" rgb1="{scene.nums(SOIL_RGB, 2)}" '
             'rgb2="0.38 0.29 0.19" mark="random" random="0.3" width="256" height="256"/>',
             '    <material name="soil" texture="soil" texrepeat="2 2" texuniform="true" '
             'reflectance="0"/>',
-            f'    <hfield name="terrain" file="{hfile}" size="{S.nums([L / 2, W / 2], 6)} '
-            f'{S.num(z_top, 6)} {HFIELD_BASE}"/>']
+            f'    <hfield name="terrain" file="{hfile}" size="{scene.nums([L / 2, W / 2], 6)} '
+            f'{scene.num(z_top, 6)} {HFIELD_BASE}"/>']
     for mat, rgb in PLANT_RGB.items():
-        out.append(f'    <material name="{mat}" rgba="{S.nums(rgb, 2)} 1" specular="0.1"/>')
-    out += [f'    <material name="stone" rgba="{S.nums(STONE_RGB, 2)} 1"/>',
-            f'    <material name="branch" rgba="{S.nums(BRANCH_RGB, 2)} 1"/>',
+        out.append(f'    <material name="{mat}" rgba="{scene.nums(rgb, 2)} 1" specular="0.1"/>')
+    out += [f'    <material name="stone" rgba="{scene.nums(STONE_RGB, 2)} 1"/>',
+            f'    <material name="branch" rgba="{scene.nums(BRANCH_RGB, 2)} 1"/>',
             '  </asset>', '  <default>',
             '    <default class="plant"><geom contype="0" conaffinity="0" group="1"/>']
     for cls in dict.fromkeys(classes):
         typ = "capsule" if cls.endswith("_capsule") else "ellipsoid"
         out.append(f'      <default class="{cls}"><geom type="{typ}" '
                    f'material="{cls.removesuffix("_capsule")}"/></default>')
-    out += ['    </default>',
-            '    <default class="stone"><geom type="sphere" material="stone" group="2"/></default>',
-            '    <default class="branch"><geom type="capsule" material="branch" group="2"/>'
-            '</default>', '  </default>', '  <worldbody>',
-            '    <light name="sun" directional="true" castshadow="false" pos="0 0 40" '
-            f'dir="{S.nums(SUN_DIR)}" diffuse="0.75 0.75 0.7" specular="0.1 0.1 0.1"/>',
-            f'    <camera name="eye" pos="{S.nums(cam_pos)}" xyaxes="{S.nums(cam_rot[:, 0], 5)} '
-            f'{S.nums(cam_rot[:, 1], 5)}" fovy="{EYE_FOVY}"/>',
-            f'    <geom name="terrain" type="hfield" hfield="terrain" pos="0 0 {S.num(z_lo, 6)}" '
-            'material="soil" group="0"/>']
-    euler = S.euler_zyx(prims.rot)
+    out += [
+        "    </default>",
+        '    <default class="stone"><geom type="sphere" material="stone" group="2"/></default>',
+        '    <default class="branch"><geom type="capsule" material="branch" group="2"/></default>',
+        "  </default>",
+        "  <worldbody>",
+        '    <light name="sun" directional="true" castshadow="false" pos="0 0 40" '
+        f'dir="{scene.nums(SUN_DIR)}" diffuse="0.75 0.75 0.7" specular="0.1 0.1 0.1"/>',
+        f'    <camera name="eye" pos="{scene.nums(cam_pos)}" '
+        f'xyaxes="{scene.nums(cam_rot[:, 0], 5)} '
+        f'{scene.nums(cam_rot[:, 1], 5)}" fovy="{EYE_FOVY}"/>',
+        f'    <geom name="terrain" type="hfield" hfield="terrain" pos="0 0 {scene.num(z_lo, 6)}" '
+        'material="soil" group="0"/>',
+    ]
+    euler = scene.euler_zyx(prims.rot)
     main_cls = max(set(classes), key=classes.count)
     for r in order:
         out.append(f'    <frame name="row_{new_row[r]}" childclass="{main_cls}">')
         for p in np.flatnonzero(f.plant_active[r]):
             for k, cls in enumerate(classes):
                 size = prims.size[r, p, k]
-                size = size if prims.kind[k] == PL.ELLIPSOID else size[[0, 2]]
+                size = size if prims.kind[k] == crops_prims.ELLIPSOID else size[[0, 2]]
                 c = "" if cls == main_cls else f' class="{cls}"'
                 out.append(f'<geom name="plant_r{new_row[r]}_p{p}_k{k}"{c} '
-                           f'pos="{S.nums(prims.centre[r, p, k])}" '
-                           f'euler="{S.nums(euler[r, p, k], 4)}" size="{S.nums(size)}"/>')
+                           f'pos="{scene.nums(prims.centre[r, p, k])}" '
+                           f'euler="{scene.nums(euler[r, p, k], 4)}" size="{scene.nums(size)}"/>')
         out.append("    </frame>")
-    n = {F.STONE: 0, F.BRANCH: 0}
+    n = {mjxrow_field.STONE: 0, mjxrow_field.BRANCH: 0}
     for i in np.flatnonzero(f.obst_active):
         kind, pos, (rad, half) = int(f.obst_kind[i]), f.obst_pos[i], f.obst_size[i]
-        if kind == F.STONE:
-            out.append(f'    <geom name="stone_{n[kind]}" class="stone" pos="{S.nums(pos)}" '
-                       f'size="{S.num(rad)}"/>')
+        if kind == mjxrow_field.STONE:
+            out.append(f'    <geom name="stone_{n[kind]}" class="stone" pos="{scene.nums(pos)}" '
+                       f'size="{scene.num(rad)}"/>')
         else:
             axis = [np.cos(f.obst_yaw[i]), np.sin(f.obst_yaw[i]), 0.0]
-            out.append(f'    <geom name="branch_{n[kind]}" class="branch" pos="{S.nums(pos)}" '
-                       f'zaxis="{S.nums(axis, 4)}" size="{S.num(rad)} {S.num(half)}"/>')
+            out.append(f'    <geom name="branch_{n[kind]}" class="branch" pos="{scene.nums(pos)}" '
+                       f'zaxis="{scene.nums(axis, 4)}" size="{scene.num(rad)} {scene.num(half)}"/>')
         n[kind] += 1
     if parts:
         out.append("\n".join("    " + line for line in parts["body"].splitlines()))

@@ -20,10 +20,12 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from mjxrow import field as F
-from mjxrow.worlds import scene as S
-from mjxrow.rollout import build as B
+from mjxrow import field as mjxrow_field
+from mjxrow.rollout import build as rollout_build
 from mjxrow.rollout.config import RunConfig
+from mjxrow.sweep import config as sweep_config
+from mjxrow.sweep import run as sweep_run
+from mjxrow.worlds import scene
 
 
 @dataclasses.dataclass(frozen=True)
@@ -31,41 +33,41 @@ class Episode:
     """One episode, ready to export: `field` (numpy, one field), its static `shape`, the robot
     as the run drives it, and the `start` (lane index by y and the exact start qpos)."""
 
-    field: F.Field
-    shape: F.FieldShape
-    robot: S.Robot
-    start: S.Start
+    field: mjxrow_field.Field
+    shape: mjxrow_field.FieldShape
+    robot: scene.Robot
+    start: scene.Start
     name: str  # e.g. "zucchini" or "zucchini_c3_e5"
 
 
-def run_robot(run: RunConfig) -> S.Robot:
+def run_robot(run: RunConfig) -> scene.Robot:
     """The robot of a run config: its RobotConfig (camera fov from `camera.fovy`), the
     episode's SimConfig and the camera's image size."""
-    return S.Robot(run.robot_config(), run.episode.sim, (int(run.camera.width),
-                                                         int(run.camera.height)))
+    return scene.Robot(run.robot_config(), run.episode.sim, (int(run.camera.width),
+                                                             int(run.camera.height)))
 
 
-def episode_world(run: RunConfig, shape: F.FieldShape, episode: int = 0,
+def episode_world(run: RunConfig, shape: mjxrow_field.FieldShape, episode: int = 0,
                   lane: int | None = None, name: str | None = None) -> Episode:
     """Episode `episode` of `run` on the static `shape` (module doc). With `lane` (index of
     `lanes_table`, 0..n-1 by y), the robot starts in that lane instead, without pose noise."""
     if episode < 0:
         raise ValueError(f"episode: must be non-negative, got {episode}")
-    fkeys, rkeys = B.split_keys(B.episode_keys(run.seed, [episode]))
-    params = B.stack([run.field_params()])
+    fkeys, rkeys = rollout_build.split_keys(rollout_build.episode_keys(run.seed, [episode]))
+    params = rollout_build.stack([run.field_params()])
     sim_cfg = run.episode.sim  # where the start zone lies and which lane: as rollout.build
-    fld = S.host(jax.tree.map(lambda x: x[0], B.generate_fn()(params, shape, fkeys,
-                                                              sim_cfg.path_length)))
+    fld = scene.host(jax.tree.map(lambda x: x[0], rollout_build.generate_fn()(params, shape, fkeys,
+                                                                              sim_cfg.path_length)))
     robot = run_robot(run)
     if lane is not None:
-        start = S.default_start(fld, shape, robot, lane)
+        start = scene.default_start(fld, shape, robot, lane)
     else:
-        field_lane = int(F.robot_lane(fld, mode=sim_cfg.lane))
+        field_lane = int(mjxrow_field.robot_lane(fld, mode=sim_cfg.lane))
         k_reset, _ = jax.random.split(rkeys[0])
-        qpos = S.start_poses(fld, shape, robot, [field_lane], k_reset[None],
-                             run.episode.noise)[0]
-        table_lane = int(np.flatnonzero(S.field_lanes(fld) == field_lane)[0])
-        start = S.Start(table_lane, qpos)
+        qpos = scene.start_poses(fld, shape, robot, [field_lane], k_reset[None],
+                                 run.episode.noise)[0]
+        table_lane = int(np.flatnonzero(scene.field_lanes(fld) == field_lane)[0])
+        start = scene.Start(table_lane, qpos)
     return Episode(fld, shape, robot, start, name or run.preset)
 
 
@@ -74,8 +76,6 @@ def from_run(run_dir: str | Path, cell: int, episode: int) -> Episode:
     made it. The cell is found by its hash in `results.csv` when the run wrote one (cell numbers
     follow `config.yaml`'s axes), else by its number. ValueError naming the offending flag
     (--from-run, --cell, --episode) when something is missing or does not match."""
-    from mjxrow.sweep import config as C
-    from mjxrow.sweep import run as SW
 
     run_dir = Path(run_dir)
     try:
@@ -84,7 +84,7 @@ def from_run(run_dir: str | Path, cell: int, episode: int) -> Episode:
         raise ValueError(f"--from-run: cannot read {run_dir / 'config.yaml'} ({e.strerror}); "
                          "is it a sweep's output folder?") from None
     try:
-        cfg = C.from_dict(raw, run_dir)
+        cfg = sweep_config.from_dict(raw, run_dir)
     except ValueError as e:
         raise ValueError(f"--from-run: {run_dir / 'config.yaml'}: {e}") from None
     if not 0 <= episode < cfg.seeds:
@@ -95,7 +95,7 @@ def from_run(run_dir: str | Path, cell: int, episode: int) -> Episode:
         res = pd.read_csv(run_dir / "results.csv")
         hit = res[(res["cell"] == cell) & (res["episode"] == episode)]
         row = hit.iloc[0] if len(hit) else None
-    groups = SW.plan(cfg)
+    groups = sweep_run.plan(cfg)
     found = [(g, c) for g in groups for c, h in zip(g.cells, g.hashes, strict=True)
              if row is not None and h == row["cell_hash"]]
     if not found:
@@ -108,7 +108,7 @@ def from_run(run_dir: str | Path, cell: int, episode: int) -> Episode:
         raise ValueError(f"--cell: {cell} is not a cell of this run (0..{n - 1})")
     group, c = found[0]
     ep = episode_world(c.cfg, group.shape, episode, name=f"{c.cfg.preset}_c{cell}_e{episode}")
-    lane = int(S.field_lanes(ep.field)[ep.start.lane])
+    lane = int(scene.field_lanes(ep.field)[ep.start.lane])
     if row is not None and "lane" in row and int(row["lane"]) != lane:
         raise ValueError(f"--episode: results.csv says episode {episode} of cell {cell} drove "
                          f"lane {int(row['lane'])}, the regenerated field's lane is {lane}: the "

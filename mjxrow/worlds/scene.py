@@ -15,8 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxrow import field as F
-from mjxrow.physics import robot as R
+from mjxrow import field as mjxrow_field
+from mjxrow.physics import robot as physics_robot
 from mjxrow.physics import sim
 
 CAMERA_IMAGE = (64, 64)  # px (width, height): the sweep's default camera image
@@ -53,7 +53,7 @@ def quat_rot(q: np.ndarray) -> np.ndarray:
     return np.stack([np.stack(r, -1) for r in rows], -2)
 
 
-def host(field: F.Field) -> F.Field:
+def host(field: mjxrow_field.Field) -> mjxrow_field.Field:
     """`field` as numpy arrays; ValueError unless it is ONE field (no batch axis)."""
     f = jax.tree.map(np.asarray, field)
     if f.terrain.ndim != 2:
@@ -62,7 +62,7 @@ def host(field: F.Field) -> F.Field:
     return f
 
 
-def active_rows(f: F.Field) -> tuple[np.ndarray, np.ndarray]:
+def active_rows(f: mjxrow_field.Field) -> tuple[np.ndarray, np.ndarray]:
     """Active rows sorted by y: (field row index [n], new index 0..n-1 per field row [R])."""
     act = np.flatnonzero(f.row_active)
     order = act[np.argsort(f.row_y[act], kind="stable")]
@@ -71,7 +71,7 @@ def active_rows(f: F.Field) -> tuple[np.ndarray, np.ndarray]:
     return order, new
 
 
-def field_lanes(f: F.Field) -> np.ndarray:
+def field_lanes(f: mjxrow_field.Field) -> np.ndarray:
     """Field lane indices (into `lane_y`) of the lanes between consecutive active rows, by y."""
     order, _ = active_rows(f)
     return order[:-1]
@@ -84,7 +84,7 @@ class Robot:
     robot: dimensions, drive and camera mount; sim: physics settings (time step, solver) and
     `path_length`, which places the start; image: the camera's (width, height) in pixels."""
 
-    robot: R.RobotConfig = R.RobotConfig()
+    robot: physics_robot.RobotConfig = physics_robot.RobotConfig()
     sim: sim.SimConfig = sim.SimConfig()
     image: tuple[int, int] = CAMERA_IMAGE
 
@@ -95,14 +95,14 @@ class Robot:
         return 2.0 * np.arctan(np.tan(np.radians(self.robot.cam_fovy) / 2) * w / h)
 
 
-def robot_for(field: F.Field, robot: R.RobotConfig | None = None,
+def robot_for(field: mjxrow_field.Field, robot: physics_robot.RobotConfig | None = None,
               image: tuple[int, int] = CAMERA_IMAGE) -> Robot:
     """The default `Robot` for a field: the closed loop's defaults, with the path shortened to
     the row length where the rows are shorter than `SimConfig.path_length`."""
     f = host(field)
     rows = float(f.row_x[1] - f.row_x[0])
     cfg = sim.SimConfig()
-    return Robot(robot or R.RobotConfig(),
+    return Robot(robot or physics_robot.RobotConfig(),
                  dataclasses.replace(cfg, path_length=min(cfg.path_length, rows)), image)
 
 
@@ -121,7 +121,7 @@ class Start:
 
 
 @functools.lru_cache(maxsize=8)
-def _reset_fn(shape: F.FieldShape, robot: Robot):
+def _reset_fn(shape: mjxrow_field.FieldShape, robot: Robot):
     _, mx = sim.make_model(shape, robot.sim, robot.robot)
 
     def one(field, lane, key, noise):
@@ -131,7 +131,7 @@ def _reset_fn(shape: F.FieldShape, robot: Robot):
     return jax.jit(jax.vmap(one, in_axes=(None, 0, 0, None)))
 
 
-def start_poses(field: F.Field, shape: F.FieldShape, robot: Robot, lanes=None,
+def start_poses(field: mjxrow_field.Field, shape: mjxrow_field.FieldShape, robot: Robot, lanes=None,
                 keys: jax.Array | None = None, noise: sim.PoseNoise | None = None) -> np.ndarray:
     """float64 [N, 7]: the chassis qpos (x, y, z, qw, qx, qy, qz) of `sim.reset` in each of
     `lanes` (field lane indices [N]; default: every lane between active rows, by y), with
@@ -145,14 +145,14 @@ def start_poses(field: F.Field, shape: F.FieldShape, robot: Robot, lanes=None,
     return np.asarray(q, np.float64)
 
 
-def default_start(field: F.Field, shape: F.FieldShape, robot: Robot,
+def default_start(field: mjxrow_field.Field, shape: mjxrow_field.FieldShape, robot: Robot,
                   lane: int | None = None) -> Start:
     """The start in table lane `lane` (0..n-1 by y; None: the field's `robot_lane`), without
     noise. ValueError naming `lane` when it does not exist."""
     f = host(field)
     lanes = field_lanes(f)
     if lane is None:
-        lane = int(np.flatnonzero(lanes == int(F.robot_lane(f)))[0])
+        lane = int(np.flatnonzero(lanes == int(mjxrow_field.robot_lane(f)))[0])
     if not 0 <= lane < len(lanes):
         raise ValueError(f"lane: {lane} is not a lane of this field (0..{len(lanes) - 1})")
     return Start(lane, start_poses(field, shape, robot)[lane])

@@ -30,10 +30,9 @@ import jax
 import numpy as np
 from PIL import Image
 
-from mjxrow import field as F
-from mjxrow.crops import prims as PL
-from mjxrow.worlds import gzrobot
-from mjxrow.worlds import scene as S
+from mjxrow import field as mjxrow_field
+from mjxrow.crops import prims as crops_prims
+from mjxrow.worlds import gzrobot, scene
 from mjxrow.worlds.mjcf import BRANCH_RGB, PLANT_RGB, SOIL_RGB, STONE_RGB
 
 FLAVOURS = ("sim", "classic")
@@ -68,17 +67,17 @@ def png(img: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def heightmap(field: F.Field, bits: int = 16) -> tuple[np.ndarray, float, float]:
+def heightmap(field: mjxrow_field.Field, bits: int = 16) -> tuple[np.ndarray, float, float]:
     """Gazebo heightmap of one field: a square `bits`-bit (8 or 16) image of side 2^n + 1
     (nearest to the grid's longer side), resampled from `field.terrain` with
     `field.terrain_height`; image row 0 is +y, column 0 is −x. Returns (uint8|uint16 [N, N],
     z_min [m], z_range [m]); height = z_min + pixel / (2^bits − 1) · z_range."""
-    f = S.host(field)
+    f = scene.host(field)
     side = 2 ** int(np.round(np.log2(max(f.terrain.shape) - 1))) + 1
     u = np.linspace(-0.5, 0.5, side)
     x = np.broadcast_to(u[None, :] * f.terrain_size[0], (side, side))
     y = np.broadcast_to(-u[:, None] * f.terrain_size[1], (side, side))
-    h = np.asarray(F.terrain_height(f.terrain, f.terrain_size, x, y), np.float64)
+    h = np.asarray(mjxrow_field.terrain_height(f.terrain, f.terrain_size, x, y), np.float64)
     lo, span = float(h.min()), float(np.ptp(h))
     norm = (h - lo) / span if span > 0 else np.zeros_like(h)
     top = 2 ** bits - 1
@@ -102,7 +101,7 @@ def unit_sphere_dae(n_lat: int = 8, n_lon: int = 12) -> str:
             if i < n_lat - 1:
                 tris.append((b, c, d))
     idx = " ".join(f"{k} {k}" for t in tris for k in t)
-    pts = S.nums(v, 5)
+    pts = scene.nums(v, 5)
     n = len(v)
     src = "".join(
         f'<source id="{s}"><float_array id="{s}-a" count="{3 * n}">{pts}</float_array>'
@@ -122,7 +121,7 @@ def unit_sphere_dae(n_lat: int = 8, n_lon: int = 12) -> str:
 
 
 def _material(rgb) -> str:
-    c = S.nums(rgb, 2) + " 1"
+    c = scene.nums(rgb, 2) + " 1"
     return (f"<material><ambient>{c}</ambient><diffuse>{c}</diffuse>"
             "<specular>0.1 0.1 0.1 1</specular></material>")
 
@@ -135,35 +134,37 @@ class _Writer:
 
     def item(self, name: str, pose: np.ndarray, geom: str, rgb=None) -> str:
         """A <visual> (with `rgb`) or else a <collision>; pose = (x, y, z, roll, pitch, yaw)."""
-        body = f"<pose>{S.nums(pose[:3])} {S.nums(pose[3:], 4)}</pose><geometry>{geom}</geometry>"
+        body = (f"<pose>{scene.nums(pose[:3])} {scene.nums(pose[3:], 4)}</pose>"
+                f"<geometry>{geom}</geometry>")
         if rgb is None:
             return f'<collision name="{name}">{body}</collision>'
         return f'<visual name="{name}">{body}{_material(rgb)}</visual>'
 
     def ellipsoid(self, name: str, pose: np.ndarray, radii: np.ndarray, rgb=None) -> str:
         if self.flavour == "sim":
-            return self.item(name, pose, f"<ellipsoid><radii>{S.nums(radii)}</radii></ellipsoid>",
-                             rgb)
-        return self.item(name, pose, f"<mesh><uri>{self.mesh}</uri><scale>{S.nums(radii)}"
+            return self.item(
+                name, pose, f"<ellipsoid><radii>{scene.nums(radii)}</radii></ellipsoid>", rgb
+            )
+        return self.item(name, pose, f"<mesh><uri>{self.mesh}</uri><scale>{scene.nums(radii)}"
                                      "</scale></mesh>", rgb)
 
     def capsule(self, name: str, centre: np.ndarray, rot: np.ndarray, radius: float,
                 half: float, rgb=None) -> list[str]:
         """A capsule of axis rot[:, 2] (Sim), or a cylinder and two end spheres (Classic)."""
-        pose = np.r_[centre, S.euler_zyx(rot)[::-1]]
+        pose = np.r_[centre, scene.euler_zyx(rot)[::-1]]
         if self.flavour == "sim":
-            return [self.item(name, pose, f"<capsule><radius>{S.num(radius)}</radius><length>"
-                                          f"{S.num(2 * half)}</length></capsule>", rgb)]
-        ball = f"<sphere><radius>{S.num(radius)}</radius></sphere>"
-        out = [self.item(name, pose, f"<cylinder><radius>{S.num(radius)}</radius><length>"
-                                     f"{S.num(2 * half)}</length></cylinder>", rgb)]
+            return [self.item(name, pose, f"<capsule><radius>{scene.num(radius)}</radius><length>"
+                              f"{scene.num(2 * half)}</length></capsule>", rgb)]
+        ball = f"<sphere><radius>{scene.num(radius)}</radius></sphere>"
+        out = [self.item(name, pose, f"<cylinder><radius>{scene.num(radius)}</radius><length>"
+                         f"{scene.num(2 * half)}</length></cylinder>", rgb)]
         for i, s in enumerate((-1.0, 1.0)):
             out.append(self.item(f"{name}_end{i}", np.r_[centre + s * half * rot[:, 2], 0, 0, 0],
                                  ball, rgb))
         return out
 
 
-def field_sdf(field: F.Field, shape: F.FieldShape, model: str, flavour: str,
+def field_sdf(field: mjxrow_field.Field, shape: mjxrow_field.FieldShape, model: str, flavour: str,
               collisions: str = "footprint") -> tuple[str, dict[str, bytes]]:
     """The field as ONE static model `model` (module doc) and its files (paths relative to the
     model folder). Plant collisions: "footprint" (default) one per plant, `plant_r{row}_p{index}`:
@@ -172,8 +173,8 @@ def field_sdf(field: F.Field, shape: F.FieldShape, model: str, flavour: str,
     as a collision; "primitives" every primitive (`<visual name>_collision`); "none"."""
     if collisions not in SDF_COLLISIONS:
         raise ValueError(f"sdf_collisions: {collisions!r} is not one of {SDF_COLLISIONS}")
-    f = S.host(field)
-    order, new_row = S.active_rows(f)
+    f = scene.host(field)
+    order, new_row = scene.active_rows(f)
     bits = 8 if flavour == "classic" else 16
     img, z_lo, z_rng = heightmap(f, bits)
     tex = "materials/textures"
@@ -188,8 +189,10 @@ def field_sdf(field: F.Field, shape: F.FieldShape, model: str, flavour: str,
     if flavour == "classic":
         files["meshes/sphere.dae"] = unit_sphere_dae().encode()
     L, W = (float(s) for s in f.terrain_size)
-    hgeom = (f"<uri>{uri}/{tex}/heightmap.png</uri><size>{S.nums([L, W], 4)} {S.num(z_rng, 6)}"
-             f"</size><pos>0 0 {S.num(z_lo, 6)}</pos>")
+    hgeom = (
+        f"<uri>{uri}/{tex}/heightmap.png</uri><size>{scene.nums([L, W], 4)} {scene.num(z_rng, 6)}"
+        f"</size><pos>0 0 {scene.num(z_lo, 6)}</pos>"
+    )
     out = ['<?xml version="1.0"?>', f'<sdf version="{VERSION[flavour]}">',
            f'<model name="{model}"><static>true</static><link name="terrain">',
            f'<collision name="terrain_collision"><geometry><heightmap>{hgeom}</heightmap>'
@@ -198,19 +201,19 @@ def field_sdf(field: F.Field, shape: F.FieldShape, model: str, flavour: str,
            f"</use_terrain_paging><texture><size>2</size><diffuse>{uri}/{tex}/soil.png</diffuse>"
            f"<normal>{uri}/{tex}/soil_normal.png</normal></texture>{hgeom}</heightmap>"
            "</geometry></visual></link>"]
-    prims = jax.tree.map(np.asarray, PL.plant_prims(f, shape))
-    pose = np.concatenate([prims.centre, S.euler_zyx(prims.rot)[..., ::-1]], -1)
-    foot = np.asarray(PL.footprint(shape.crop, f.plant_size))
+    prims = jax.tree.map(np.asarray, crops_prims.plant_prims(f, shape))
+    pose = np.concatenate([prims.centre, scene.euler_zyx(prims.rot)[..., ::-1]], -1)
+    foot = np.asarray(crops_prims.footprint(shape.crop, f.plant_size))
     for r in order:
         row = new_row[r]
         out.append(f'<link name="row_{row}">')
         for p in np.flatnonzero(f.plant_active[r]):
             for k, kind in enumerate(prims.kind):
                 nm, size = f"plant_r{row}_p{p}_k{k}", prims.size[r, p, k]
-                rgb = PLANT_RGB[PL.MATERIAL_NAMES[prims.material[k]]]
+                rgb = PLANT_RGB[crops_prims.MATERIAL_NAMES[prims.material[k]]]
                 for c in ((rgb,) + ((None,) if collisions == "primitives" else ())):
                     suffix = "" if c is not None else "_collision"
-                    if kind == PL.CAPSULE:
+                    if kind == crops_prims.CAPSULE:
                         out += w.capsule(nm + suffix, prims.centre[r, p, k], prims.rot[r, p, k],
                                          size[0], size[2], c)
                     else:
@@ -221,15 +224,15 @@ def field_sdf(field: F.Field, shape: F.FieldShape, model: str, flavour: str,
                                        radii))
         out.append("</link>")
     out.append('<link name="obstacles">')
-    n = {F.STONE: 0, F.BRANCH: 0}
+    n = {mjxrow_field.STONE: 0, mjxrow_field.BRANCH: 0}
     for i in np.flatnonzero(f.obst_active):
         kind, (rad, half) = int(f.obst_kind[i]), f.obst_size[i]
-        for c in (None, STONE_RGB if kind == F.STONE else BRANCH_RGB):
-            nm = ("stone" if kind == F.STONE else "branch") + f"_{n[kind]}"
+        for c in (None, STONE_RGB if kind == mjxrow_field.STONE else BRANCH_RGB):
+            nm = ("stone" if kind == mjxrow_field.STONE else "branch") + f"_{n[kind]}"
             nm += "_collision" if c is None else ""
-            if kind == F.STONE:
+            if kind == mjxrow_field.STONE:
                 out.append(w.item(nm, np.r_[f.obst_pos[i], 0, 0, 0],
-                                  f"<sphere><radius>{S.num(rad)}</radius></sphere>", c))
+                                  f"<sphere><radius>{scene.num(rad)}</radius></sphere>", c))
             else:
                 yaw = f.obst_yaw[i]
                 rot = np.array([[0, -np.sin(yaw), np.cos(yaw)], [0, np.cos(yaw), np.sin(yaw)],
@@ -246,7 +249,7 @@ def model_config(model: str, flavour: str, description: str) -> str:
             f"</author>\n  <description>{description}</description>\n</model>\n")
 
 
-def world_sdf(name: str, flavour: str, start: S.Start) -> str:
+def world_sdf(name: str, flavour: str, start: scene.Start) -> str:
     """The world file: scene, sun, physics (and Gazebo Sim's systems), the field included and
     the robot included at `start` (raised by SPAWN_LIFT). Gazebo Classic's world is named
     "default" (its tools and plugins address the first world they find, and a camera sensor
@@ -269,12 +272,19 @@ def world_sdf(name: str, flavour: str, start: S.Start) -> str:
         "<specular>0.1 0.1 0.1 1</specular><direction>0.35 0.45 -1</direction></light>",
         f"<include><uri>model://{nm['field']}</uri><name>field</name></include>",
         f"<include><uri>model://{nm['robot']}</uri><name>robot</name>"
-        f"<pose>{S.nums(pose[:3], 4)} {S.nums(pose[3:], 5)}</pose></include>",
+        f"<pose>{scene.nums(pose[:3], 4)} {scene.nums(pose[3:], 5)}</pose></include>",
         "</world>", "</sdf>", ""])
 
 
-def gazebo_files(field: F.Field, shape: F.FieldShape, name: str, flavour: str, robot: S.Robot,
-                 start: S.Start, collisions: str = "footprint") -> dict[str, bytes]:
+def gazebo_files(
+    field: mjxrow_field.Field,
+    shape: mjxrow_field.FieldShape,
+    name: str,
+    flavour: str,
+    robot: scene.Robot,
+    start: scene.Start,
+    collisions: str = "footprint",
+) -> dict[str, bytes]:
     """Every file of one flavour's export (module doc): {path relative to the export folder:
     bytes}."""
     nm = names(name, flavour)
