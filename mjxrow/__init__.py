@@ -1,9 +1,23 @@
 """mjxrow: batch evaluation of autonomous navigation in row-based crop fields with JAX and MJX.
 
-One module per stage of the data flow: `field` → `worlds` (exports) / `sim` (physics) →
-`render` → `seg` → `control` → `episode` → `metrics` → `sweep` (+ `plots`).
+The public Python API, as in the README:
+
+    run = mjxrow.build_run({"preset": "vineyard", "controller.name": "oracle"})
+    built = mjxrow.build(run)                          # model, policy, one compiled program
+    batch = built.batch([(run, i) for i in range(4)])  # episodes 0..3 of seed 0
+    log = built.rollout(batch)                         # Log [4, T]
+    summary = built.summarise(log, 4)                  # per-episode metrics
+
+The packages, bottom-up (each imports only from the ones below it; `lint-imports` keeps it so):
+`limits`, `crops`, `field` (the traced generator) → `physics`, `render`, `seg` → `control`
+(leaf controllers) → `policies` (perception, the learned policy) → `rollout` (the step, the
+build, the episode loop, the metrics) → `env`, `sweep`, `worlds` → `train`, `bench`.
+
+The names below are loaded when first used, so that `import mjxrow` (and every command's
+`--help`) stays cheap.
 """
 
+import importlib as _importlib
 import os as _os
 import time as _time
 
@@ -14,3 +28,45 @@ STARTED = _time.time()  # when a command first imported the package: the start o
 _os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
 
 __version__ = "0.1.0"
+
+_API = {
+    # configs: one run (dotted keys, as a sweep's cell) or a whole sweep file
+    "RunConfig": "mjxrow.rollout.config",
+    "build_run": "mjxrow.rollout.config",
+    "load_sweep": ("mjxrow.sweep.config", "load"),
+    # the batch of episodes: build → batch → rollout → summarise
+    "build": "mjxrow.rollout.build",
+    "Built": "mjxrow.rollout.build",
+    "Log": "mjxrow.rollout.metrics",
+    "results_table": "mjxrow.rollout.cli",
+    "aggregate": "mjxrow.rollout.metrics",
+    "format_table": "mjxrow.rollout.metrics",
+    # a whole sweep into a folder (results.csv, summary.csv, heatmaps, report.md)
+    "run_sweep": ("mjxrow.sweep.run", "run"),
+    # fields and the registries
+    "FieldParams": "mjxrow.field",
+    "FieldShape": "mjxrow.field",
+    "make_params": "mjxrow.field",
+    "generate": "mjxrow.field",
+    "register_crop": ("mjxrow.crops", "register"),
+    "register_controller": ("mjxrow.control", "register"),
+    # training environments
+    "Env": "mjxrow.env",
+    "EnvConfig": "mjxrow.env",
+}
+
+__all__ = sorted(_API) + ["STARTED", "__version__"]
+
+
+def __getattr__(name: str):
+    where = _API.get(name)
+    if where is None:
+        raise AttributeError(f"module 'mjxrow' has no attribute {name!r}")
+    module, attr = where if isinstance(where, tuple) else (where, name)
+    value = getattr(_importlib.import_module(module), attr)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return __all__

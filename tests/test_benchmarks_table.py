@@ -54,8 +54,9 @@ def test_current_picks_the_latest_row_the_latest_rounds_median_and_ratios():
     assert "`bash experiments/gpu.sh speed_round` |" in first and "0.2 |" in first
 
 
-def test_repository_benchmarks_md_is_up_to_date(capsys):
-    assert bt.main(["--check", str(ROOT / "BENCHMARKS.md")]) == 0
+@pytest.mark.parametrize("name", ["BENCHMARKS.md", "README.md"])
+def test_repository_figures_are_up_to_date(name, capsys):
+    assert bt.main(["--check", str(ROOT / name)]) == 0
     assert "up to date" in capsys.readouterr().out
 
 
