@@ -16,7 +16,7 @@ whole wall time: training stops early enough for the evaluation to finish before
 
 Evaluation (mjxrow.train.evaluate, through the run builder, i.e. the sweep's episodes and
 metrics): `--episodes` episodes per preset at its default geometry in the Table 3 scenario
-(sweeps/presets.yaml) for the trained policy, SegZeros with the learned segmenter and the
+(mjxrow/sweep/presets.yaml) for the trained policy, SegZeros with the learned segmenter and the
 oracle; success with its 95 % Wilson interval. On a GPU the evaluation programs compile in a
 thread while the policy trains (the weights are traced, so the trained ones run in a program
 compiled for an untrained copy).

@@ -11,8 +11,8 @@ import pytest
 from mjxrow import control as K
 from mjxrow import field as F
 from mjxrow import render
-from mjxrow.policies import perception as CL
 from mjxrow.physics import sim
+from mjxrow.policies import perception as CL
 from mjxrow.rollout import build as B
 from mjxrow.rollout import episode as E
 from mjxrow.rollout import step as rollout_step
@@ -110,7 +110,8 @@ def test_rollout_takes_weights_as_shared_arguments(world):
     """Lowering the batched rollout for two checkpoints of one architecture traces once, and
     the weights are arguments of the program, not constants in it."""
     shape, fields = world
-    cfg = rollout_step.EpisodeConfig(crop="vineyard", max_time=5 / 15, sim=sim.SimConfig(path_length=3.0))
+    cfg = rollout_step.EpisodeConfig(crop="vineyard", max_time=5 / 15,
+                                     sim=sim.SimConfig(path_length=3.0))
     _, mx = sim.make_model(shape, cfg.sim)
     policy = CL.perception_policy("segzeros", shape, INTR, "learned", Ramp())
     keys = jax.random.split(jax.random.key(1), N)

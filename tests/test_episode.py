@@ -16,8 +16,8 @@ from mjxrow import field as F
 from mjxrow.physics import sim
 from mjxrow.rollout import build as RB
 from mjxrow.rollout import episode as E
-from mjxrow.rollout import step as rollout_step
 from mjxrow.rollout import metrics as M
+from mjxrow.rollout import step as rollout_step
 
 B = 8
 SHAPE = F.FieldShape(crop="vineyard", max_rows=8, max_plants_per_row=32, terrain_cells=(56, 112),
@@ -333,7 +333,8 @@ def test_segzeros_on_rendered_masks_steers_back():
     params = jax.tree.map(lambda x: jnp.broadcast_to(x, (n,)), params)
     fields = RB.generate_fn()(
         params, SHAPE, jax.random.split(jax.random.key(0), n))
-    cfg = rollout_step.EpisodeConfig(crop="vineyard", max_time=200 / 15, sim=sim.SimConfig(path_length=6.0))
+    cfg = rollout_step.EpisodeConfig(crop="vineyard", max_time=200 / 15,
+                                     sim=sim.SimConfig(path_length=6.0))
     _, mx = sim.make_model(SHAPE, cfg.sim)
     intr = render.Intrinsics(48, 32, 42.0)
     policy, pparams = closed_loop.make("segzeros", SHAPE, intr)

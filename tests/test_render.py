@@ -18,10 +18,10 @@ from mjxrow import crops
 from mjxrow import field as F
 from mjxrow import render as RD
 from mjxrow.crops import prims as PL
-from mjxrow.worlds import export as WD
 from mjxrow.render import geom as G
 from mjxrow.render import shade as S
 from mjxrow.render import terrain as T
+from mjxrow.worlds import export as WD
 
 H, W = 48, 64
 INTR = RD.Intrinsics(W, H, 45.0)

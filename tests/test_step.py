@@ -16,7 +16,6 @@ from mjxrow import control
 from mjxrow import env as mjxrow_env
 from mjxrow.rollout import episode as rollout_episode
 from mjxrow.rollout import metrics as rollout_metrics
-from mjxrow.rollout import step as rollout_step
 from mjxrow.rollout.config import build_run
 
 TINY = {"preset": "vineyard", "controller.name": "oracle", "field.terrain_length": 14.0,

@@ -17,10 +17,10 @@ import pytest
 import yaml
 
 from mjxrow import env as E
-from mjxrow.train import TINY, BCConfig, PPOConfig, TrainConfig, train
 from mjxrow.policies import checkpoint as CK
-from mjxrow.train import config as TC
 from mjxrow.policies import networks as N
+from mjxrow.train import TINY, BCConfig, PPOConfig, TrainConfig, train
+from mjxrow.train import config as TC
 from mjxrow.train import ppo as P
 from mjxrow.train.rollout import Transition
 

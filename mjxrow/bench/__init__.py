@@ -1,6 +1,7 @@
 """Benchmarks: `python -m mjxrow.bench STAGE [...]`. Each stage module has `add_args(parser)` and
 `run(args) -> list[dict]`; every row lands in `benchmarks.jsonl` (machine) and is printed as a
-table to paste into BENCHMARKS.md (human)."""
+table; BENCHMARKS.md's current figures are generated from the rows
+(`experiments/benchmarks_table.py --write BENCHMARKS.md`)."""
 
 from __future__ import annotations
 

@@ -19,6 +19,7 @@ counters}, with `train.json` naming the observation and network it belongs to.
 from __future__ import annotations
 
 import dataclasses
+import importlib.resources
 import json
 import shutil
 from pathlib import Path
@@ -32,7 +33,7 @@ import orbax.checkpoint as ocp
 from mjxrow.policies import networks
 from mjxrow.policies.observe import ObsSpec
 
-SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints" / "policy"
+SHIPPED = Path(str(importlib.resources.files("mjxrow").joinpath("checkpoints", "policy")))
 SPEC_FILE = "policy.json"
 WEIGHT_DTYPES = ("float32", "float16")
 

@@ -132,7 +132,7 @@ def default_settle(intr: Intrinsics | None = None) -> str:
     `lax.optimization_barrier`; "loop" keeps the shading terms with a while loop
     (`geom.materialise`). CPUs: "loop" (5-12 % faster per closed-loop step). GPUs: "barrier"
     up to 64 × 64 pixels (7 % more frames/s at 64 px), "none" above (at 224 px the barrier
-    costs 7 %) (BENCHMARKS.md)."""
+    costs 7 %) (docs/benchmarks-history.md, sixth and seventh rounds)."""
     if jax.default_backend() == "cpu":
         return "loop"
     small = intr is not None and intr.width * intr.height <= 64 * 64

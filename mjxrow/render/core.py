@@ -1,10 +1,11 @@
 """Batched camera renderer: a pure JAX ray caster of one field from one camera.
 
 `render(field, shape, cam_pos, cam_rot, intr, cond, key=None) -> Frame` draws exactly what the
-exports (`worlds.to_mjcf`) draw: the heightfield terrain with MuJoCo's triangulation, each
-plant's primitives from `plants.plant_prims` (ellipsoids and capsules, intersected exactly),
-stones (spheres) and fallen branches (capsules). It is jittable and vmappable over worlds and
-cameras; jit/vmap are composed by the callers (episode, dataset, benchmarks), e.g.
+exports (`mjxrow.worlds.mjcf.to_mjcf`) draw: the heightfield terrain with MuJoCo's
+triangulation, each plant's primitives from `crops.prims.plant_prims` (ellipsoids and
+capsules, intersected exactly), stones (spheres) and fallen branches (capsules). It is
+jittable and vmappable over worlds and cameras; jit/vmap are composed by the callers (episode,
+dataset, benchmarks), e.g.
 
     frames = jax.jit(jax.vmap(lambda f, p, r, c: render(f, shape, p, r, intr, c)))(...)
 

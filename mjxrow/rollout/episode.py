@@ -7,7 +7,8 @@ outside, the step vmapped inside: traced once); `rollout(...)` jits it over B fi
 once per (policy, static config, policy-params axes): fields, lanes, keys, per-episode
 start-pose noise and the policy's params (per episode or shared, `params_axes`) are traced
 arrays, so new FieldParams, gains, noise or segmenter weights never retrace. `TRACES` counts
-the traces. Perception policies (render → segment → SegZeros) come from `closed_loop`.
+the traces. Perception policies (render → segment → SegZeros) come from
+`mjxrow.policies.perception`.
 
 An episode starts at rest `sim_cfg.path_length` before the end of its lane (sim.reset), the goal
 is the lane's end point (row end x, lane centre y). Each step: observation → policy →

@@ -11,6 +11,7 @@ trained on every crop). `load` always returns float32 variables, whatever the st
 
 from __future__ import annotations
 
+import importlib.resources
 import json
 import shutil
 from pathlib import Path
@@ -24,7 +25,7 @@ import orbax.checkpoint as ocp
 from mjxrow import crops
 from mjxrow.seg.model import SegNet
 
-CHECKPOINT_DIR = Path(__file__).resolve().parents[1] / "checkpoints"
+CHECKPOINT_DIR = Path(str(importlib.resources.files("mjxrow").joinpath("checkpoints")))
 WEIGHT_DTYPES = ("float32", "float16", "bfloat16")
 
 

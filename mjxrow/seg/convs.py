@@ -3,7 +3,8 @@
 The depthwise k×k conv (`DepthwiseConv`) and the 1×1 conv (`Pointwise`) carry exactly the
 parameters of `flax.linen.Conv`, so every checkpoint loads into each implementation, and all
 compute the same numbers up to float rounding (tests/test_seg.py). "auto" picks one by backend
-(`DW_AUTO`, `PW_AUTO`): the fastest measured there (BENCHMARKS.md, 2026-11-25 sixth round).
+(`DW_AUTO`, `PW_AUTO`): the fastest measured there (docs/benchmarks-history.md, 2026-11-25
+sixth round).
 
 - depthwise: "conv" (grouped convolution), "shift" (`depthwise_shift`: k² strided slices),
   "mixed" (shift for the dilated convs only), "phases" (grouped convolution, the dilated ones
