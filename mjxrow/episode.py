@@ -17,6 +17,7 @@ from mjxrow import control, crops, files, interrupt, limits, runtime
 from mjxrow.rollout import cli
 from mjxrow.sweep import config as sweep_config
 from mjxrow.sweep import estimate
+from mjxrow.sweep import grid as sweep_grid
 
 
 def parser() -> argparse.ArgumentParser:
@@ -68,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.n < 1:
             raise sweep_config.ConfigError(f"--n: must be at least 1, got {args.n}")
         limits.check_count("--n", "episodes", args.n, limits.EPISODES)
-        run = sweep_config.expand(cfg)[0].cfg
+        run = sweep_grid.expand(cfg)[0].cfg
         estimate.check_episodes(run, args.n, args.force)
         files.check_out_dir(args.out, "--out")
         with interrupt.HardStop():

@@ -48,11 +48,12 @@ import pandas as pd
 import yaml
 from tqdm.auto import tqdm
 
-from mjxrow import control, crops, runtime
+from mjxrow import control, crops, runtime, stopwatch
 from mjxrow.rollout import build as rollout_build
 from mjxrow.rollout import metrics as rollout_metrics
 from mjxrow.seg import checkpoint as seg_checkpoint
 from mjxrow.sweep import config as sweep_config
+from mjxrow.sweep import groups as sweep_groups
 from mjxrow.sweep import run as sweep_run
 
 ROOT = Path(__file__).resolve().parents[2]  # the checkout: sweeps/, docs/
@@ -315,13 +316,13 @@ class SharedBlocks:
     def _evaluate_all(self) -> dict[str, pd.DataFrame]:
 
         flat = [(name, g) for name, (cfg, folder) in self.blocks.items()
-                for g in sweep_run.pending(cfg, folder) if g.episodes]
+                for g in sweep_groups.pending(cfg, folder) if g.episodes]
         self.episodes = sum(len(g.episodes) for _, g in flat)
         if len({g.shape for _, g in flat}) > 1:  # fields of other shapes: one by one
             parts: dict[str, list[pd.DataFrame]] = {name: [] for name in self.blocks}
             for name, g in flat:
                 parts[name].append(
-                    sweep_run.evaluate_group(g, self.blocks[name][0], lambda r: None)
+                    sweep_groups.evaluate_group(g, self.blocks[name][0], lambda r: None)
                 )
             return {name: pd.concat(ps, ignore_index=True) if ps else pd.DataFrame()
                     for name, ps in parts.items()}
@@ -330,7 +331,7 @@ class SharedBlocks:
         items = [(name, runs[(name, c)], c, e) for name, g in flat for c, e in g.episodes]
         size = built.padded(min(sum(cfg.batch_size for cfg, _ in self.blocks.values()),
                                 len(items)))
-        rows = sweep_run.evaluate_episodes(built, [it[1:] for it in items], size)
+        rows = sweep_groups.evaluate_episodes(built, [it[1:] for it in items], size)
         tags = pd.Series([it[0] for it in items])
         return {name: rows[(tags == name).to_numpy()].reset_index(drop=True)
                 for name in self.blocks}
@@ -349,7 +350,7 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
     import jax
 
 
-    watch, programs0 = runtime.Stopwatch(), rollout_build.program_count()
+    watch, programs0 = stopwatch.Stopwatch(), rollout_build.program_count()
     out = Path(out)
     base = base if base is not None else load_base()
     devs = jax.devices()

@@ -9,6 +9,7 @@ from mjxrow.rollout import build as B
 from mjxrow.rollout import cli
 from mjxrow.rollout import metrics as M
 from mjxrow.sweep import config as C
+from mjxrow.sweep import grid as G
 from mjxrow.sweep import run as S
 
 TINY = {"preset": "vineyard", "seed": 5, "seeds": 3, "batch_size": 2,
@@ -26,7 +27,7 @@ def runs(tmp_path_factory):
     cfg = C.from_dict(TINY)
     S.run(cfg, out / "sweep", progress=False, figures=False)
     sweep = pd.read_csv(out / "sweep" / "results.csv").sort_values("episode")
-    run = C.expand(cfg)[0].cfg
+    run = G.expand(cfg)[0].cfg
     table = cli.run_episodes(run, 3, out / "episode", progress=False)
     return cfg, run, sweep.reset_index(drop=True), table
 
@@ -53,7 +54,7 @@ def test_batch_composition_does_not_change_an_episode(runs):
 def test_build_refuses_mixed_static_values():
     cfg = C.from_dict({**TINY, "camera": {"width": [16, 24], "height": 16}})
     with pytest.raises(ValueError, match="static values"):
-        B.build([c.cfg for c in C.expand(cfg)])
+        B.build([c.cfg for c in G.expand(cfg)])
 
 
 def _close(a, b) -> bool:
@@ -65,7 +66,7 @@ def _close(a, b) -> bool:
 
 def test_a_mixed_group_runs_each_episode_with_its_own_controller(runs):
     _, oracle, sweep, _ = runs
-    seg = C.expand(C.from_dict({**TINY, "controller": {"name": "segzeros"}}))[0].cfg
+    seg = G.expand(C.from_dict({**TINY, "controller": {"name": "segzeros"}}))[0].cfg
     mixed = B.build([oracle, seg])
     assert len(mixed.variants) == 2 and B.build(oracle).variants == ()
     items = [(seg, e) for e in range(3)] + [(oracle, e) for e in range(3)]
@@ -80,7 +81,7 @@ def test_a_mixed_group_runs_each_episode_with_its_own_controller(runs):
     # the controllers really differ here, so the selection is what made them match
     assert not _close(got["omega_std"][:3], got["omega_std"][3:])
     # a run of another static value cannot join
-    wide = C.expand(C.from_dict({**TINY, "camera": {"width": 24, "height": 16}}))[0].cfg
+    wide = G.expand(C.from_dict({**TINY, "camera": {"width": 24, "height": 16}}))[0].cfg
     with pytest.raises(ValueError, match="besides the controller"):
         B.build([oracle, seg, wide])
 
@@ -118,8 +119,8 @@ def test_checks_and_batch_assembly_compile_only_their_programs():
     program each: no program per small array operation (each costs a compile or a cache
     load, which on a GPU is tenths of a second)."""
     cfg = C.from_dict({**TINY, "field": {**TINY["field"], "d_rr": [2.0, 2.2]}})
-    assert _compiled(lambda: C.check(cfg)) == []
-    runs = [c.cfg for c in C.expand(cfg)]
+    assert _compiled(lambda: G.check(cfg)) == []
+    runs = [c.cfg for c in G.expand(cfg)]
     built = B.build(runs[0])
     names = _compiled(lambda: built.batch([(runs[0], 0), (runs[0], 1)], size=2))
     assert len(names) == 3 and "jit(gen)" in names, names

@@ -8,6 +8,7 @@ import yaml
 
 from mjxrow.sweep import config as C
 from mjxrow.sweep import docs as SD
+from mjxrow.sweep import grid as G
 
 GT = {"perception": {"source": "ground_truth"}}
 
@@ -31,8 +32,8 @@ def test_defaults_are_the_papers():
     assert cfg.robot.v_max == 0.5 and cfg.robot.omega_max == 1.0
     assert cfg.controller.v_limit == 0.5 and cfg.controller.omega_limit == 1.0
     assert cfg.sim.control_hz == 15.0 and cfg.sim.path_length == 20.0
-    assert C.field_values(cfg)["d_rr"] == 1.8 and C.expand(cfg)[0].point == ()
-    run = C.expand(cfg)[0].cfg  # every section is the domain config itself
+    assert C.field_values(cfg)["d_rr"] == 1.8 and G.expand(cfg)[0].point == ()
+    run = G.expand(cfg)[0].cfg  # every section is the domain config itself
     assert run.episode.n_steps == 900 and run.camera.width == 64 and run.sim.substeps == 7
 
 
@@ -54,7 +55,7 @@ def test_wrong_types():
     assert error_of({"robot": {"cam_fovy": 40}}) == (
         "robot.cam_fovy: cannot be set here: the camera's vertical field of view is camera.fovy")
     # a key of another controller is that controller's only (one YAML can switch controllers)
-    oracle = C.expand(C.from_dict({"controller": {"name": "oracle", "omega_gain": 2}}))[0].cfg
+    oracle = G.expand(C.from_dict({"controller": {"name": "oracle", "omega_gain": 2}}))[0].cfg
     assert not hasattr(oracle.controller_params(), "omega_gain")
     assert error_of({"controller": {"omega_gian": 2}}).startswith(
         "controller.omega_gian: unknown key; did you mean omega_gain?")
@@ -92,9 +93,9 @@ def test_impossible_values():
 
 
 def test_heading_alpha_reaches_the_controller():
-    cell = C.expand(cfg_of({"controller": {"heading_alpha": 0.02}}))[0]
+    cell = G.expand(cfg_of({"controller": {"heading_alpha": 0.02}}))[0]
     assert float(cell.cfg.controller_params().heading_alpha) == pytest.approx(0.02)
-    default = C.expand(cfg_of({}))[0].cfg
+    default = G.expand(cfg_of({}))[0].cfg
     assert float(default.controller_params().heading_alpha) == pytest.approx(0.005)
 
 
@@ -111,19 +112,19 @@ def test_missing_checkpoint(tmp_path):
     assert "weights/ holds no data" in error_of({"perception": {"checkpoint": str(ck)}})
     (ck / "weights" / "data").write_bytes(b"w")  # verified by its files; restored when loaded
     cfg = C.from_dict({"perception": {"checkpoint": "ck"}}, base_dir=tmp_path)  # YAML-relative
-    r = C.resolved(C.expand(cfg)[0].cfg)
+    r = G.resolved(G.expand(cfg)[0].cfg)
     assert r["perception.checkpoint"] == str(ck.resolve())
     assert len(r["perception.checkpoint_id"]) == 16
     # a copy elsewhere is the same checkpoint; retrained weights are another one
     shutil.copytree(ck, tmp_path / "copy")
-    h = C.cell_hash(C.expand(cfg)[0])
+    h = G.cell_hash(G.expand(cfg)[0])
     copy = C.from_dict({"perception": {"checkpoint": str(tmp_path / "copy")}})
-    assert C.cell_hash(C.expand(copy)[0]) == h
+    assert G.cell_hash(G.expand(copy)[0]) == h
     (ck / "config.json").write_text('{"retrained": 1}')
-    C.checkpoint_id.cache_clear()
-    assert C.resolved(C.expand(cfg)[0].cfg)["perception.checkpoint_id"] != \
+    G.checkpoint_id.cache_clear()
+    assert G.resolved(G.expand(cfg)[0].cfg)["perception.checkpoint_id"] != \
         r["perception.checkpoint_id"]
-    assert C.cell_hash(C.expand(cfg)[0]) != h
+    assert G.cell_hash(G.expand(cfg)[0]) != h
     # the oracle needs no checkpoint; ground truth neither
     C.from_dict({"controller": {"name": "oracle"}, "perception": {"checkpoint": "nope"}})
     C.from_dict({"perception": {"source": "ground_truth", "checkpoint": "nope"}})
@@ -134,22 +135,22 @@ def test_ranges_lists_and_grid_order():
                             "d_rr": [1.6, 2.0, 2.4]}})
     assert cfg.field.terrain_dh == (0.0, 0.1, 0.2, 0.3)
     assert cfg.axis_order == ("field.terrain_dh", "field.d_rr")
-    cells = C.expand(cfg)
+    cells = G.expand(cfg)
     assert len(cells) == 12
     # first axis slowest
     assert [c.point for c in cells[:4]] == [
         (("field.terrain_dh", 0.0), ("field.d_rr", d)) for d in (1.6, 2.0, 2.4)
     ] + [(("field.terrain_dh", 0.1), ("field.d_rr", 1.6))]
     assert cells[4].cfg.field.d_rr == 2.0 and cells[4].cfg.field.terrain_dh == 0.1
-    assert C.resolved(cells[4].cfg)["field.d_rr"] == 2.0
-    assert C.resolved(cells[4].cfg)["field.d_pp"] == 0.7  # zucchini's preset value
+    assert G.resolved(cells[4].cfg)["field.d_rr"] == 2.0
+    assert G.resolved(cells[4].cfg)["field.d_pp"] == 0.7  # zucchini's preset value
 
 
 def test_axes_on_any_section_and_preset():
     cfg = cfg_of({"preset": ["zucchini", "vineyard"], "controller": {"omega_gain": [2, 3, 4]},
                   "camera": {"width": [32, 64]}})
-    assert len(C.expand(cfg)) == 12
-    vine = [c for c in C.expand(cfg) if c.cfg.preset == "vineyard"][0]
+    assert len(G.expand(cfg)) == 12
+    vine = [c for c in G.expand(cfg) if c.cfg.preset == "vineyard"][0]
     assert C.field_values(vine.cfg)["d_rr"] == 2.7
 
 
@@ -159,7 +160,7 @@ def test_set_overrides():
     assert cfg.field.d_rr == (1.6, 1.8) and cfg.seeds == 3
     assert cfg.controller.variant == "public"
     assert cfg.axis_order == ("field.terrain_dh", "field.d_rr")  # --set axes come last
-    assert len(C.expand(cfg)) == 4
+    assert len(G.expand(cfg)) == 4
     assert error_of({}, sets=["field.d_rr2=1"]).startswith("field.d_rr2: unknown key")
     assert error_of({}, sets=["seeds"]).startswith("--set 'seeds': expected key=value")
 
@@ -180,7 +181,7 @@ def test_load_file_errors(tmp_path):
 def test_smoke_shrinks_to_two_by_two():
     cfg = cfg_of({"field": {"d_rr": [1.6, 1.8, 2.0, 2.4], "terrain_dh": [0.0, 0.1, 0.3],
                             "d_pp": [0.6, 0.7]}, "seeds": 10}, smoke=True)
-    cells = C.expand(cfg)
+    cells = G.expand(cfg)
     assert [c.point for c in cells] == [
         (("field.d_rr", a), ("field.terrain_dh", b)) for a in (1.6, 2.4) for b in (0.0, 0.3)]
     assert cfg.field.d_pp == 0.6 and cfg.seeds == 2 and cfg.camera.width == 16
@@ -188,22 +189,22 @@ def test_smoke_shrinks_to_two_by_two():
 
 
 def test_hashes_and_static_keys():
-    a = C.expand(cfg_of({"field": {"d_rr": [1.6, 2.0]}}))
-    b = C.expand(cfg_of({"field": {"d_rr": [1.6, 2.0]}, "name": "other", "batch_size": 3}))
-    assert [C.cell_hash(c) for c in a] == [C.cell_hash(c) for c in b]  # name/batch don't count
-    assert C.cell_hash(a[0]) != C.cell_hash(a[1])
-    assert C.cell_hash(a[0], "shape A") != C.cell_hash(a[0], "shape B")
-    c = C.expand(cfg_of({"field": {"d_rr": 1.6}, "seed": 1}))
-    assert C.cell_hash(c[0]) != C.cell_hash(a[0])  # another base seed, other numbers
+    a = G.expand(cfg_of({"field": {"d_rr": [1.6, 2.0]}}))
+    b = G.expand(cfg_of({"field": {"d_rr": [1.6, 2.0]}, "name": "other", "batch_size": 3}))
+    assert [G.cell_hash(c) for c in a] == [G.cell_hash(c) for c in b]  # name/batch don't count
+    assert G.cell_hash(a[0]) != G.cell_hash(a[1])
+    assert G.cell_hash(a[0], "shape A") != G.cell_hash(a[0], "shape B")
+    c = G.expand(cfg_of({"field": {"d_rr": 1.6}, "seed": 1}))
+    assert G.cell_hash(c[0]) != G.cell_hash(a[0])  # another base seed, other numbers
     # traced axes share the static key; an image-size axis does not
-    assert C.static_key(a[0].cfg) == C.static_key(a[1].cfg)
-    w = C.expand(cfg_of({"camera": {"width": [16, 32]}}))
-    assert C.static_key(w[0].cfg) != C.static_key(w[1].cfg)
-    s = C.expand(cfg_of({"sim": {"iterations": [4, 8]}, "render": {"shadows": [True, False]}}))
-    assert len({C.static_key(c.cfg) for c in s}) == 4  # solver and renderer settings sweep too
+    assert G.static_key(a[0].cfg) == G.static_key(a[1].cfg)
+    w = G.expand(cfg_of({"camera": {"width": [16, 32]}}))
+    assert G.static_key(w[0].cfg) != G.static_key(w[1].cfg)
+    s = G.expand(cfg_of({"sim": {"iterations": [4, 8]}, "render": {"shadows": [True, False]}}))
+    assert len({G.static_key(c.cfg) for c in s}) == 4  # solver and renderer settings sweep too
     # start-pose noise is per episode: an axis of it is one group
-    n = C.expand(cfg_of({"episode": {"start_offset_std": [0.0, 0.1], "start_yaw_std": [0, 5]}}))
-    assert len(n) == 4 and len({C.static_key(c.cfg) for c in n}) == 1
+    n = G.expand(cfg_of({"episode": {"start_offset_std": [0.0, 0.1], "start_yaw_std": [0, 5]}}))
+    assert len(n) == 4 and len({G.static_key(c.cfg) for c in n}) == 1
     assert not C.is_static("episode.start_offset_std") and not C.is_static("episode.start_yaw_std")
 
 
@@ -221,7 +222,7 @@ def test_docs_list_every_key():
 def test_shipped_sweeps_are_valid(name):
     root = Path(__file__).parents[1]
     cfg = C.load(root / name, sets=["perception.source=ground_truth"])
-    cells = C.expand(cfg)
+    cells = G.expand(cfg)
     assert len(cells) * cfg.seeds >= 200, (len(cells), cfg.seeds)
     if name == "sweeps.yaml":
         assert cfg.preset == "zucchini" and cfg.controller.name == "segzeros"

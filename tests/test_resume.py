@@ -16,6 +16,7 @@ import pytest
 import yaml
 
 from mjxrow import files as FS
+from mjxrow.sweep import cells as SC
 from mjxrow.sweep import config as C
 from mjxrow.sweep import run as S
 
@@ -83,10 +84,10 @@ def test_cell_file_with_missing_episodes_or_another_hash(tmp_path):
     files = sorted((tmp_path / "cells").glob("*.csv"))
     df = pd.read_csv(files[0])
     df.iloc[:2].to_csv(files[0], index=False)
-    assert S.cell_file_problem(files[0], 3) == "2 of 3 episodes"
+    assert SC.cell_file_problem(files[0], 3) == "2 of 3 episodes"
     pd.read_csv(files[2]).to_csv(files[1], index=False)
-    assert S.cell_file_problem(files[1], 3) == "holds another cell's rows"
-    assert S.cell_file_problem(files[3], 3) is None
+    assert SC.cell_file_problem(files[1], 3) == "holds another cell's rows"
+    assert SC.cell_file_problem(files[3], 3) is None
 
 
 def test_second_sweep_into_the_same_folder_refuses(tmp_path, capsys):
@@ -119,6 +120,7 @@ def test_rerun_with_nothing_to_do_keeps_the_run_facts(tmp_path):
 HEAVY = """
 import sys
 import jax, jax.numpy as jnp, pandas as pd
+from mjxrow.sweep import groups as SG
 from mjxrow.sweep import run as S
 
 def heavy(x):
@@ -137,7 +139,7 @@ def evaluate(group, cfg, on_batch_done):
     on_batch_done(rows)
     return rows
 
-S.evaluate_group = evaluate
+SG.evaluate_group = evaluate
 sys.exit(S.main(sys.argv[1:]))
 """
 

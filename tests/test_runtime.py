@@ -1,5 +1,6 @@
 """Process set-up (mjxrow.runtime): cache directory, flags, the persistent compilation cache
-across two processes, placement and gathering in one process, the compile clock."""
+across two processes, placement and gathering in one process; the compile clock
+(mjxrow.stopwatch)."""
 
 import argparse
 import json
@@ -16,6 +17,7 @@ import pytest
 from flax import struct
 
 from mjxrow import runtime as R
+from mjxrow import stopwatch as SW
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -70,19 +72,19 @@ def test_sweep_cli_names_the_missing_flag(tmp_path, capsys):
 
 
 def test_union_seconds_counts_nested_spans_once():
-    assert R.union_seconds([(0.0, 2.0), (1.0, 3.0), (5.0, 6.0)]) == pytest.approx(4.0)
-    assert R.union_seconds([(0.0, 10.0), (2.0, 3.0)]) == pytest.approx(10.0)
-    assert R.union_seconds([(0.0, 2.0), (5.0, 6.0)], since=1.0) == pytest.approx(2.0)
-    assert R.union_seconds([]) == 0.0
+    assert SW.union_seconds([(0.0, 2.0), (1.0, 3.0), (5.0, 6.0)]) == pytest.approx(4.0)
+    assert SW.union_seconds([(0.0, 10.0), (2.0, 3.0)]) == pytest.approx(10.0)
+    assert SW.union_seconds([(0.0, 2.0), (5.0, 6.0)], since=1.0) == pytest.approx(2.0)
+    assert SW.union_seconds([]) == 0.0
 
 
 def test_stopwatch_splits_compile_run_write():
-    watch = R.Stopwatch()
+    watch = SW.Stopwatch()
     time.sleep(0.06)
     now = time.time()  # as if the last 30 ms of the sleep compiled: 20 ms XLA, 20 ms trace
-    R._on_span("/jax/core/compile/backend_compile_duration", now - 0.02, now)
-    R._on_span("/jax/core/compile/jaxpr_trace_duration", now - 0.03, now - 0.01)
-    R._on_span("/jax/core/compile/backend_compile_duration", watch.t0 - 1, watch.t0 - 0.5)
+    SW._on_span("/jax/core/compile/backend_compile_duration", now - 0.02, now)
+    SW._on_span("/jax/core/compile/jaxpr_trace_duration", now - 0.03, now - 0.01)
+    SW._on_span("/jax/core/compile/backend_compile_duration", watch.t0 - 1, watch.t0 - 0.5)
     with watch.writing():
         time.sleep(0.02)
     s = watch.split()
@@ -96,12 +98,12 @@ def test_stopwatch_splits_compile_run_write():
 
 
 def test_stopwatch_counts_the_start_up_before_it():
-    watch = R.Stopwatch(started=time.time() - 2.0)
+    watch = SW.Stopwatch(started=time.time() - 2.0)
     s = watch.split()
     assert s["startup"] == pytest.approx(2.0, abs=0.05)
     assert s["total"] == pytest.approx(2.0 + s["compile"] + s["run"] + s["write"], abs=0.01)
     assert re.match(r"time: 2\.\d s = start-up 2\.0 s \+ compile ", watch.line()), watch.line()
-    assert "start-up" not in R.Stopwatch().line() and R.Stopwatch().split()["startup"] == 0.0
+    assert "start-up" not in SW.Stopwatch().line() and SW.Stopwatch().split()["startup"] == 0.0
 
 
 def test_put_and_to_host_in_one_process():
@@ -119,9 +121,10 @@ def test_put_and_to_host_in_one_process():
 CACHE_SCRIPT = """
 import argparse, json, sys
 from mjxrow import runtime as R
+from mjxrow import stopwatch as SW
 p = argparse.ArgumentParser(); R.add_args(p); R.setup(p.parse_args(sys.argv[1:]))
 import jax, jax.numpy as jnp
-watch = R.Stopwatch()
+watch = SW.Stopwatch()
 f = jax.jit(lambda x: jnp.tanh(x @ x.T).sum())
 jax.block_until_ready(f(jnp.ones((8, 8))))
 print(json.dumps(watch.split()))

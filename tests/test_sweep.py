@@ -13,6 +13,7 @@ import yaml
 
 from mjxrow.rollout import build as B
 from mjxrow.sweep import config as C
+from mjxrow.sweep import groups as SG
 from mjxrow.sweep import run as S
 
 BASE = {"name": "fake", "seeds": 3, "batch_size": 3,
@@ -142,27 +143,27 @@ def test_groups_by_static_values(tmp_path):
             for i, g in enumerate(fake.groups)] == [{16}, {24}]
     assert len(pd.read_csv(tmp_path / "results.csv")) == 4 * 3
     # field axes share a group and its fitted shape holds every cell's field
-    groups = S.plan(C.from_dict({**BASE, "field": {"d_pp": [0.3, 0.7], "row_length": [20, 50]}}))
+    groups = SG.plan(C.from_dict({**BASE, "field": {"d_pp": [0.3, 0.7], "row_length": [20, 50]}}))
     assert len(groups) == 1
     assert groups[0].shape.max_plants_per_row >= 50 / 0.3 + 1
     # start-pose noise axes are traced: one group
-    assert len(S.plan(C.from_dict({**BASE, "episode": {"start_offset_std": [0.0, 0.1],
-                                                       "start_yaw_std": [0.0, 3.0]}}))) == 1
+    assert len(SG.plan(C.from_dict({**BASE, "episode": {"start_offset_std": [0.0, 0.1],
+                                                        "start_yaw_std": [0.0, 3.0]}}))) == 1
     # presets differ in crop: one group each
-    assert len(S.plan(C.from_dict({**BASE, "field": {}, "preset": ["zucchini", "pear"]}))) == 2
+    assert len(SG.plan(C.from_dict({**BASE, "field": {}, "preset": ["zucchini", "pear"]}))) == 2
 
 
 def test_mix_controllers_puts_a_controller_axis_in_one_group():
     raw = {**BASE, "controller": {"name": ["oracle", "segzeros"]},
            "perception": {"source": ["ground_truth", "learned"]}}
-    assert len(S.plan(C.from_dict(raw))) == 4  # every (controller, source): its own group
-    groups = S.plan(C.from_dict({**raw, "mix_controllers": True}))
+    assert len(SG.plan(C.from_dict(raw))) == 4  # every (controller, source): its own group
+    groups = SG.plan(C.from_dict({**raw, "mix_controllers": True}))
     assert [len(g.cells) for g in groups] == [16]  # 4 fields × 2 controllers × 2 sources
     built_variants = {g.cell(c).cfg.variant_key() for g in groups for c, _ in g.episodes}
     assert len(built_variants) == 3  # the oracle reads no mask: its source does not count
     # other static values still split the groups
     wide = {**raw, "mix_controllers": True, "camera": {"width": [16, 24]}}
-    assert [len(g.cells) for g in S.plan(C.from_dict(wide))] == [16, 16]
+    assert [len(g.cells) for g in SG.plan(C.from_dict(wide))] == [16, 16]
     with pytest.raises(C.ConfigError, match="mix_controllers: expected true or false"):
         C.from_dict({**BASE, "mix_controllers": 1})
     with pytest.raises(C.ConfigError, match="mix_controllers: controller 'policy' renders"):
@@ -201,7 +202,7 @@ def test_cli_bad_yaml_exits_2_with_dotted_key(tmp_path, capsys):
 
 def test_cli_smoke_with_fake_evaluator(tmp_path, monkeypatch):
     fake = Fake()
-    monkeypatch.setattr(S, "evaluate_group", fake)
+    monkeypatch.setattr(SG, "evaluate_group", fake)
     path = tmp_path / "s.yaml"
     path.write_text(yaml.safe_dump({**BASE, "seeds": 8, "field": {
         "d_rr": [1.6, 1.8, 2.0, 2.4], "terrain_dh": [0.0, 0.1, 0.2]}}))
@@ -293,7 +294,7 @@ def test_learned_weights_are_shared_params_of_one_policy(tmp_path):
         raw = {**BASE, "field": {"d_rr": [1.6, 2.4]},
                "perception": {"source": "learned", "checkpoint": str(tmp_path / checkpoint),
                               "threshold": [0.5, 0.7]}}
-        groups = S.plan(C.from_dict(raw))
+        groups = SG.plan(C.from_dict(raw))
         assert len(groups) == 1  # threshold and geometry are traced: one group, one compile
         g = groups[0]
         return g, B.build([c.cfg for c in g.cells], g.shape)

@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from mjxrow import control, crops, runtime
+from mjxrow import control, crops, runtime, stopwatch
 from mjxrow.bench import time_runs
 from mjxrow.policies import perception
 from mjxrow.rollout import build as rollout_build
@@ -35,6 +35,7 @@ from mjxrow.rollout.config import RunConfig
 from mjxrow.seg import checkpoint as seg_checkpoint
 from mjxrow.seg import convs as seg_convs
 from mjxrow.sweep import config as sweep_config
+from mjxrow.sweep import grid as sweep_grid
 
 
 def add_args(p: argparse.ArgumentParser) -> None:
@@ -75,7 +76,7 @@ def run_config(args: argparse.Namespace) -> RunConfig:
            "perception": {"source": args.perception},
            "camera": {"width": args.image, "height": args.image},
            "episode": {"max_time": rollout_episode.steps_run(args.steps) / hz}}
-    return sweep_config.expand(sweep_config.from_dict(raw, sets=args.set))[0].cfg
+    return sweep_grid.expand(sweep_config.from_dict(raw, sets=args.set))[0].cfg
 
 
 def seg_impl(spec: str) -> dict[str, str]:
@@ -117,7 +118,7 @@ def measure(built: rollout_build.Built, run: RunConfig, b: int, repeats: int) ->
     the last one, for episodes 0..b-1 of `run`."""
     batch = built.batch([(run, e) for e in range(b)])
     args = batch.args(built.mx)
-    watch = runtime.Stopwatch()
+    watch = stopwatch.Stopwatch()
     t0 = time.perf_counter()
     exe = built.executable(args)
     compile_s = time.perf_counter() - t0

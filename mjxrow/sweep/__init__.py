@@ -1,3 +1,5 @@
-"""Sweeps: `config` (YAML schema), `run` (grid → groups → batches, resume, signals), `report`
-(tables, report.md, output files), `figures` (the PNGs).
+"""Sweeps: `config` (YAML schema), `grid` (grid → cells, the checks on every cell), `groups`
+(cells → groups → batches, the evaluation of a group), `run` (resume, signals, the CLI),
+`cells` (the finished cell files), `report` (tables, report.md, output files), `figures` (the
+PNGs).
 CLI: `python -m mjxrow.sweep SWEEP.yaml`."""

@@ -111,7 +111,7 @@ def _rate(device: str) -> tuple[float, float] | None:
 
 
 def estimate(groups, seeds: int, batch_size: int, device: str) -> Estimate:
-    """The estimate of a planned sweep (`run.plan` groups; only the episodes still to run)."""
+    """The estimate of a planned sweep (`groups.plan` groups; only the episodes still to run)."""
     peak, per, batch, steps, n_groups = 0, 0, 0, 0, 0
     for g in groups:
         if not g.episodes:

@@ -1,8 +1,8 @@
 """`python -m mjxrow.sweep SWEEP.yaml [--out DIR] [--smoke] [--set key=value ...]`.
 
-YAML → validated config (config.py) → grid of cells → groups of cells sharing every static
-value (one compile each) → batches of episodes → per-episode metrics → `results.csv`,
-`summary.csv`, one PNG per metric, `report.md`.
+YAML → validated config (config.py) → grid of cells (grid.py) → groups of cells sharing every
+static value (one compile each) → batches of episodes → per-episode metrics (groups.py) →
+`results.csv`, `summary.csv`, one PNG per metric, `report.md`.
 
 Resumable: each finished cell is written at once to `DIR/cells/<hash>.csv` (temp file +
 `os.replace`), `hash` covering the cell's resolved parameters and its group's static field
@@ -12,10 +12,9 @@ sweep out of the folder. From the command line, Ctrl-C and SIGTERM at any moment
 included) write results.csv and summary.csv from the finished cells and exit with 130
 (mjxrow.interrupt); no finished cell is lost and no file is left half-written.
 
-The evaluation of one group is one call with a narrow interface (tests inject a fake one):
-
-    evaluate(group: Group, cfg: SweepConfig, on_batch_done: Callable[[DataFrame], None])
-        -> DataFrame   # one row per episode of group.episodes: cell, episode, metrics...
+The evaluation of one group is one call with a narrow interface, `groups.Evaluator` (tests
+inject a fake one); this module writes each cell's rows as they come, drives the groups with a
+progress bar and the signals, and writes the outputs.
 """
 
 from __future__ import annotations
@@ -30,7 +29,6 @@ import sys
 import textwrap
 import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -40,98 +38,32 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 import mjxrow
-from mjxrow import field, interrupt, runtime
 from mjxrow import files as mjxrow_files
+from mjxrow import interrupt, runtime, stopwatch
 from mjxrow import render as mjxrow_render
-from mjxrow.rollout import build as rollout_build
-from mjxrow.rollout import metrics as rollout_metrics
+from mjxrow.rollout.config import RunConfig
 from mjxrow.sweep import cells as sweep_cells
 from mjxrow.sweep import config as sweep_config
 from mjxrow.sweep import estimate as sweep_estimate
 from mjxrow.sweep import figures as sweep_figures
+from mjxrow.sweep import grid as sweep_grid
+from mjxrow.sweep import groups as sweep_groups
 from mjxrow.sweep import report as sweep_report
-
-Evaluator = Callable[
-    ["Group", sweep_config.SweepConfig, Callable[[pd.DataFrame], None]], pd.DataFrame
-]
-
-
-@dataclasses.dataclass(frozen=True)
-class Group:
-    """Cells that share every static value: one static field shape, one compile.
-
-    `episodes` lists the (cell index, episode index) pairs still to run, cell by cell."""
-
-    index: int
-    shape: field.FieldShape
-    cells: tuple[sweep_config.Cell, ...]
-    hashes: tuple[str, ...]
-    episodes: tuple[tuple[int, int], ...]
-
-    @property
-    def cfg(self) -> sweep_config.SweepConfig:
-        """A config with this group's static values (those of its first cell)."""
-        return self.cells[0].cfg
-
-    def cell(self, index: int) -> sweep_config.Cell:
-        return next(c for c in self.cells if c.index == index)
-
-
-def group_shape(cells: list[sweep_config.Cell]) -> field.FieldShape:
-    """The static FieldShape that holds every cell's field (rounded up by field.fit_shape)."""
-    return rollout_build.fit_shape([c.cfg for c in cells])
-
-
-def plan(cfg: sweep_config.SweepConfig, done: set[str] = frozenset()) -> list[Group]:
-    """Group the cells by static values (with `mix_controllers`, by those but the
-    controller's and the mask source: `RunConfig.share_key`), fit one field shape per group,
-    hash every cell, and list the episodes of the cells whose hash is not in `done`."""
-    by_key: dict[tuple, list[sweep_config.Cell]] = {}
-    for cell in sweep_config.expand(cfg):
-        key = cell.cfg.share_key() if cfg.mix_controllers else sweep_config.static_key(cell.cfg)
-        by_key.setdefault(key, []).append(cell)
-    groups = []
-    for gi, cells in enumerate(by_key.values()):
-        shape = group_shape(cells)
-        hashes = tuple(sweep_config.cell_hash(c, shape) for c in cells)
-        eps = tuple((c.index, e) for c, h in zip(cells, hashes, strict=True) if h not in done
-                    for e in range(cfg.seeds))
-        groups.append(Group(gi, shape, tuple(cells), hashes, eps))
-    return groups
-
-
-def pending(cfg: sweep_config.SweepConfig, out: Path, report: bool = False) -> list[Group]:
-    """`plan` against the cells already finished in `out/cells` (process 0 reads them, every
-    process gets its answer; `report`: as `finished_cells`, only under the folder's lock)."""
-    done = (
-        sorted(finished_cells(out / "cells", cfg.seeds, report=report)) if runtime.writer() else []
-    )
-    return plan(cfg, set(runtime.agree(done)))
-
 
 # ---------------------------------------------------------------------------------------------
 # Files
 
 
-atomic_write_text = sweep_report.atomic_write_text
-
-
 def atomic_write_csv(path: Path, df: pd.DataFrame) -> None:
-    atomic_write_text(path, df.to_csv(index=False))
+    sweep_report.atomic_write_text(path, df.to_csv(index=False))
 
 
-cell_file_problem, finished_cells = (
-    sweep_cells.cell_file_problem,
-    sweep_cells.finished_cells,
-)  # resume checks
-
-
-def resolved_params(run: sweep_config.RunConfig) -> dict[str, Any]:
-    """C.resolved with the render knobs left at None (by crop, by resolution, by backend) set
+def resolved_params(run: RunConfig) -> dict[str, Any]:
+    """grid.resolved with the render knobs left at None (by crop, by resolution, by backend) set
     to the values the renderer used (render.resolve), so that results.csv says what ran. The
     cell hash keeps the given values."""
 
-    out = sweep_config.resolved(run)
+    out = sweep_grid.resolved(run)
     used = mjxrow_render.resolve(run.render, run.preset, run.camera)
     for k, v in dataclasses.asdict(used).items():
         if out.get(f"render.{k}", 0) is None:
@@ -139,7 +71,7 @@ def resolved_params(run: sweep_config.RunConfig) -> dict[str, Any]:
     return out
 
 
-def cell_rows(group: Group, cell_index: int, rows: pd.DataFrame) -> pd.DataFrame:
+def cell_rows(group: sweep_groups.Group, cell_index: int, rows: pd.DataFrame) -> pd.DataFrame:
     """Episode rows of one cell with identity columns and every resolved parameter."""
     cell = group.cell(cell_index)
     rows = rows.sort_values("episode").reset_index(drop=True)
@@ -157,7 +89,7 @@ def cell_rows(group: Group, cell_index: int, rows: pd.DataFrame) -> pd.DataFrame
 
 def write_outputs(
     cfg: sweep_config.SweepConfig,
-    groups: list[Group],
+    groups: list[sweep_groups.Group],
     out: Path,
     info: dict[str, Any],
     figures: bool = True,
@@ -180,48 +112,6 @@ def write_outputs(
 
 
 # ---------------------------------------------------------------------------------------------
-# Evaluation of one group: fields → rollout → metrics
-
-
-def evaluate_group(group: Group, cfg: sweep_config.SweepConfig,
-                   on_batch_done: Callable[[pd.DataFrame], None]) -> pd.DataFrame:
-    """Run `group.episodes` in batches of `cfg.batch_size` (the last one padded, so one compile
-    per group), sharded over all local devices (rollout.build), calling `on_batch_done(rows)`
-    after each batch. Rows: cell, episode, lane and every metric of `metrics.summarise`
-    (reason as its name)."""
-    by_cell = {c.index: c.cfg for c in group.cells}
-    built = rollout_build.build(list(by_cell.values()), group.shape)
-    size = built.padded(min(cfg.batch_size, len(group.episodes)))
-    return evaluate_episodes(built, [(by_cell[c], c, e) for c, e in group.episodes], size,
-                             on_batch_done)
-
-
-def evaluate_episodes(
-    built: rollout_build.Built,
-    items: list[tuple[sweep_config.RunConfig, int, int]],
-    size: int,
-    on_batch_done: Callable[[pd.DataFrame], None] | None = None,
-) -> pd.DataFrame:
-    """Run `items` ((run, cell index, episode index) triples of runs `built` was built for)
-    in batches of `size` (the last one padded), calling `on_batch_done(rows)` after each.
-    Rows in the order of `items`: cell, episode, lane and every metric of
-    `metrics.summarise` (reason as its name)."""
-    out = []
-    for start in range(0, len(items), size):
-        real = list(items[start:start + size])
-        batch = built.batch([(r, e) for r, _, e in real], size)
-        met = built.summarise(built.rollout(batch), len(real))
-        rows = pd.DataFrame({"cell": [c for _, c, _ in real], "episode": [e for *_, e in real],
-                             "lane": runtime.to_host(batch.lanes)[:len(real)],
-                             **{k: (np.asarray(rollout_metrics.REASONS)[v] if k == "reason" else v)
-                                for k, v in met.items() if np.ndim(v) == 1}})
-        if on_batch_done is not None:
-            on_batch_done(rows)
-        out.append(rows)
-    return pd.concat(out, ignore_index=True)
-
-
-# ---------------------------------------------------------------------------------------------
 # Driver
 
 
@@ -240,10 +130,10 @@ class _CellWriter:
     """on_batch_done of one group: collects episode rows per cell and writes each cell's file
     (atomically) as soon as all its episodes are in; advances the progress bar."""
 
-    def __init__(self, group: Group, seeds: int, cells_dir: Path, bar,
-                 watch: runtime.Stopwatch | None = None, lock=None):
+    def __init__(self, group: sweep_groups.Group, seeds: int, cells_dir: Path, bar,
+                 watch: stopwatch.Stopwatch | None = None, lock=None):
         self.group, self.seeds, self.dir, self.bar = group, seeds, cells_dir, bar
-        self.watch = watch or runtime.Stopwatch()
+        self.watch = watch or stopwatch.Stopwatch()
         self.lock = lock or contextlib.nullcontext()
         self.pending: dict[int, list[pd.DataFrame]] = {}
         self.times = [time.perf_counter()]
@@ -317,10 +207,10 @@ def _ticking(bar, enabled: bool):
             thread.join()
 
 
-def run(cfg: sweep_config.SweepConfig, out: str | Path, evaluate: Evaluator | None = None,
-        progress: bool = True, command: str = "", figures: bool = True,
-        hard_stop: bool = False, started: float | None = None,
-        figure_workers: int = 0) -> dict[str, Any]:
+def run(cfg: sweep_config.SweepConfig, out: str | Path,
+        evaluate: sweep_groups.Evaluator | None = None, progress: bool = True,
+        command: str = "", figures: bool = True, hard_stop: bool = False,
+        started: float | None = None, figure_workers: int = 0) -> dict[str, Any]:
     """Run every unfinished cell of `cfg`, persisting each as it finishes, then write the
     outputs (without `figures`: no PNGs and no report). Returns {'groups', 'ran', 'skipped',
     'files'}. Holds `out/.lock` (files.OutLock): a second run into `out` gets OutputError.
@@ -334,7 +224,7 @@ def run(cfg: sweep_config.SweepConfig, out: str | Path, evaluate: Evaluator | No
     the sweep). They are spawned, and a spawned process imports the caller's main script
     again: the CLI, whose main module is a package's, passes them; a script calling `run`
     needs an `if __name__ == "__main__":` guard to pass them."""
-    evaluate = evaluate or evaluate_group
+    evaluate = evaluate or sweep_groups.evaluate_group
     out = Path(out)
     if runtime.writer():  # several processes: process 0 writes, locks and decides what is finished
         (out / "cells").mkdir(parents=True, exist_ok=True)
@@ -352,7 +242,7 @@ FACTS = "run.json"  # the facts (date, command, device, timings) of the last run
 def _run(
     cfg: sweep_config.SweepConfig,
     out: Path,
-    evaluate: Evaluator,
+    evaluate: sweep_groups.Evaluator,
     progress: bool,
     command: str,
     figures: bool,
@@ -360,8 +250,8 @@ def _run(
     started: float | None = None,
     pool: Any = None,
 ) -> dict[str, Any]:
-    watch = runtime.Stopwatch(started=started)
-    groups = pending(cfg, out, report=True)
+    watch = stopwatch.Stopwatch(started=started)
+    groups = sweep_groups.pending(cfg, out, report=True)
     n_cells = sum(len(g.cells) for g in groups)
     total, todo = n_cells * cfg.seeds, sum(len(g.episodes) for g in groups)
     skipped = (total - todo) // cfg.seeds
@@ -378,7 +268,8 @@ def _run(
             pool.shutdown(wait=True, cancel_futures=True)
         if runtime.writer():
             write_outputs(cfg, groups, out, info, figures=False)
-        kept = len(finished_cells(out / "cells") & {h for g in groups for h in g.hashes})
+        finished = sweep_cells.finished_cells(out / "cells")
+        kept = len(finished & {h for g in groups for h in g.hashes})
         print(f"interrupted: {kept} of {n_cells} cells finished and kept in {out}; run the "
               "same command again to resume", file=sys.stderr)
 
@@ -454,9 +345,6 @@ def _device() -> str:
 # CLI
 
 
-cpu_devices = runtime.cpu_devices  # one XLA CPU device per core (runtime.cpu_devices)
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m mjxrow.sweep", description=__doc__.split("\n\n")[1],
@@ -484,8 +372,9 @@ def main(argv: list[str] | None = None) -> int:
             out = out.with_name(out.name + "_smoke")
         mjxrow_files.check_out_dir(out, "--out")
         cells = out / "cells"
-        est = sweep_estimate.estimate(plan(cfg, finished_cells(cells, cfg.seeds)), cfg.seeds,
-                                      cfg.batch_size, _device_name())
+        est = sweep_estimate.estimate(
+            sweep_groups.plan(cfg, sweep_cells.finished_cells(cells, cfg.seeds)), cfg.seeds,
+            cfg.batch_size, _device_name())
         line = sweep_estimate.check(est, args.force)
         workers = sweep_figures.figure_workers()
     except ValueError as e:

@@ -23,6 +23,7 @@ from mjxrow import crops
 from mjxrow.files import check_out_dir, check_out_file
 from mjxrow.rollout import build as rollout_build
 from mjxrow.sweep import config as sweep_config
+from mjxrow.sweep import grid as sweep_grid
 from mjxrow.worlds import export as worlds_export
 from mjxrow.worlds import replay
 
@@ -68,7 +69,7 @@ def resolve_run(preset: str, seed: int = 0, sets: list[str] | tuple[str, ...] = 
         raise sweep_config.ConfigError(
             f"{cfg.axis_order[0]}: one world needs one value, got a list"
         )
-    run = sweep_config.expand(cfg)[0].cfg
+    run = sweep_grid.expand(cfg)[0].cfg
     return run, rollout_build.fit_shape([run])
 
 

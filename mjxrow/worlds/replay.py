@@ -6,7 +6,7 @@ An episode is what `rollout.build` makes of (run config, episode index): the key
 rollout's key, the field from `generate_fn` on the run's static shape, the lane
 `field.robot_lane`, and the start `sim.reset` with `k_reset, _ = split(rollout key)`
 (`rollout.episode.episode`) and the run's start-pose noise. `episode_world` repeats exactly
-that; `from_run` finds a sweep cell's run config and its group's shape (`sweep.run.plan`).
+that; `from_run` finds a sweep cell's run config and its group's shape (`sweep.groups.plan`).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from mjxrow import field as mjxrow_field
 from mjxrow.rollout import build as rollout_build
 from mjxrow.rollout.config import RunConfig
 from mjxrow.sweep import config as sweep_config
-from mjxrow.sweep import run as sweep_run
+from mjxrow.sweep import groups as sweep_groups
 from mjxrow.worlds import scene
 
 
@@ -95,7 +95,7 @@ def from_run(run_dir: str | Path, cell: int, episode: int) -> Episode:
         res = pd.read_csv(run_dir / "results.csv")
         hit = res[(res["cell"] == cell) & (res["episode"] == episode)]
         row = hit.iloc[0] if len(hit) else None
-    groups = sweep_run.plan(cfg)
+    groups = sweep_groups.plan(cfg)
     found = [(g, c) for g in groups for c, h in zip(g.cells, g.hashes, strict=True)
              if row is not None and h == row["cell_hash"]]
     if not found:
