@@ -10,8 +10,9 @@ ground-truth plant mask, and SegZeros on the learned segmenter's mask (shipped c
 Scenario (the paper's Table 3): every preset at its default geometry (Table 1 values; typical
 ones for the vineyard), a 20 m path inside the row with the goal at the row's end, control at
 15 Hz, v ≤ 0.5 m/s, ω ≤ 1.0 rad/s. The episode, controller and camera settings are read from
-`sweeps/presets.yaml` (`--base`), so this table and that sweep describe one scenario; the script
-replaces its preset axis by one preset at a time and sets the controller and perception source.
+`mjxrow/sweep/presets.yaml` (`--base`), so this table and that sweep describe one scenario; the
+script replaces its preset axis by one preset at a time and sets the controller and perception
+source.
 
 Each (controller, preset) pair is one sweep (`mjxrow.sweep.run`) into
 `OUT/<controller>/<preset>/`. The blocks of one preset run in one compiled program
@@ -37,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import importlib.resources
 import json
 import math
 import sys
@@ -56,9 +58,9 @@ from mjxrow.sweep import config as sweep_config
 from mjxrow.sweep import groups as sweep_groups
 from mjxrow.sweep import run as sweep_run
 
-ROOT = Path(__file__).resolve().parents[2]  # the checkout: sweeps/, docs/
+ROOT = Path(__file__).resolve().parents[1]  # the checkout: docs/
 
-BASE_YAML = ROOT / "sweeps" / "presets.yaml"
+BASE_YAML = Path(str(importlib.resources.files("mjxrow.sweep").joinpath("presets.yaml")))
 
 # name → (label, config overrides)
 CONTROLLERS: dict[str, tuple[str, dict[str, Any]]] = {

@@ -217,7 +217,7 @@ def test_docs_list_every_key():
     assert "`controller.lane_k_yaw`" in doc and "`robot.friction`" in doc
 
 
-@pytest.mark.parametrize("name", ["sweeps.yaml", "sweeps/presets.yaml",
+@pytest.mark.parametrize("name", ["sweeps.yaml", "mjxrow/sweep/presets.yaml",
                                   "sweeps/spacing_length.yaml", "sweeps/slope_roughness.yaml"])
 def test_shipped_sweeps_are_valid(name):
     root = Path(__file__).parents[1]
