@@ -18,7 +18,7 @@ import re
 import subprocess
 from pathlib import Path
 
-# the `time:` line that a sweep, an episode batch or Table 3 prints at its end (runtime.Clock)
+# the `time:` line that a sweep, an episode batch or Table 3 prints at its end (stopwatch.Stopwatch)
 TIME = re.compile(r"time: ([\d.]+) s = (?:start-up ([\d.]+) s \+ )?compile ([\d.]+) s \(.*?; "
                   r"(\d+) XLA programs(?:, cache (\d+) hits, (\d+) misses)?\) \+ run ([\d.]+) s "
                   r"\+ write ([\d.]+) s")

@@ -312,3 +312,17 @@ def test_learned_weights_are_shared_params_of_one_policy(tmp_path):
     wa = jax.tree.leaves(params[0][0].variables)
     wb = jax.tree.leaves(built_b.policy_params(g.cells[0].cfg)[0].variables)
     assert max(float(np.abs(a - b).max()) for a, b in zip(wa, wb, strict=True)) > 0
+
+
+def test_the_shipped_throughput_is_that_of_benchmarks_jsonl():
+    """The estimate reads its closed-loop rates from package data (an installed package has no
+    benchmarks.jsonl); they are the rates `estimate.rates` reads from the repository's record."""
+    import json
+    from pathlib import Path
+
+    from mjxrow.sweep import estimate
+
+    record = Path(__file__).resolve().parents[1] / "benchmarks.jsonl"
+    assert json.loads(estimate.THROUGHPUT.read_text()) == estimate.rates(
+        record.read_text().splitlines())
+    assert estimate._rate("cpu")[0] > 0 and estimate._rate("no such device") is None

@@ -16,6 +16,7 @@ of device, plus its compile time once per group; without a measurement, only the
 from __future__ import annotations
 
 import dataclasses
+import importlib.resources
 import json
 import os
 from pathlib import Path
@@ -28,7 +29,8 @@ RENDER_BYTES_PER_PIXEL = 512  # rays, depth, colour, candidate plants per tile
 LOG_FLOATS_PER_STEP = 10  # pose 3, cmd 2, vel 2, alive, event, slack
 FIELD_FLOATS_PER_PLANT = 12  # position 3, size 3, yaw, phase, active, row, slack
 OVERHEAD = 512 << 20  # the compiled program, the MJX model, Python and XLA runtimes
-BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks.jsonl"
+# the closed-loop figures of benchmarks.jsonl the estimate uses (`rates`), as package data
+THROUGHPUT = Path(str(importlib.resources.files("mjxrow.sweep").joinpath("throughput.json")))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -94,20 +96,27 @@ def available_bytes() -> tuple[int, str]:
         return int(pages), "this machine's free memory"
 
 
-def _rate(device: str) -> tuple[float, float] | None:
-    """(control steps/s, compile s) of the fastest closed-loop benchmark on `device`."""
-    if not BENCHMARKS.is_file():
-        return None
-    best = None
-    for line in BENCHMARKS.read_text().splitlines():
+def rates(lines: list[str]) -> dict[str, list[float]]:
+    """{device: [control steps/s, compile s]} of the fastest closed-loop benchmark on each device
+    in `lines` (benchmarks.jsonl). `THROUGHPUT` (package data) holds these figures of the
+    repository's benchmarks.jsonl (tests/test_sweep.py checks that it is current)."""
+    best: dict[str, list[float]] = {}
+    for line in lines:
         try:
             r = json.loads(line)
         except json.JSONDecodeError:
             continue
+        d = r.get("device")
         if r.get("stage") == "closed_loop" and r.get("unit") == "control steps/s" and \
-                r.get("device") == device and (best is None or r["value"] > best[0]):
-            best = (float(r["value"]), float(r.get("compile_s") or 0.0))
-    return best
+                (d not in best or r["value"] > best[d][0]):
+            best[d] = [float(r["value"]), float(r.get("compile_s") or 0.0)]
+    return dict(sorted(best.items()))
+
+
+def _rate(device: str) -> tuple[float, float] | None:
+    """(control steps/s, compile s) of the fastest closed-loop benchmark on `device`."""
+    rate = json.loads(THROUGHPUT.read_text()).get(device)
+    return None if rate is None else (rate[0], rate[1])
 
 
 def estimate(groups, seeds: int, batch_size: int, device: str) -> Estimate:
