@@ -4,13 +4,12 @@ randomisation over the whole generator (`randomize`), reward terms and end event
 the observation shared with the `policy` controller (`observe`), and the episode / vmap /
 auto-reset wrappers (`wrappers`)."""
 
-from mjxrow.env.core import NAV_METRICS, Env, EnvConfig, EnvData, State, teacher_run
+from mjxrow.env.core import Env, EnvConfig, EnvData, State, teacher_run
 from mjxrow.env.randomize import RANGES, Randomize, default_ranges
 from mjxrow.env.reward import TERMS, RewardConfig
 from mjxrow.env.wrappers import AutoResetWrapper, EpisodeWrapper, VmapWrapper, Wrapper
 from mjxrow.policies.observe import KINDS, ObsSpec, Segmenter, odometry, scale_action
 
-__all__ = ["KINDS", "NAV_METRICS", "RANGES", "TERMS", "AutoResetWrapper", "Env", "EnvConfig",
-           "EnvData", "EpisodeWrapper", "ObsSpec", "Randomize", "RewardConfig", "Segmenter",
-           "State", "VmapWrapper", "Wrapper", "default_ranges", "odometry", "scale_action",
-           "teacher_run"]
+__all__ = ["KINDS", "RANGES", "TERMS", "AutoResetWrapper", "Env", "EnvConfig", "EnvData",
+           "EpisodeWrapper", "ObsSpec", "Randomize", "RewardConfig", "Segmenter", "State",
+           "VmapWrapper", "Wrapper", "default_ranges", "odometry", "scale_action", "teacher_run"]

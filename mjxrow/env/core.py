@@ -17,9 +17,10 @@ cloning and DAgger label with it; a mask controller sees the renderer's ground-t
 
 Navigation metrics: the state keeps the episode's `metrics.Log` ([T] per step, T the episode's
 control steps), and the step that ends an episode reports `metrics.summarise` of it (success,
-CHA, MAE, MSE, ω std, ...) in `state.metrics["nav/<name>"]`: the sweep's numbers, by the
-sweep's function. `state.metrics` also holds each reward term (`reward/<term>`) and the
-episode's return (`return`, valid where `done`).
+CHA, MAE, MSE, ω std, ...: every registered metric with Metric.env) in
+`state.metrics["nav/<name>"]`: the sweep's numbers, by the sweep's function. `state.metrics`
+also holds each reward term (`reward/<term>`) and the episode's return (`return`, valid where
+`done`).
 """
 
 from __future__ import annotations
@@ -47,9 +48,6 @@ from mjxrow.rollout.config import ControllerChoice, RunConfig
 # the plant table's array fields, in the order of its leaves (EnvData.table)
 TABLE_FIELDS = tuple(f.name for f in dataclasses.fields(render.PlantTable)
                      if f.metadata.get("pytree_node", True))
-
-NAV_METRICS = ("success", "collision", "reason", "cha", "mae", "mse", "omega_std", "v_mean",
-               "time", "path_ratio", "max_offset")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -222,7 +220,8 @@ class Env:
     def _metrics(self, parts, log, ret):
         out = {f"reward/{k}": v.astype(jnp.float32) for k, v in parts.items()}
         nav = rollout_metrics.summarise(log, self.dt)
-        out.update({f"nav/{k}": jnp.asarray(nav[k], jnp.float32) for k in NAV_METRICS})
+        out.update({f"nav/{m.name}": jnp.asarray(nav[m.name], jnp.float32)
+                    for m in rollout_metrics.METRICS.values() if m.env})
         out["return"] = ret
         return out
 

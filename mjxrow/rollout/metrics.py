@@ -1,9 +1,15 @@
 """Navigation metrics of logged episodes (the paper's Table 3 and more), plant collisions, and
 aggregation over episodes.
 
+Each metric is one `Metric` record in the registry `METRICS` (`register`): its function, unit,
+label, valid bounds, better direction and flags. `summarise`, a sweep's tables, figures and
+report, the training env's `nav/<name>` metrics and the trainer's episode statistics all read
+the registry, so a new metric is one `register(Metric(...))` call.
+
 Every per-step array has the step axis last-but-features: `pose` is [..., T, 3]; any leading
 batch axes are carried through, so the same functions serve one episode or a batch of them
-(no vmap needed). Steps after an episode ends are masked by `Log.alive`.
+(no vmap needed; `summarise` maps a Metric's function over a batch, so it may assume one
+episode). Steps after an episode ends are masked by `Log.alive`.
 
 Conventions: metres, radians, rows along +x, the lane centre line is the line y = lane_y. The
 robot frame has x forward and y to the left; a goal to the left has a positive bearing.
@@ -11,7 +17,9 @@ robot frame has x forward and y to the left; a goal to the left has a positive b
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -31,20 +39,8 @@ REASONS = ("running", "goal", "collision", "timeout", "flipped", "stuck", "sim_e
 (RUNNING, GOAL, COLLISION, TIMEOUT, FLIPPED, STUCK, SIM_ERROR, OFF_PATCH,
  MISSED_GOAL) = range(len(REASONS))
 
-METRICS = ("success", "collision", "reason", "excluded", "cha", "mae", "mse", "omega_std",
-           "v_mean", "time", "path_ratio", "max_offset")
-BINARY = ("success", "collision", "excluded")
-# Metrics of the driven trajectory: NaN for an excluded episode (one with no valid step, or one
-# that ended flipped or in a simulation error), so that it is left out of a cell's mean and
-# counted in `n`, never averaged in as a number.
-TRAJECTORY = ("cha", "mae", "mse", "omega_std", "v_mean", "path_ratio", "max_offset")
+# An episode that ended so is excluded from the trajectory metrics (see `excluded`).
 EXCLUDED_REASONS = (FLIPPED, SIM_ERROR)
-# The range a metric can take: confidence intervals are clipped to it.
-RANGES: dict[str, tuple[float, float]] = {
-    "success": (0.0, 1.0), "collision": (0.0, 1.0), "excluded": (0.0, 1.0),
-    "cha": (-math.pi, math.pi), "mae": (0.0, math.inf), "mse": (0.0, math.inf),
-    "omega_std": (0.0, math.inf), "time": (0.0, math.inf), "path_ratio": (1.0, math.inf),
-    "max_offset": (0.0, math.inf)}
 
 
 @struct.dataclass
@@ -160,67 +156,194 @@ def _masked_mean(x, m):
     return jnp.sum(jnp.where(m, x, 0.0), -1) / jnp.maximum(n, 1), n
 
 
-def summarise(log: Log, control_dt: float) -> dict[str, jax.Array]:
-    """Per-episode metrics of a (batched) log. Pure jnp; returns arrays shaped like
-    `log.reason` ([B] for a batch):
-
-    - success (bool): the episode ended at the goal; collision (bool): it ended touching a plant;
-    - reason (int32): REASONS code of its end;
-    - cha [rad]: mean over steps of the goal's signed bearing atan2(y_g, x_g) in the robot frame;
-    - mae [m], mse [m²]: mean |dev| and mean dev² of the lateral offset from the lane centre line;
-    - max_offset [m]: max |dev|;
-    - omega_std [rad/s]: population std of the ω commands; v_mean [m/s]: mean commanded v;
-    - time [s]: time to the goal (steps · control_dt), NaN when the goal was not reached;
-    - path_ratio [-]: driven path length over the straight distance from start to end, NaN when
-      the robot moved less than 1 cm.
-
-    - excluded (bool): the episode has no valid step, or ended flipped or in a simulation
-      error; its trajectory metrics (TRAJECTORY) are NaN, so a cell's mean leaves it out.
-
-    Valid steps are those that ran with a finite pose, except the step of a sim_error (its
-    pose, finite or not, is the exploded state)."""
+def valid_steps(log: Log) -> jax.Array:
+    """bool [..., T]: the steps that ran with a finite pose, except the step of a sim_error (its
+    pose, finite or not, is the exploded state). Trajectory metrics are taken over these."""
     pose = jnp.asarray(log.pose)
-    ok = log.alive & jnp.all(jnp.isfinite(pose), -1) & (jnp.asarray(log.event) != SIM_ERROR)
-    dev = lateral_offset(pose, jnp.asarray(log.lane_y))
-    mae, n = _masked_mean(jnp.abs(dev), ok)
-    mse, _ = _masked_mean(dev * dev, ok)
-    max_offset = jnp.max(jnp.where(ok, jnp.abs(dev), 0.0), -1)
-    cha, _ = _masked_mean(goal_bearing(pose, log.goal[..., None, :]), ok)
-    v_mean, _ = _masked_mean(log.cmd[..., 0], ok)
-    w = log.cmd[..., 1]
+    return log.alive & jnp.all(jnp.isfinite(pose), -1) & (jnp.asarray(log.event) != SIM_ERROR)
+
+
+def excluded(log: Log) -> jax.Array:
+    """bool [...]: the episode has no valid step, or ended flipped or in a simulation error;
+    its trajectory metrics are NaN, so that a cell's mean leaves it out."""
+    n = jnp.sum(valid_steps(log), -1)
+    return (n == 0) | jnp.isin(log.reason, jnp.asarray(EXCLUDED_REASONS))
+
+
+def _valid_mean(log: Log, x: jax.Array) -> jax.Array:
+    return _masked_mean(x, valid_steps(log))[0]
+
+
+def _offset(log: Log) -> jax.Array:
+    return lateral_offset(jnp.asarray(log.pose), jnp.asarray(log.lane_y))
+
+
+def _cha(log: Log, control_dt: float) -> jax.Array:
+    return _valid_mean(log, goal_bearing(jnp.asarray(log.pose), log.goal[..., None, :]))
+
+
+def _max_offset(log: Log, control_dt: float) -> jax.Array:
+    return jnp.max(jnp.where(valid_steps(log), jnp.abs(_offset(log)), 0.0), -1)
+
+
+def _omega_std(log: Log, control_dt: float) -> jax.Array:
+    ok, w = valid_steps(log), log.cmd[..., 1]
     w_mean, _ = _masked_mean(w, ok)
     w_var, _ = _masked_mean((w - w_mean[..., None]) ** 2, ok)
+    return jnp.sqrt(w_var)
 
-    xy = jnp.where(ok[..., None], pose[..., :2], jnp.nan)
+
+def _path_ratio(log: Log, control_dt: float) -> jax.Array:
+    ok = valid_steps(log)
+    n = jnp.sum(ok, -1)
+    xy = jnp.where(ok[..., None], jnp.asarray(log.pose)[..., :2], jnp.nan)
     prev = jnp.concatenate([log.start[..., None, :2], xy[..., :-1, :]], -2)
     # a masked step contributes nothing; the first step after the start counts from the start
     seg = jnp.where(ok & jnp.all(jnp.isfinite(prev), -1),
                     jnp.linalg.norm(jnp.nan_to_num(xy - prev), axis=-1), 0.0)
     length = jnp.sum(seg, -1)
-    last = jnp.maximum(jnp.sum(ok, -1) - 1, 0)
+    last = jnp.maximum(n - 1, 0)
     end = jnp.take_along_axis(jnp.nan_to_num(xy), last[..., None, None], -2)[..., 0, :]
     end = jnp.where((n > 0)[..., None], end, log.start[..., :2])
     disp = jnp.linalg.norm(end - log.start[..., :2], axis=-1)
-    success = log.reason == GOAL
-    excluded = (n == 0) | jnp.isin(log.reason, jnp.asarray(EXCLUDED_REASONS))
-    trajectory = dict(
-        cha=cha,
-        mae=mae,
-        mse=mse,
-        omega_std=jnp.sqrt(w_var),
-        v_mean=v_mean,
-        path_ratio=jnp.where(disp > 0.01, length / jnp.maximum(disp, 1e-9), jnp.nan),
-        max_offset=max_offset,
-    )
-    trajectory = {k: jnp.where(excluded, jnp.nan, v) for k, v in trajectory.items()}
-    return dict(
-        success=success,
-        collision=log.reason == COLLISION,
-        reason=log.reason,
-        excluded=excluded,
-        time=jnp.where(success, log.steps * control_dt, jnp.nan),
-        **trajectory,
-    )
+    return jnp.where(disp > 0.01, length / jnp.maximum(disp, 1e-9), jnp.nan)
+
+
+# ---------------------------------------------------------------------------------------------
+# The metric registry
+
+BETTER = ("higher", "lower", "zero")
+
+
+@dataclasses.dataclass(frozen=True)
+class Metric:
+    """One per-episode navigation metric: how it is computed and how it is shown. Registered
+    (`register`), it is a value of `summarise` (a column of results.csv and summary.csv), a
+    figure and a report section of a sweep, `nav/<name>` in the training env's metrics (`env`)
+    and an episode statistic of the trainer (`train`).
+
+    `fn(log, control_dt)`: the value for ONE episode's Log (no batch axis: `summarise` maps it
+    over batches) and the control period [s]; traced jnp. `better`: 'higher' or 'lower' is
+    better (figures colour the better end bright and say so), 'zero' for a signed metric whose
+    best value is 0 (CHA), None for no order (the reason code)."""
+
+    name: str  # the column in results.csv and summary.csv, `nav/<name>` in the env
+    fn: Callable[[Log, float], jax.Array]  # (one episode's Log, control period [s]) → value []
+    label: str  # figure title and report heading
+    unit: str = ""  # of a cell's mean (a rate of a yes/no metric: 'fraction'); '' for none
+    fmt: str = "{:.3g}"  # number format in figures and report tables
+    better: str | None = None  # 'higher', 'lower', 'zero' or None (above)
+    bounds: tuple[float, float] = (-math.inf, math.inf)  # valid values; CIs are clipped to them
+    binary: bool = False  # yes/no per episode: a cell's mean is a rate (Wilson interval, 0-1)
+    # of the driven trajectory: NaN for an `excluded` episode (left out of a cell's mean and of
+    # its count `m_n`, never averaged in as a number); a heatmap cell with failed episodes is
+    # hatched. Such a metric is a float.
+    trajectory: bool = False
+    env: bool = True  # reported by the training env (`nav/<name>`, float32)
+    train: bool = False  # averaged over ended episodes in the trainer's statistics (needs env)
+
+    def __post_init__(self):
+        if self.better not in (*BETTER, None):
+            raise ValueError(f"metric {self.name}: better must be one of {BETTER} or None, "
+                             f"got {self.better!r}")
+        if not self.bounds[0] <= self.bounds[1]:
+            raise ValueError(f"metric {self.name}: bounds {self.bounds} are not (lo, hi)")
+        if self.train and not self.env:
+            raise ValueError(f"metric {self.name}: train needs env (the trainer reads nav/...)")
+
+
+# name → Metric, in registration order: the order of the episode CLI's columns and of `nav/...`
+# (a sweep's results.csv and summary.csv list them by name)
+METRICS: dict[str, Metric] = {}
+_traced = False  # whether `summarise` has been traced (register then clears JAX's caches)
+
+
+def register(metric: Metric) -> Metric:
+    """Add `metric` to the registry under its name. Registered after a jitted `summarise` (a
+    sweep, the env) was traced, JAX's caches are cleared so that the next call retraces with
+    it."""
+    if metric.name in METRICS:
+        raise ValueError(f"metric: {metric.name!r} is already registered (unregister it to "
+                         "replace it)")
+    METRICS[metric.name] = metric
+    _retrace()
+    return metric
+
+
+def unregister(name: str) -> Metric:
+    """Remove the metric `name` from the registry (and JAX's caches, as `register`)."""
+    metric = METRICS.pop(name)
+    _retrace()
+    return metric
+
+
+def _retrace() -> None:
+    if _traced:
+        jax.clear_caches()
+
+
+# The built-in metrics (this order is the registry's). `dev`: the lateral offset from the lane
+# centre line; trajectory metrics are taken over the valid steps (`valid_steps`).
+register(Metric("success", lambda log, dt: log.reason == GOAL, "success rate", "fraction",
+                "{:.2f}", better="higher", bounds=(0.0, 1.0), binary=True, train=True))
+# the episode ended touching a plant
+register(Metric("collision", lambda log, dt: log.reason == COLLISION, "collision rate",
+                "fraction", "{:.2f}", better="lower", bounds=(0.0, 1.0), binary=True,
+                train=True))
+# int32 REASONS code of the episode's end (a sweep's tables write its name)
+register(Metric("reason", lambda log, dt: log.reason, "ending reason"))
+register(Metric("excluded", lambda log, dt: excluded(log),
+                "share of episodes excluded from the trajectory metrics", "fraction", "{:.2f}",
+                better="lower", bounds=(0.0, 1.0), binary=True, env=False))
+# mean over steps of the goal's signed bearing atan2(y_g, x_g) in the robot frame
+register(Metric("cha", _cha, "cumulative heading average (CHA)", "rad", "{:.3f}", better="zero",
+                bounds=(-math.pi, math.pi), trajectory=True, train=True))
+# mean |dev|
+register(Metric("mae", lambda log, dt: _valid_mean(log, jnp.abs(_offset(log))),
+                "mean absolute lateral error (MAE)", "m", "{:.3f}", better="lower",
+                bounds=(0.0, math.inf), trajectory=True, train=True))
+# mean dev²
+register(Metric("mse", lambda log, dt: _valid_mean(log, jnp.square(_offset(log))),
+                "mean squared lateral error (MSE)", "m²", "{:.4f}", better="lower",
+                bounds=(0.0, math.inf), trajectory=True, train=True))
+# population std of the ω commands
+register(Metric("omega_std", _omega_std, "std of ω commands", "rad/s", "{:.3f}", better="lower",
+                bounds=(0.0, math.inf), trajectory=True, train=True))
+# mean commanded v
+register(Metric("v_mean", lambda log, dt: _valid_mean(log, log.cmd[..., 0]),
+                "mean forward speed", "m/s", "{:.2f}", better="higher", trajectory=True))
+# time to the goal (steps · control_dt), NaN when the goal was not reached
+register(Metric("time", lambda log, dt: jnp.where(log.reason == GOAL, log.steps * dt, jnp.nan),
+                "episode time", "s", "{:.1f}", better="lower", bounds=(0.0, math.inf),
+                train=True))
+# driven path length over the straight distance from start to end, NaN when the robot moved
+# less than 1 cm
+register(Metric("path_ratio", _path_ratio, "path length / straight length", "-", "{:.3f}",
+                better="lower", bounds=(1.0, math.inf), trajectory=True))
+# max |dev|
+register(Metric("max_offset", _max_offset, "max lateral offset", "m", "{:.2f}", better="lower",
+                bounds=(0.0, math.inf), trajectory=True, train=True))
+
+
+def summarise(log: Log, control_dt: float) -> dict[str, jax.Array]:
+    """Every registered metric (`METRICS`; the built-in ones above) of a (batched) log: name →
+    array shaped like `log.reason` ([B] for a batch: each Metric.fn sees one episode). Pure
+    jnp. A trajectory metric (Metric.trajectory) is NaN for an `excluded` episode (no valid
+    step, or ended flipped or in a simulation error), so that a cell's mean leaves it out."""
+    global _traced
+    _traced = True
+
+    def one(log):
+        drop = excluded(log)
+        out = {}
+        for m in METRICS.values():
+            value = jnp.asarray(m.fn(log, control_dt))
+            out[m.name] = jnp.where(drop, jnp.nan, value) if m.trajectory else value
+        return out
+
+    for _ in range(jnp.ndim(log.reason)):
+        one = jax.vmap(one)
+    return one(log)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -242,7 +365,7 @@ def aggregate(table: dict[str, Any], confidence: float = 0.95) -> dict[str, dict
     (`success`, `collision`, any bool array) a Wilson score interval for the proportion.
     `reason` is not averaged: see `reason_counts`.
 
-    Intervals are clipped to the metric's range (RANGES: an MSE interval never goes below 0).
+    Intervals are clipped to the metric's bounds (Metric.bounds: an MSE interval stays ≥ 0).
     Returns name → {mean, lo, hi, n, method}; with n < 2 a t interval is (nan, nan)."""
     if not 0 < confidence < 1:
         raise ValueError(f"confidence: must lie in (0, 1), got {confidence}")
@@ -253,7 +376,8 @@ def aggregate(table: dict[str, Any], confidence: float = 0.95) -> dict[str, dict
         x = np.asarray(values)
         if x.dtype.kind not in "biuf":
             continue
-        binary = x.dtype == bool or name in BINARY
+        metric = METRICS.get(name)
+        binary = x.dtype == bool or (metric is not None and metric.binary)
         x = x.astype(np.float64).reshape(-1)
         x = x[np.isfinite(x)]
         n = int(x.size)
@@ -272,7 +396,7 @@ def aggregate(table: dict[str, Any], confidence: float = 0.95) -> dict[str, dict
         else:
             half = _t_quantile(0.5 + confidence / 2, n - 1) * float(x.std(ddof=1)) / math.sqrt(n)
             lo, hi, method = mean - half, mean + half, "t"
-        r_lo, r_hi = RANGES.get(name, (-math.inf, math.inf))
+        r_lo, r_hi = metric.bounds if metric is not None else (-math.inf, math.inf)
         lo, hi = min(max(lo, r_lo), r_hi), max(min(hi, r_hi), r_lo)
         out[name] = dict(mean=mean, lo=float(lo), hi=float(hi), n=n, method=method)
     return out

@@ -1,6 +1,7 @@
 """The figures of a sweep (matplotlib Agg): one PNG per metric, a heatmap over two swept axes or a
 line with its 95 % interval over one, and the processes that draw them side by side
-(`figure_pool`). Metric and axis names, units and formats for figures and tables alike."""
+(`figure_pool`). Axis names; a metric's label, unit, format and better direction come from its
+record in the metric registry (`rollout.metrics.METRICS`), for figures and tables alike."""
 
 from __future__ import annotations
 
@@ -24,21 +25,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
-# metric → (title, unit, format, better: "high" | "low" | None)
-METRICS: dict[str, tuple[str, str, str, str | None]] = {
-    "success": ("success rate", "fraction", "{:.2f}", "high"),
-    "collision": ("collision rate", "fraction", "{:.2f}", "low"),
-    "excluded": ("share of episodes excluded from the trajectory metrics", "fraction", "{:.2f}",
-                 "low"),
-    "cha": ("cumulative heading average (CHA)", "rad", "{:.3f}", None),
-    "mae": ("mean absolute lateral error (MAE)", "m", "{:.3f}", "low"),
-    "mse": ("mean squared lateral error (MSE)", "m²", "{:.4f}", "low"),
-    "omega_std": ("std of ω commands", "rad/s", "{:.3f}", "low"),
-    "v_mean": ("mean forward speed", "m/s", "{:.2f}", "high"),
-    "time": ("episode time", "s", "{:.1f}", "low"),
-    "path_ratio": ("path length / straight length", "-", "{:.3f}", "low"),
-    "max_offset": ("max lateral offset", "m", "{:.2f}", "low"),
-}
+from mjxrow.rollout import metrics as rollout_metrics  # noqa: E402
 
 AXIS_LABELS = {"field.d_rr": "row spacing d_rr [m]", "field.d_RR": "group spacing d_RR [m]",
                "field.d_pp": "plant spacing d_pp [m]", "field.terrain_dh": "terrain |ΔH| [m]",
@@ -48,7 +35,12 @@ AXIS_LABELS = {"field.d_rr": "row spacing d_rr [m]", "field.d_RR": "group spacin
 
 
 def metric_info(m: str) -> tuple[str, str, str, str | None]:
-    return METRICS.get(m, (m, "", "{:.3g}", None))
+    """(label, unit, format, better) of the registered metric `m`; a column that is no
+    registered metric: its name, no unit, three significant digits, no better direction."""
+    metric = rollout_metrics.METRICS.get(m)
+    if metric is None:
+        return m, "", "{:.3g}", None
+    return metric.label, metric.unit, metric.fmt, metric.better
 
 
 def axis_label(a: str) -> str:
@@ -73,11 +65,7 @@ def _save(fig, path: Path) -> Path:
 
 
 def _cmap(better):
-    return "viridis_r" if better == "low" else "viridis"
-
-
-# metrics of the driven trajectory (and how fast): a cell whose episodes failed is hatched
-QUALITY = ("cha", "mae", "mse", "omega_std", "v_mean", "path_ratio", "max_offset")
+    return "viridis_r" if better == "lower" else "viridis"
 
 
 def colour_range(values: np.ndarray, fmt: str) -> tuple[float, float]:
@@ -133,15 +121,16 @@ def heatmap(summary: pd.DataFrame, metric: str, x: str, y: str, path: str | Path
     """One PNG: `metric`'s cell means over axes `x` (columns) and `y` (rows), values written in
     the cells; one panel per value of `facet` if given. Cells are averaged over other columns.
 
-    For a trajectory-quality metric (QUALITY) a cell in which some episodes did not reach the
+    For a trajectory metric (Metric.trajectory) a cell in which some episodes did not reach the
     goal is hatched and says how many of its episodes failed: its value averages collided or
     stuck episodes and is not comparable with a clean cell's. The colour scale spans at least
-    ten steps of the printed precision (`colour_range`)."""
+    ten steps of the printed precision (`colour_range`), 0 to 1 for a rate (Metric.binary)."""
     name, unit, fmt, better = metric_info(metric)
+    record = rollout_metrics.METRICS.get(metric)  # None: a column that is no registered metric
     xs = list(dict.fromkeys(summary[x]))
     ys = list(dict.fromkeys(summary[y]))
     fs = list(dict.fromkeys(summary[facet])) if facet else [None]
-    mark = metric in QUALITY and "success" in summary
+    mark = record is not None and record.trajectory and "success" in summary
     grids, fails, counts = [], [], []
     for f in fs:
         sub = summary if facet is None else summary[summary[facet] == f]
@@ -158,7 +147,7 @@ def heatmap(summary: pd.DataFrame, metric: str, x: str, y: str, path: str | Path
         counts.append(n)
     finite = np.concatenate([g[np.isfinite(g)] for g in grids] + [np.zeros(0)])
     vmin, vmax = colour_range(finite, fmt)
-    if metric in ("success", "collision", "excluded"):
+    if record is not None and record.binary:
         vmin, vmax = 0.0, 1.0
     ncol = min(len(fs), 3)
     nrow = -(-len(fs) // ncol)
@@ -175,7 +164,7 @@ def heatmap(summary: pd.DataFrame, metric: str, x: str, y: str, path: str | Path
             ax.set_title(f"{axis_label(facet)} = {fmt_tick(f)}", fontsize=9)
     for k in range(len(fs), nrow * ncol):
         axs[k // ncol][k % ncol].axis("off")
-    hint = {"high": " (higher is better)", "low": " (lower is better)"}.get(better, "")
+    hint = {"higher": " (higher is better)", "lower": " (lower is better)"}.get(better, "")
     cb = fig.colorbar(im, ax=axs.ravel().tolist(), shrink=0.9)
     cb.set_label(f"{name} [{unit}]{hint}" if unit else name + hint)
     fig.suptitle(f"{title}: {name}" if title else name)
@@ -208,7 +197,7 @@ def line(summary: pd.DataFrame, metric: str, x: str, path: str | Path, title: st
             ax.errorbar(pos, m, yerr=[m - lo, hi - m], fmt="o", capsize=4, label=label)
             ax.set_xticks(pos, [str(v) for v in xs])
     ax.set_xlabel(axis_label(x))
-    hint = {"high": " (↑ better)", "low": " (↓ better)"}.get(better, "")
+    hint = {"higher": " (↑ better)", "lower": " (↓ better)"}.get(better, "")
     ax.set_ylabel(f"{name} [{unit}]{hint}" if unit else name + hint)
     if metric in ("success", "collision"):
         ax.set_ylim(-0.03, 1.03)
@@ -265,10 +254,13 @@ def figure_workers() -> int:
 def figure_pool(enabled: bool = True, workers: int = 0) -> Iterator[Executor | None]:
     """`workers` processes that draw a sweep's PNGs side by side (`surfaces(..., pool=...)`),
     or None (disabled, or fewer than 2 workers). Entered at a sweep's start, they import
-    matplotlib and this module (no JAX: they never touch an accelerator) while the sweep
-    compiles and runs. They are spawned: the caller's main module must be a package's
-    `__main__` or guarded by `if __name__ == "__main__":`. They ignore Ctrl-C (the sweep
-    handles it) and end when the sweep's process does, however it ends."""
+    matplotlib and this module (with the metric registry, hence JAX's modules; they never
+    touch an accelerator) while the sweep compiles and runs. They are spawned: the caller's
+    main module must be a package's `__main__` or guarded by `if __name__ == "__main__":`;
+    they know the metrics registered on import (the built-in ones and those of the modules
+    imported, the main module's top level included), and draw another metric with its column
+    name as label and no unit. They ignore Ctrl-C (the sweep handles it) and end when the
+    sweep's process does, however it ends."""
     n = workers
     if not enabled or n < 2:
         yield None

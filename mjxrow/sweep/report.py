@@ -3,8 +3,9 @@
 A summary table has one row per cell: the swept axes (dotted names, e.g. `field.d_rr`), `n`
 (episodes), and per metric `m` its mean with the 95 % interval `m_lo`, `m_hi` and `m_n`, the
 episodes the mean is taken over: an episode excluded from the trajectory metrics (no valid step,
-flipped, simulation error: metrics.TRAJECTORY) and a failed episode's `time` are NaN in
-results.csv and left out, so `m_n` < `n` says how many were left out.
+flipped, simulation error: Metric.trajectory in rollout.metrics) and a failed episode's `time`
+are NaN in results.csv and left out, so `m_n` < `n` says how many were left out. The metrics are
+the registered ones (rollout.metrics.METRICS), with their labels and formats (figures.metric_info).
 """
 
 from __future__ import annotations

@@ -20,9 +20,13 @@ import jax.numpy as jnp
 from flax import struct
 
 from mjxrow.policies import networks as policies_networks
+from mjxrow.rollout import metrics as rollout_metrics
 
-EPISODE_KEYS = ("return", "nav/success", "nav/collision", "nav/cha", "nav/mae", "nav/mse",
-                "nav/omega_std", "nav/time", "nav/max_offset")
+
+def episode_keys() -> tuple[str, ...]:
+    """The metrics averaged over the episodes that end: the return and `nav/<name>` of every
+    registered metric with Metric.train, in the registry's order."""
+    return ("return", *(f"nav/{m.name}" for m in rollout_metrics.METRICS.values() if m.train))
 
 
 @struct.dataclass
@@ -42,7 +46,7 @@ class Transition:
 def _stats(state, sums: dict) -> dict:
     done = state.done > 0
     out = dict(sums)
-    for k in EPISODE_KEYS:
+    for k in episode_keys():
         if k not in state.metrics:
             continue
         x = state.metrics[k]
@@ -99,7 +103,7 @@ def unroll(
         return (tuple(out_states), sums), tr
 
     m = states[0].metrics
-    names = [k for k in EPISODE_KEYS if k in m] + [k for k in m if k.startswith("reward/")]
+    names = [k for k in episode_keys() if k in m] + [k for k in m if k.startswith("reward/")]
     zero = jnp.zeros((), jnp.float32)
     sums0 = {k: (zero, zero) for k in (*names, "episodes")}
     (states, sums), traj = jax.lax.scan(body, (tuple(states), sums0),
