@@ -1,6 +1,6 @@
 """Evaluation of a trained policy beside SegZeros and the oracle, through the run builder (the
 sweep's episodes, keys and metrics): `n` episodes per (preset, controller) at the preset's
-default geometry in the Table 3 scenario (`sweeps/presets.yaml`), success with its 95 % Wilson
+default geometry in the Table 3 scenario (`mjxrow/sweep/presets.yaml`), success with its 95 % Wilson
 interval and the other navigation metrics.
 
 The programs can be compiled ahead (`Evaluation.prepare`, e.g. in a thread while the policy
