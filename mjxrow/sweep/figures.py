@@ -1,14 +1,17 @@
 """The figures of a sweep (matplotlib Agg): one PNG per metric, a heatmap over two swept axes or a
 line with its 95 % interval over one, and the processes that draw them side by side
-(`figure_pool`). Axis names; a metric's label, unit, format and better direction come from its
-record in the metric registry (`rollout.metrics.METRICS`), for figures and tables alike."""
+(`figure_pool`). Axis names; a metric's label, unit, format, better direction and bounds come
+from its record in the metric registry (`rollout.metrics.METRICS`), for figures and tables
+alike. Long titles and labels are wrapped to the figure (`_fit`): nothing is cut off."""
 
 from __future__ import annotations
 
 import contextlib
+import math
 import multiprocessing
 import os
 import signal
+import textwrap
 import threading
 import time
 from collections.abc import Iterator
@@ -55,6 +58,36 @@ def _numeric(vals) -> bool:
     return all(isinstance(v, (int, float, np.number)) and not isinstance(v, bool) for v in vals)
 
 
+def _wrap(text, inches: float) -> None:
+    """Wrap a Text artist's string to lines of about `inches` at its font size (an average
+    character is taken as 0.6 em, a little wider than DejaVu Sans's)."""
+    chars = max(12, int(inches * 72 / (0.6 * text.get_fontsize())))
+    text.set_text("\n".join(textwrap.fill(t, chars) for t in text.get_text().split("\n")))
+
+
+def _fit(fig, texts: list, tries: int = 4) -> None:
+    """Grow `fig` until every one of `texts` (titles, axis and colour-bar labels) lies inside
+    it: a safety net behind `_wrap` (constrained layout makes room beside the axes, but cannot
+    shrink a title wider than the figure or a colour-bar label taller than it)."""
+    for _ in range(tries):
+        fig.draw_without_rendering()
+        renderer = fig.canvas.get_renderer()
+        box = fig.bbox
+        grow_w = grow_h = 1.0
+        for t in texts:
+            if t is None or not t.get_visible() or not t.get_text():
+                continue
+            e = t.get_window_extent(renderer)
+            if e.x0 < box.x0 or e.x1 > box.x1:
+                grow_w = max(grow_w, 1.05 * e.width / box.width, 1.1)
+            if e.y0 < box.y0 or e.y1 > box.y1:
+                grow_h = max(grow_h, 1.05 * e.height / box.height, 1.1)
+        if grow_w == grow_h == 1.0:
+            return
+        w, h = fig.get_size_inches()
+        fig.set_size_inches(w * grow_w, h * grow_h)
+
+
 def _save(fig, path: Path) -> Path:
     """Atomic PNG write: temp file in the same folder, then os.replace."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
@@ -65,13 +98,37 @@ def _save(fig, path: Path) -> Path:
 
 
 def _cmap(better):
+    """A diverging map, white at 0, for a signed metric (better 'zero'); else viridis with the
+    better end bright."""
+    if better == "zero":
+        return "RdBu_r"
     return "viridis_r" if better == "lower" else "viridis"
 
 
-def colour_range(values: np.ndarray, fmt: str) -> tuple[float, float]:
+HINTS = {"higher": " (higher is better)", "lower": " (lower is better)", "zero": " (0 is best)"}
+
+
+def colour_range(values: np.ndarray, fmt: str,
+                 bounds: tuple[float, float] = (-math.inf, math.inf),
+                 signed: bool = False) -> tuple[float, float]:
     """(vmin, vmax) of a colour scale over finite `values`: their range, widened to at least
     ten steps of the printed precision (`{:.2f}`: 0.1), so that rounding noise (0.49975 to
-    0.50000) does not fill the whole scale."""
+    0.50000) does not fill the whole scale, then moved inside `bounds` (a metric's valid
+    values, Metric.bounds: an MAE scale never runs below 0). `signed`: symmetric about 0,
+    ±max |v| (a diverging map centred on 0)."""
+    lo, hi = _widened(values, fmt)
+    b_lo, b_hi = bounds
+    if signed:
+        a = max(abs(lo), abs(hi))
+        lo, hi = max(-a, b_lo), min(a, b_hi)
+    elif lo < b_lo:  # shifted up to the bound, keeping its width where the upper bound allows
+        lo, hi = b_lo, min(b_hi, b_lo + (hi - lo))
+    elif hi > b_hi:
+        lo, hi = max(b_lo, b_hi - (hi - lo)), b_hi
+    return (lo, hi) if lo < hi else _widened(values, fmt)
+
+
+def _widened(values: np.ndarray, fmt: str) -> tuple[float, float]:
     if not values.size:
         return 0.0, 1.0
     lo, hi = float(values.min()), float(values.max())
@@ -107,7 +164,7 @@ def _panel(ax, grid: np.ndarray, xs, ys, fmt, cmap, vmin, vmax, xlabel, ylabel,
             if bad:
                 text += f"\n{failed[j, i]:.0f}/{counts[j, i]:.0f} failed"
             ax.text(i, j, text, ha="center", va="center", fontsize=8 if not bad else 7,
-                    color="black" if light else "white",
+                    color="black" if light or bad else "white",  # bad: on a light box
                     bbox=dict(boxstyle="round,pad=0.1", fc="white", ec="none", alpha=0.6)
                     if bad else None)
         else:
@@ -118,13 +175,22 @@ def _panel(ax, grid: np.ndarray, xs, ys, fmt, cmap, vmin, vmax, xlabel, ylabel,
 
 def heatmap(summary: pd.DataFrame, metric: str, x: str, y: str, path: str | Path,
             title: str = "", facet: str | None = None) -> Path:
-    """One PNG: `metric`'s cell means over axes `x` (columns) and `y` (rows), values written in
-    the cells; one panel per value of `facet` if given. Cells are averaged over other columns.
+    """One PNG of `heatmap_figure` (the same arguments)."""
+    return _save(heatmap_figure(summary, metric, x, y, title, facet), Path(path))
+
+
+def heatmap_figure(summary: pd.DataFrame, metric: str, x: str, y: str, title: str = "",
+                   facet: str | None = None):
+    """`metric`'s cell means over axes `x` (columns) and `y` (rows), values written in the
+    cells; one panel per value of `facet` if given. Cells are averaged over other columns.
+    Returns the matplotlib Figure.
 
     For a trajectory metric (Metric.trajectory) a cell in which some episodes did not reach the
     goal is hatched and says how many of its episodes failed: its value averages collided or
     stuck episodes and is not comparable with a clean cell's. The colour scale spans at least
-    ten steps of the printed precision (`colour_range`), 0 to 1 for a rate (Metric.binary)."""
+    ten steps of the printed precision and stays within the metric's bounds (`colour_range`),
+    0 to 1 for a rate (Metric.binary). A signed metric (better 'zero', CHA) gets a diverging
+    map, white at 0, over ±max |v|, with 0 marked on the colour bar."""
     name, unit, fmt, better = metric_info(metric)
     record = rollout_metrics.METRICS.get(metric)  # None: a column that is no registered metric
     xs = list(dict.fromkeys(summary[x]))
@@ -146,7 +212,8 @@ def heatmap(summary: pd.DataFrame, metric: str, x: str, y: str, path: str | Path
         fails.append(k if mark else None)
         counts.append(n)
     finite = np.concatenate([g[np.isfinite(g)] for g in grids] + [np.zeros(0)])
-    vmin, vmax = colour_range(finite, fmt)
+    vmin, vmax = colour_range(finite, fmt, record.bounds if record is not None
+                              else (-math.inf, math.inf), signed=better == "zero")
     if record is not None and record.binary:
         vmin, vmax = 0.0, 1.0
     ncol = min(len(fs), 3)
@@ -155,29 +222,48 @@ def heatmap(summary: pd.DataFrame, metric: str, x: str, y: str, path: str | Path
     h = max(3.5, 0.5 * len(ys) + 2.0)
     fig, axs = plt.subplots(nrow, ncol, figsize=(w * ncol, h * nrow), squeeze=False,
                             layout="constrained")
-    im = None
+    im, texts = None, []
     for k, (f, g) in enumerate(zip(fs, grids, strict=True)):
         ax = axs[k // ncol][k % ncol]
         im = _panel(ax, g, xs, ys, fmt, _cmap(better), vmin, vmax, axis_label(x),
                     axis_label(y) if k % ncol == 0 else "", fails[k], counts[k])
         if facet:
             ax.set_title(f"{axis_label(facet)} = {fmt_tick(f)}", fontsize=9)
+        for t in (ax.title, ax.xaxis.label, ax.yaxis.label):
+            _wrap(t, (w if t is not ax.yaxis.label else h) - 1.0)
+            texts.append(t)
     for k in range(len(fs), nrow * ncol):
         axs[k // ncol][k % ncol].axis("off")
-    hint = {"higher": " (higher is better)", "lower": " (lower is better)"}.get(better, "")
+    hint = HINTS.get(better, "")
     cb = fig.colorbar(im, ax=axs.ravel().tolist(), shrink=0.9)
+    if better == "zero":  # 0 marked: a tick and a line across the bar
+        ticks = [t for t in cb.get_ticks() if vmin <= t <= vmax and abs(t) > 1e-9 * vmax]
+        cb.set_ticks(sorted([*ticks, 0.0]))
+        cb.ax.axhline(0.0, color="black", linewidth=1.0)
     cb.set_label(f"{name} [{unit}]{hint}" if unit else name + hint)
-    fig.suptitle(f"{title}: {name}" if title else name)
-    if mark and any(np.nansum(k) > 0 for k in fails):
-        fig.text(0.01, 0.005, "hatched: cells where some episodes did not reach the goal "
-                 "(k/N failed); their value is not comparable", fontsize=7, color="0.3")
-    return _save(fig, Path(path))
+    _wrap(cb.ax.yaxis.label, 0.85 * h * nrow)
+    sup = fig.suptitle(f"{title}: {name}" if title else name)
+    _wrap(sup, w * ncol - 0.3)
+    texts += [sup, cb.ax.yaxis.label]
+    if mark and any(np.nansum(k) > 0 for k in fails):  # below the panels, in the layout
+        note = fig.supxlabel("hatched: cells where some episodes did not reach the goal (k/N "
+                             "failed); their value is not comparable", fontsize=7, color="0.3")
+        _wrap(note, w * ncol - 0.3)
+        texts.append(note)
+    _fit(fig, texts)
+    return fig
 
 
 def line(summary: pd.DataFrame, metric: str, x: str, path: str | Path, title: str = "",
          hue: str | None = None) -> Path:
-    """One PNG: `metric`'s mean over axis `x` with its 95 % interval as a band (numeric x) or
-    error bars (categorical x); one line per value of `hue` if given."""
+    """One PNG of `line_figure` (the same arguments)."""
+    return _save(line_figure(summary, metric, x, title, hue), Path(path))
+
+
+def line_figure(summary: pd.DataFrame, metric: str, x: str, title: str = "",
+                hue: str | None = None):
+    """`metric`'s mean over axis `x` with its 95 % interval as a band (numeric x) or error bars
+    (categorical x); one line per value of `hue` if given. Returns the matplotlib Figure."""
     name, unit, _, better = metric_info(metric)
     fig, ax = plt.subplots(figsize=(6.0, 4.0), layout="constrained")
     hues = list(dict.fromkeys(summary[hue])) if hue else [None]
@@ -197,15 +283,21 @@ def line(summary: pd.DataFrame, metric: str, x: str, path: str | Path, title: st
             ax.errorbar(pos, m, yerr=[m - lo, hi - m], fmt="o", capsize=4, label=label)
             ax.set_xticks(pos, [str(v) for v in xs])
     ax.set_xlabel(axis_label(x))
-    hint = {"higher": " (↑ better)", "lower": " (↓ better)"}.get(better, "")
+    hint = {"higher": " (↑ better)", "lower": " (↓ better)", "zero": " (0 best)"}.get(better, "")
     ax.set_ylabel(f"{name} [{unit}]{hint}" if unit else name + hint)
     if metric in ("success", "collision"):
         ax.set_ylim(-0.03, 1.03)
+    if better == "zero":
+        ax.axhline(0.0, color="0.4", linewidth=0.8)
     ax.grid(alpha=0.3)
     if hue:
         ax.legend(fontsize=8)
     ax.set_title(f"{title}: {name} (mean, 95 % CI)" if title else f"{name} (mean, 95 % CI)")
-    return _save(fig, Path(path))
+    _wrap(ax.title, 5.0)  # centred on the axes, not on the figure
+    _wrap(ax.xaxis.label, 5.0)
+    _wrap(ax.yaxis.label, 3.4)
+    _fit(fig, [ax.title, ax.xaxis.label, ax.yaxis.label])
+    return fig
 
 
 def surface(summary: pd.DataFrame, axes: list[str], metric: str, path: Path,

@@ -6,6 +6,9 @@ episodes the mean is taken over: an episode excluded from the trajectory metrics
 flipped, simulation error: Metric.trajectory in rollout.metrics) and a failed episode's `time`
 are NaN in results.csv and left out, so `m_n` < `n` says how many were left out. The metrics are
 the registered ones (rollout.metrics.METRICS), with their labels and formats (figures.metric_info).
+
+A `--smoke` run (`is_smoke`) says so: report.md opens with `SMOKE_NOTE` and its figures' titles
+carry "(smoke)".
 """
 
 from __future__ import annotations
@@ -111,12 +114,28 @@ def failures_markdown(summary: pd.DataFrame, axes: list[str], reasons: list[str]
             f"their episodes (share of episodes by how they ended):\n\n" + _md_table(table))
 
 
+SMOKE_NOTE = ("**Smoke run: a tiny configuration that checks the pipeline; its numbers are not "
+              "results.**")
+
+
+def is_smoke(info: dict[str, Any]) -> bool:
+    """Whether the run facts describe a `--smoke` run: a `smoke` fact that is True, or
+    `--smoke` (or an abbreviation argparse accepts, `--smo`) among the words of the command."""
+    if info.get("smoke") is True:
+        return True
+    words = str(info.get("command", "")).split()
+    return any(len(w) > 3 and "--smoke".startswith(w) for w in words)
+
+
 def report(path: str | Path, title: str, info: dict[str, Any], config_yaml: str,
            summary: pd.DataFrame, axes: list[str], metrics: list[str], images: dict[str, Path],
-           reasons: list[str]) -> Path:
-    """Write `report.md` (atomically): run facts, failures, plots, summary, resolved config."""
+           reasons: list[str], smoke: bool = False) -> Path:
+    """Write `report.md` (atomically): run facts, failures, plots, summary, resolved config;
+    with `smoke`, the title says "(smoke)" and the report opens with `SMOKE_NOTE`."""
     path = Path(path)
-    parts = [f"# Sweep report: {title}", ""]
+    parts = [f"# Sweep report: {title}" + (" (smoke)" if smoke else ""), ""]
+    if smoke:
+        parts += [SMOKE_NOTE, ""]
     parts += [f"- **{k}**: {v}" for k, v in info.items()]
     parts += ["", "## Where it fails", "", failures_markdown(summary, axes, reasons), ""]
     if images:
@@ -148,7 +167,8 @@ def write_outputs(results: pd.DataFrame, cfg: config.SweepConfig, out: Path, inf
                   figures: bool = True, pool: Executor | None = None) -> dict[str, Path]:
     """summary.csv and config.yaml from a results table (one row per episode); with `figures`
     also one PNG per numeric metric (drawn in `pool`'s processes if given) and report.md.
-    Every file written atomically."""
+    Every file written atomically. A smoke run (`is_smoke(info)`) says so in the figures'
+    titles and atop report.md."""
     axes = list(cfg.axis_order)
     names = metric_columns(results)
     numeric = [m for m in names if m != "reason" and pd.api.types.is_numeric_dtype(results[m])]
@@ -159,7 +179,9 @@ def write_outputs(results: pd.DataFrame, cfg: config.SweepConfig, out: Path, inf
     files = {"summary": out / "summary.csv", "config": out / "config.yaml"}
     if not figures:
         return files
-    images = surfaces(summary, axes, numeric, out, cfg.name, pool)
+    smoke = is_smoke(info)
+    images = surfaces(summary, axes, numeric, out, f"{cfg.name} (smoke)" if smoke else cfg.name,
+                      pool)
     report(out / "report.md", cfg.name, info, config_yaml, summary, axes, numeric, images,
-           list(rollout_metrics.REASONS[1:]))
+           list(rollout_metrics.REASONS[1:]), smoke)
     return {**files, "report": out / "report.md", **images}
