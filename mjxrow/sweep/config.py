@@ -53,8 +53,9 @@ class SweepConfig:
     name: str = _k("sweep", "sweep name, used in titles", kind=str)
     seeds: int = _k(8, "episodes per cell", "count", "positive")
     seed: int = _k(0, "base random seed", "", "nonneg")
-    batch_size: int = _k(256, "episodes per jitted call (padded to a multiple of the device "
-                         "count)", "count", "positive")
+    batch_size: int | str = _k("auto", "episodes per jitted call (padded to a multiple of the "
+                               "device count), or `auto`: by device (groups.batch_size)",
+                               "count", "positive", kind="batch")
     out: str = _k("runs/sweep", "output directory (the CLI's --out wins)", kind=str)
     mix_controllers: bool = _k(False, "cells that differ only in `controller.*` and "
                                "`perception.source` run in one compiled program: one compile "
@@ -110,6 +111,7 @@ def _unknown_key(path: str, key: str, known) -> ConfigError:
 
 
 _NEED = {"positive": "> 0", "nonneg": ">= 0"}
+AUTO = "auto"  # batch_size: sized by the device (groups.batch_size)
 
 
 def _scalar(path: str, v: Any, kind: str, optional: bool = False, choices=None,
@@ -215,6 +217,8 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
         elif key == "preset":
             values["preset"] = _value(key, v, lambda p, x: _scalar(p, x, "str",
                                                                   choices=crops.names()), True)
+        elif key == "batch_size" and v == AUTO:
+            top[key] = AUTO
         elif key in TOP_KEYS:
             m = meta[key]
             kind = {str: "str", bool: "bool"}.get(m["kind"], "int")

@@ -34,7 +34,8 @@ def reference_markdown() -> str:
             lines.append(f"| `preset` | {kinds} | `zucchini` | yes | {PRESET_DOC} |")
             continue
         m = meta[k]
-        kind = {int: "integer", str: "string", bool: "boolean"}[m["kind"]]
+        kind = {int: "integer", str: "string", bool: "boolean",
+                "batch": "integer \\| `auto`"}[m["kind"]]
         unit = f" [{m['unit']}]" if m["unit"] else ""
         d = dataclasses.fields(SweepConfig)[[f.name for f in dataclasses.fields(
             SweepConfig)].index(k)].default

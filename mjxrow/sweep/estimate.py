@@ -23,6 +23,7 @@ from pathlib import Path
 
 from mjxrow.rollout import build as rollout_build
 from mjxrow.rollout import episode as rollout_episode
+from mjxrow.sweep import groups as sweep_groups
 
 PHYSICS_BYTES = 1 << 20  # MJX model data + state of one world, with the solver's temporaries
 RENDER_BYTES_PER_PIXEL = 512  # rays, depth, colour, candidate plants per tile
@@ -41,10 +42,13 @@ class Estimate:
     control_steps: int  # every episode to its timeout
     seconds: float | None  # None: no closed-loop measurement for this device
     groups: int
+    basis: str = ""  # what the time assumes: device, measured rate or none
 
     def text(self) -> str:
-        t = (f", about {_duration(self.seconds)} ({self.control_steps:,} control steps at most)"
-             if self.seconds is not None else f", {self.control_steps:,} control steps at most")
+        t = (f", at most about {_duration(self.seconds)} ({self.control_steps:,} control steps "
+             f"if every episode ran to its timeout, {self.basis})"
+             if self.seconds is not None else
+             f", {self.control_steps:,} control steps at most ({self.basis}: no time estimate)")
         return (f"estimated peak memory {_gib(self.peak_bytes)} (batch {self.batch} × "
                 f"{_gib(self.episode_bytes)} per episode){t}")
 
@@ -119,15 +123,18 @@ def _rate(device: str) -> tuple[float, float] | None:
     return None if rate is None else (rate[0], rate[1])
 
 
-def estimate(groups, seeds: int, batch_size: int, device: str) -> Estimate:
-    """The estimate of a planned sweep (`groups.plan` groups; only the episodes still to run)."""
+def estimate(groups, seeds: int, batch_size: int | str, device: str, platform: str = "cpu",
+             devices: int = 1) -> Estimate:
+    """The estimate of a planned sweep (`groups.plan` groups; only the episodes still to run),
+    with `batch_size` (an int or `auto`) resolved as the run resolves it (`groups.batch_size`);
+    device: its name in benchmarks.jsonl (`cpu` or the accelerator's kind)."""
     peak, per, batch, steps, n_groups = 0, 0, 0, 0, 0
     for g in groups:
         if not g.episodes:
             continue
         n_groups += 1
         cfg = g.cells[0].cfg
-        b = min(batch_size, len(g.episodes))
+        b = sweep_groups.batch_size(batch_size, seeds, len(g.episodes), platform, devices)
         e = episode_bytes(cfg, g.shape)
         steps += len(g.episodes) * cfg.episode.static().n_steps
         if b * e > batch * per:
@@ -135,7 +142,10 @@ def estimate(groups, seeds: int, batch_size: int, device: str) -> Estimate:
         peak = max(peak, 2 * b * e + OVERHEAD)
     rate = _rate(device)
     seconds = None if rate is None or not steps else steps / rate[0] + n_groups * rate[1]
-    return Estimate(peak, per, batch, steps, seconds, n_groups)
+    basis = (f"at the closed loop's best measured rate on {device}, {rate[0]:,.0f} control "
+             f"steps/s and {rate[1]:.0f} s of compiling per group (bench closed_loop)"
+             if rate is not None else f"no closed-loop measurement on {device}")
+    return Estimate(peak, per, batch, steps, seconds, n_groups, basis)
 
 
 def check(est: Estimate, force: bool = False, key: str = "batch_size") -> str:

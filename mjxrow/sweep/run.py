@@ -124,6 +124,9 @@ def _raise_interrupt(signum, frame):
 
 
 COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"  # jax.monitoring, per XLA compile
+# tracing and lowering: program set-up time that the ETA leaves out with the compilation
+SETUP_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
+                "/jax/core/compile/jaxpr_to_mlir_module_duration")
 
 
 class _CellWriter:
@@ -138,11 +141,14 @@ class _CellWriter:
         self.pending: dict[int, list[pd.DataFrame]] = {}
         self.times = [time.perf_counter()]
         self.episodes = 0
-        self.compile_s, self.programs = 0.0, 0
+        self.compile_s, self.programs, self.setup_s = 0.0, 0, 0.0
 
     def on_compile(self, event: str, seconds: float, **_) -> None:
         """A jax.monitoring listener: adds up XLA compilations, so that the bar tells compile
         from run and the ETA counts run time only."""
+        if event in SETUP_EVENTS:
+            self.setup_s += seconds
+            return
         if event != COMPILE_EVENT:
             return
         self.compile_s += seconds
@@ -166,16 +172,20 @@ class _CellWriter:
         self.bar.update(len(rows))
         self.bar.set_postfix_str(f"group {self.group.index}: {self.eta()}")
 
+    def eta_seconds(self) -> float | None:
+        """Seconds left in this group at the rate of the batches so far (tracing, lowering and
+        compilation left out); None before the first batch."""
+        run_s = self.times[-1] - self.times[0] - self.compile_s - self.setup_s
+        if not self.episodes or run_s <= 0:
+            return None
+        return (len(self.group.episodes) - self.episodes) * run_s / self.episodes
+
     def eta(self) -> str:
-        """Time left in this group at the rate of the batches so far, compilation left out:
-        known from the first batch on."""
-        run_s = self.times[-1] - self.times[0] - self.compile_s
-        left = len(self.group.episodes) - self.episodes
-        if not left:
+        """`eta_seconds` as the progress bar says it: known from the first batch on."""
+        if self.episodes >= len(self.group.episodes):
             return "done"
-        if run_s <= 0:
-            return "running"
-        return f"about {left * run_s / self.episodes:.0f} s left in this group"
+        left = self.eta_seconds()
+        return "running" if left is None else f"about {left:.0f} s left in this group"
 
     def timing(self) -> str:
         dt = np.diff(self.times)
@@ -210,7 +220,8 @@ def _ticking(bar, enabled: bool):
 def run(cfg: sweep_config.SweepConfig, out: str | Path,
         evaluate: sweep_groups.Evaluator | None = None, progress: bool = True,
         command: str = "", figures: bool = True, hard_stop: bool = False,
-        started: float | None = None, figure_workers: int = 0) -> dict[str, Any]:
+        started: float | None = None, figure_workers: int = 0,
+        estimate: str | None = None) -> dict[str, Any]:
     """Run every unfinished cell of `cfg`, persisting each as it finishes, then write the
     outputs (without `figures`: no PNGs and no report). Returns {'groups', 'ran', 'skipped',
     'files'}. Holds `out/.lock` (files.OutLock): a second run into `out` gets OutputError.
@@ -223,7 +234,9 @@ def run(cfg: sweep_config.SweepConfig, out: str | Path,
     the PNGs side by side (figures.figure_pool; started at once, so that their imports overlap
     the sweep). They are spawned, and a spawned process imports the caller's main script
     again: the CLI, whose main module is a package's, passes them; a script calling `run`
-    needs an `if __name__ == "__main__":` guard to pass them."""
+    needs an `if __name__ == "__main__":` guard to pass them. `estimate`: the line the command
+    printed before the run (estimate.Estimate.text); report.md puts it beside what the run
+    took."""
     evaluate = evaluate or sweep_groups.evaluate_group
     out = Path(out)
     if runtime.writer():  # several processes: process 0 writes, locks and decides what is finished
@@ -233,7 +246,8 @@ def run(cfg: sweep_config.SweepConfig, out: str | Path,
             stack.enter_context(mjxrow_files.OutLock(out))
         stop = stack.enter_context(interrupt.HardStop()) if hard_stop else None
         with sweep_figures.figure_pool(figures and runtime.writer(), figure_workers) as pool:
-            return _run(cfg, out, evaluate, progress, command, figures, stop, started, pool)
+            return _run(cfg, out, evaluate, progress, command, figures, stop, started, pool,
+                        estimate)
 
 
 FACTS = "run.json"  # the facts (date, command, device, timings) of the last run that ran episodes
@@ -249,6 +263,7 @@ def _run(
     stop: interrupt.HardStop | None,
     started: float | None = None,
     pool: Any = None,
+    estimate: str | None = None,
 ) -> dict[str, Any]:
     watch = stopwatch.Stopwatch(started=started)
     groups = sweep_groups.pending(cfg, out, report=True)
@@ -259,6 +274,8 @@ def _run(
                             "command": command or "(API call)", "device": _device(),
                             "cells": n_cells, "episodes": total, "groups": len(groups),
                             "cells skipped (already finished)": skipped}
+    if estimate:  # report.md shows it beside the wall time the run took
+        info["estimated before the run"] = estimate
     bar = tqdm(total=total, initial=total - todo, unit="ep", disable=not progress,
                desc=cfg.name, dynamic_ncols=True)
 
@@ -374,7 +391,7 @@ def main(argv: list[str] | None = None) -> int:
         cells = out / "cells"
         est = sweep_estimate.estimate(
             sweep_groups.plan(cfg, sweep_cells.finished_cells(cells, cfg.seeds)), cfg.seeds,
-            cfg.batch_size, _device_name())
+            cfg.batch_size, _device_name(), jax.default_backend(), len(jax.local_devices()))
         line = sweep_estimate.check(est, args.force)
         workers = sweep_figures.figure_workers()
     except ValueError as e:
@@ -385,7 +402,7 @@ def main(argv: list[str] | None = None) -> int:
     command = "python -m mjxrow.sweep " + " ".join(argv if argv is not None else sys.argv[1:])
     try:
         res = run(cfg, out, progress=not args.no_progress, command=command, hard_stop=True,
-                  started=mjxrow.STARTED, figure_workers=workers)
+                  started=mjxrow.STARTED, figure_workers=workers, estimate=line)
     except mjxrow_files.OutputError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
