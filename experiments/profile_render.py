@@ -30,7 +30,7 @@ import jax
 from mjxrow import crops
 from mjxrow import render as RD
 from mjxrow.bench import render as BR
-from mjxrow.bench import time_call
+from mjxrow.bench.timing import time_call
 
 SCOPE = re.compile(r"\brd_[a-z_]+")
 FUSION = re.compile(r"^\s*(?:ROOT )?%?([\w.\-]+) = .*?metadata=\{[^}]*op_name=\"([^\"]*)\"",

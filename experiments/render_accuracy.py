@@ -12,7 +12,7 @@ depth difference over pixels both call terrain; with --shading also the share of
 pixels of the same class in both whose colour differs by more than 8 levels (mostly shadows
 the candidate's shadow rays miss).
 
-Views (`--views`): `dataset` draws the dataset's camera poses (`seg.synth.sample_pose`);
+Views (`--views`): `dataset` draws the dataset's camera poses (`seg.synthesis.sample_pose`);
 `along` puts the robot's camera (0.40 m high, pitched 10° down) on a lane's centre line looking
 along the rows, from 1 m before the rows to their middle, both ways; `headland` puts it 2.5 m
 beyond the row ends, looking along the headland and 30° and 60° into the rows. For every view

@@ -30,9 +30,10 @@ import jax
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
-from mjxrow import bench, crops  # noqa: E402
+from mjxrow import crops  # noqa: E402
 from mjxrow import render as RD  # noqa: E402
 from mjxrow.bench import render as BR  # noqa: E402
+from mjxrow.bench import timing as bench  # noqa: E402
 
 
 def parse(spec: str) -> RD.RenderConfig:

@@ -7,11 +7,11 @@ timed call.
 
 A variant is DTYPE:DW:PW (compute dtype; depthwise implementation, `seg.convs.DW_IMPLS`; 1×1
 implementation, `seg.convs.PW_IMPLS`). Inputs are renders of the shipped checkpoint's crop
-(`seg.eval`'s fixed set, seed 20,000, cycled up to the batch), so the masks can be compared: for
-each variant the largest logit difference and the share of pixels whose mask (threshold 0.7)
-differs from the first variant's. Prints a table (median ms per call over the rounds,
-frames/s, compile s) and appends one `segmenter` row per variant to `--out`
-(default benchmarks.jsonl).
+(`seg.evaluation`'s fixed set, seed 20,000, cycled up to the batch), so the masks can be
+compared: for each variant the largest logit difference and the share of pixels whose mask
+(threshold 0.7) differs from the first variant's. Prints a table (median ms per call over the
+rounds, frames/s, compile s) and appends one `segmenter` row per variant to `--out` (default
+benchmarks.jsonl).
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ import jax
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
-from mjxrow import bench  # noqa: E402
 from mjxrow.bench import closed_loop as CL  # noqa: E402
+from mjxrow.bench import timing as bench  # noqa: E402
 from mjxrow.seg import checkpoint as ckpt  # noqa: E402
 from mjxrow.seg import data as D  # noqa: E402
 from mjxrow.seg import model as M  # noqa: E402
@@ -52,7 +52,7 @@ UNIQUE = 64  # distinct renders; the batch repeats them
 
 
 def renders(crop: str, n: int, size: int) -> tuple[np.ndarray, np.ndarray]:
-    """RGB uint8 [n, size, size, 3] of `crop` (`seg.eval`'s fixed renders, seed 20,000, the
+    """RGB uint8 [n, size, size, 3] of `crop` (`seg.evaluation`'s fixed renders, seed 20,000, the
     first UNIQUE cycled) and the true plant masks of the first UNIQUE."""
     rgb, mask, _ = D.fixed_set(D.onthefly(crop, size, UNIQUE), 1, 20_000)[0]
     rgb = np.asarray(rgb)

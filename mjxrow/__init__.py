@@ -9,12 +9,13 @@ The public Python API, as in the README:
     summary = built.summarise(log, 4)                  # per-episode metrics
 
 The packages, bottom-up (each imports only from the ones below it; `lint-imports` keeps it so):
-`limits`, `crops`, `field` (the traced generator) → `physics`, `render`, `seg` → `control`
-(leaf controllers) → `policies` (perception, the learned policy) → `rollout` (the step, the
-build, the episode loop, the metrics) → `env`, `sweep`, `worlds` → `train`, `bench`.
+`commands` (the light half of every command), `limits`, `crops`, `field` (the traced generator)
+→ `physics`, `render`, `seg` → `control` (leaf controllers) → `policies` (perception, the
+learned policy) → `rollout` (the step, the build, the episode loop, the metrics) → `env`,
+`sweep`, `worlds` → `train`, `bench` → `episode`.
 
-The names below are loaded when first used, so that `import mjxrow` (and every command's
-`--help`) stays cheap.
+The names below are loaded when first used, so that `import mjxrow` stays cheap: every command
+parses its arguments (and answers `--help`) before JAX is imported (`mjxrow.commands`).
 """
 
 import importlib as _importlib

@@ -3,6 +3,8 @@ lock so that two runs never write one folder.
 
 - `check_out_dir(path)` proves, before a command works, that it can create and write the folder
   (`--out /proc/x` fails at once, not after minutes of work); it leaves nothing behind.
+  `check_new_file(path)` refuses a file an earlier run left there, unless the command was asked
+  to replace it (`--overwrite`).
 - `atomic_write_*` write a temp file in the same folder, then `os.replace` it: a reader (or a
   resumed run) sees the old file or the new one, never half of one; a failed write removes its
   temp file.
@@ -57,6 +59,19 @@ def check_out_file(path: str | Path, option: str = "--out") -> Path:
     if p.is_dir():
         raise OutputError(f"{option} {path}: is a folder, expected a file name")
     check_out_dir(p.parent, option)
+    return p
+
+
+def check_new_file(path: str | Path, option: str = "--out", flag: str = "--overwrite",
+                   exists: bool | None = None) -> Path:
+    """`path` as given when no file is there yet: a command never replaces a file it did not
+    write unless asked. OutputError naming `option`, the file and `flag` (the option that
+    allows the replacement) when one is there; `exists` overrides the look (several processes:
+    the writing process's answer)."""
+    p = Path(path)
+    if p.exists() if exists is None else exists:
+        raise OutputError(f"{option} {p.parent}: {p} already exists (an earlier run's); choose "
+                          f"another {option} or pass {flag} to replace it")
     return p
 
 

@@ -8,7 +8,9 @@ went (compile, run, write) is `mjxrow.stopwatch`'s.
 Compilation cache: on by default; compiled programs (the Pallas kernels inside them included)
 are stored in `--cache-dir`, else `$MJXROW_CACHE_DIR`, else `$XDG_CACHE_HOME/mjxrow/jax`
 (`~/.cache/mjxrow/jax`), so a second run of a command with the same static shapes loads
-its programs instead of compiling them; `--no-cache` skips it.
+its programs instead of compiling them; `--no-cache` skips it. XLA's `Very slow compile?` banner
+(a compilation past 2 minutes, such as the learned policy's on a CPU) has no XLA flag to turn it
+off, so none is set here (docs/training.md).
 
 Several processes (one per host, each with its local GPUs): `--coordinator HOST:PORT
 --num-processes N --process-id I` (or `MJXROW_COORDINATOR`, `MJXROW_NUM_PROCESSES`,
@@ -37,28 +39,11 @@ from typing import Any
 import jax
 import numpy as np
 
-CACHE_ENV = "MJXROW_CACHE_DIR"
-CLUSTER_ENV = {"coordinator": "MJXROW_COORDINATOR", "num_processes": "MJXROW_NUM_PROCESSES",
-               "process_id": "MJXROW_PROCESS_ID"}
-
+from mjxrow.commands import CACHE_ENV, CLUSTER_ENV
+from mjxrow.commands import runtime_args as add_args  # noqa: F401  (defined where --help reads it)
 
 # ---------------------------------------------------------------------------------------------
-# Command-line flags
-
-
-def add_args(p: argparse.ArgumentParser) -> None:
-    """--cache-dir, --no-cache and the multi-process flags."""
-    g = p.add_argument_group("compilation cache and processes")
-    g.add_argument("--cache-dir", metavar="DIR", help="persistent compilation cache (default: "
-                   f"${CACHE_ENV}, else $XDG_CACHE_HOME/mjxrow/jax, else ~/.cache/mjxrow/jax)")
-    g.add_argument("--no-cache", action="store_true", help="compile everything afresh, store "
-                   "nothing")
-    g.add_argument("--coordinator", metavar="HOST:PORT", help="address of process 0 for a run "
-                   f"over several processes (or ${CLUSTER_ENV['coordinator']})")
-    g.add_argument("--num-processes", type=int, metavar="N",
-                   help=f"processes taking part (or ${CLUSTER_ENV['num_processes']})")
-    g.add_argument("--process-id", type=int, metavar="I",
-                   help=f"this process's index, 0..N-1 (or ${CLUSTER_ENV['process_id']})")
+# Set-up
 
 
 def setup(args: argparse.Namespace, cpu_split: bool = False) -> Path | None:

@@ -1,6 +1,6 @@
 """The paper's Table 1 beside the same quantities measured from generated fields.
 
-    python experiments/table1.py [--seeds 5] [--out docs/table1.md]
+    python experiments/table1.py [--seeds 5] [--out FILE]   # --out docs/table1.md: the page
 
 For every preset, fields are generated for seeds 0..N-1 (one jit(vmap(generate)) call) and
 measured as a user would measure a real field, from plant positions and primitives only:
@@ -14,7 +14,6 @@ a row) and rows per group (rows between two large gaps; one uniform spacing read
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -25,6 +24,8 @@ from tqdm import tqdm
 from mjxrow import crops
 from mjxrow import field as mjxrow_field
 from mjxrow.crops import prims as crops_prims
+from mjxrow.files import atomic_write_text, check_out_file
+from paper import cli
 
 SAME_GAP = 0.05  # m: gaps closer than this form one cluster (a uniform row spacing)
 
@@ -146,25 +147,28 @@ def table(seeds: int, tol: float = 0.05) -> tuple[str, list[str]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--seeds", type=int, default=5, help="fields per preset (seeds 0..N-1)")
-    ap.add_argument("--out", default="docs/table1.md", help="markdown file to write ('' = none)")
-    args = ap.parse_args(argv)
+    """`python experiments/table1.py ARGS`: the table printed, and written to `--out` if given."""
+    args = cli.table1().parse_args(argv)
     if args.seeds < 1:
         print("error: --seeds must be at least 1", file=sys.stderr)
         return 2
+    if args.out:  # before minutes of work
+        try:
+            check_out_file(args.out, "--out")
+        except ValueError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
     text, off = table(args.seeds)
     notes = "\n".join(off) if off else "- none"
     text += f"\n\nMeasured numbers more than 5 % away from their reference:\n{notes}\n"
     print(text)
     if args.out:
         doc = (f"# Table 1: the paper's field presets beside generated fields\n\n"
-               f"Written by `python experiments/table1.py --seeds {args.seeds}`. "
-               f"{__doc__.split(chr(10), 3)[3].strip()}\n\n{text}")
+               f"Written by `python experiments/table1.py --seeds {args.seeds} --out "
+               f"{args.out}`. {__doc__.split(chr(10), 3)[3].strip()}\n\n{text}")
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(doc)
+        atomic_write_text(args.out, doc)
     return 0
-
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,7 +1,7 @@
 """The paper's Table 2 (segmentation accuracy and IoU per crop) beside ours, and a cross-crop
 matrix (model trained on one crop, tested on each).
 
-    python experiments/table2_segmentation.py [--data-root DIR] [--n 512] [--out table2.md]
+    python experiments/table2_segmentation.py [--data-root DIR] [--n 512] [--out FILE]
 
 Models: the checkpoints `<ckpt-root>/<crop>/` (default the shipped `mjxrow/checkpoints/`), plus
 `all/` (one model for every crop) if present. Test sets: with `--data-root`, the test split of
@@ -16,15 +16,16 @@ or in percent; its accuracies lie between 0.63 and 0.80.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import pandas as pd
 
 from mjxrow import crops
+from mjxrow.files import atomic_write_text, check_out_file
 from mjxrow.seg import checkpoint as seg_checkpoint
-from mjxrow.seg import eval as seg_eval
+from mjxrow.seg import evaluation as seg_eval
+from paper import cli
 
 
 def _fmt(x) -> str:
@@ -56,20 +57,27 @@ def test_counts(module, variables, crop: str, args, size: int) -> pd.DataFrame:
     return seg_eval.evaluate_renders(module, variables, crop, args.n, size, args.batch, args.seed)
 
 
+def command(argv: list[str] | None = None) -> int:
+    """`main` as a command: 0, or 2 with a one-line error (an unknown crop, an output file that
+    cannot be written, a damaged checkpoint)."""
+    try:
+        main(argv)
+    except (ValueError, OSError) as e:
+        print(f"error: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
-    p = argparse.ArgumentParser(description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--ckpt-root", default=str(seg_checkpoint.CHECKPOINT_DIR))
-    p.add_argument("--data-root", help="dataset folder(s) written by python -m mjxrow.seg.synth")
-    p.add_argument("--n", type=int, default=512, help="renders per crop without --data-root")
-    p.add_argument("--batch", type=int, default=32)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--crops", nargs="+", default=list(crops.names()), choices=crops.names())
-    p.add_argument("--also-sizes", type=int, nargs="*", default=[],
-                   help="input sizes [px] at which each crop's model is also evaluated, beside "
-                        "its own (e.g. 64: the closed loop's camera)")
-    p.add_argument("--out", help="write the markdown tables here")
-    args = p.parse_args(argv)
+    """`python experiments/table2_segmentation.py ARGS` as a function: (table, cross-crop rows),
+    printed, and written to `--out` if given."""
+    args = cli.table2().parse_args(argv)
+    args.ckpt_root = args.ckpt_root or str(seg_checkpoint.CHECKPOINT_DIR)
+    args.crops = args.crops or list(crops.names())
+    for crop in args.crops:
+        crops.get(crop)  # ValueError naming an unknown crop, before any work
+    if args.out:
+        check_out_file(args.out, "--out")
 
     found = models(Path(args.ckpt_root))
     if not found:
@@ -124,9 +132,9 @@ def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     print(text)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(text)
+        atomic_write_text(args.out, text)
     return table, cross
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(command())

@@ -5,7 +5,7 @@ ground-truth plant mask, and SegZeros on the learned segmenter's mask (shipped c
 
     python experiments/table3_navigation.py [--episodes 100] [--presets zucchini ...]
         [--controllers oracle segzeros_gt segzeros_learned policy] [--out runs/table3]
-        [--image 64] [--batch-size 256] [--separate] [--smoke]
+        [--image 64] [--batch-size 256] [--separate] [--smoke] [--doc docs/table3.md]
 
 Scenario (the paper's Table 3): every preset at its default geometry (Table 1 values; typical
 ones for the vineyard), a 20 m path inside the row with the goal at the row's end, control at
@@ -21,8 +21,8 @@ is driven by its own; the learned policy keeps its own program), so the table co
 program per preset instead of one per block; `--separate` gives each block its own. Each
 block writes per-episode `results.csv`, `summary.csv`, `report.md`, and one
 file per finished cell, so an interrupted run resumes where it stopped and a finished one is
-only re-assembled. The markdown table goes to `OUT/table3.md` and, except with `--smoke`, to
-`docs/table3.md` (`--doc`), and is printed.
+only re-assembled. The markdown table goes to `OUT/table3.md`, is printed, and goes to a page
+only when asked: `--doc docs/table3.md` (no default run rewrites docs/).
 
 Metrics (rollout.metrics, as the authors' public code computes them): CHA [rad], the mean over
 steps of the goal's signed bearing atan2(y_g, x_g) in the robot frame; MAE [m] and MSE [m²],
@@ -36,9 +36,7 @@ all-crop `all/`); where none is shipped the script says so and leaves that block
 
 from __future__ import annotations
 
-import argparse
 import datetime
-import importlib.resources
 import json
 import math
 import sys
@@ -57,10 +55,11 @@ from mjxrow.seg import checkpoint as seg_checkpoint
 from mjxrow.sweep import config as sweep_config
 from mjxrow.sweep import groups as sweep_groups
 from mjxrow.sweep import run as sweep_run
+from paper import cli
 
-ROOT = Path(__file__).resolve().parents[1]  # the checkout: docs/
+ROOT = Path(__file__).resolve().parents[1]  # the checkout
 
-BASE_YAML = Path(str(importlib.resources.files("mjxrow.sweep").joinpath("presets.yaml")))
+BASE_YAML = cli.BASE_YAML  # mjxrow/sweep/presets.yaml (package data)
 
 # name → (label, config overrides)
 CONTROLLERS: dict[str, tuple[str, dict[str, Any]]] = {
@@ -84,7 +83,7 @@ COLUMNS: tuple[tuple[str, str, str, str], ...] = (
     ("omega_std", "ω std", "rad/s", "{:.3f}"),
     ("time", "time to goal", "s", "{:.1f}"),
 )
-DEFAULT_CONTROLLERS = ("oracle", "segzeros_gt", "segzeros_learned")  # `policy` on request
+DEFAULT_CONTROLLERS = cli.DEFAULT_CONTROLLERS  # `policy` on request
 PAPER_METRICS = ("cha", "mae", "mse", "omega_std")
 PAPER_CONTROLLERS = ("SegZeros",)  # the paper's Table 3 has one controller's row per crop
 # the paper's pear values, which cannot go together (NOTES)
@@ -446,29 +445,9 @@ def run_table(presets: list[str], controllers: list[str], episodes: int, out: st
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter,
-                                epilog=__doc__.split("\n\n", 1)[1])
-    p.add_argument("--episodes", type=int, default=100, help="episodes per block (default 100)")
-    p.add_argument("--presets", nargs="+", default=list(crops.names()), choices=crops.names())
-    p.add_argument("--controllers", nargs="+", default=list(DEFAULT_CONTROLLERS),
-                   choices=CONTROLLERS)
-    p.add_argument("--out", default="runs/table3", help="run folder (with --smoke: OUT_smoke)")
-    p.add_argument("--image", type=int, default=None,
-                   help="camera side in pixels (default: the base YAML's, 64)")
-    p.add_argument("--batch-size", type=int, default=256, help="episodes per jitted call")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--base", default=str(BASE_YAML), help="scenario YAML (default %(default)s)")
-    p.add_argument("--doc", default=None, help="also write the page here (default: "
-                   "docs/table3.md; with --smoke: none)")
-    p.add_argument("--smoke", action="store_true",
-                   help="tiny check: 2 episodes, 16 × 16 images, 1.5 m paths in 6 m rows")
-    p.add_argument("--separate", action="store_true",
-                   help="one program per block (default: the controllers of a preset share "
-                   "one program, every episode running all their stages)")
-    p.add_argument("--no-progress", action="store_true")
-    runtime.add_args(p)  # --cache-dir, --no-cache, --coordinator, ...
+    p = cli.table3()
     args = p.parse_args(argv)
+    args.presets = args.presets or list(crops.names())
     if args.episodes < 1 or (args.image is not None and args.image < 8):
         p.error("--episodes must be ≥ 1 and --image ≥ 8")
     out = Path(args.out + "_smoke" if args.smoke else args.out)
@@ -497,7 +476,7 @@ def main(argv: list[str] | None = None) -> int:
     (out / "table3.md").write_text(md)
     (out / "table3.json").write_text(json.dumps(
         {f"{c}/{p}": s for (c, p), s in stats.items()}, indent=1, default=float) + "\n")
-    doc = args.doc or (None if args.smoke else str(ROOT / "docs" / "table3.md"))
+    doc = args.doc  # docs/table3.md only when asked
     if doc:
         Path(doc).parent.mkdir(parents=True, exist_ok=True)
         Path(doc).write_text(md)

@@ -7,8 +7,8 @@ import pytest
 import yaml
 
 from mjxrow.sweep import config as C
-from mjxrow.sweep import docs as SD
 from mjxrow.sweep import grid as G
+from mjxrow.sweep import reference as SD
 
 GT = {"perception": {"source": "ground_truth"}}
 

@@ -10,7 +10,7 @@ from mjxrow import crops
 from mjxrow import field as F
 from mjxrow import render as RD
 from mjxrow.crops import prims as PL
-from mjxrow.seg import synth as DS
+from mjxrow.seg import synthesis as DS
 from mjxrow.worlds import export as WD
 
 BUILT_IN = ("zucchini", "lettuce", "chard", "pear", "vineyard")

@@ -9,7 +9,7 @@ from PIL import Image
 
 from mjxrow import field as F
 from mjxrow import render as RD
-from mjxrow.seg import synth as DS
+from mjxrow.seg import synthesis as DS
 
 N, SIZE = 8, 16
 

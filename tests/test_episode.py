@@ -319,6 +319,12 @@ def test_cli_writes_episodes_csv(tmp_path, capsys):
     assert np.allclose(df["terrain_dh"], 0.05) and (df["reason"] == "goal").all()
     out = capsys.readouterr().out
     assert "cha [deg]" in out and "95% CI" in out
+    # a second run into the folder: refused, then with --overwrite the same episodes again
+    again = ["--preset", "vineyard", "--n", "2", "--seed", "3", "--out", str(tmp_path), "--set",
+             "field.terrain_dh=0.05", "--no-progress"]
+    assert cli.main(again) == 2 and "--overwrite" in capsys.readouterr().err
+    assert cli.main([*again, "--overwrite"]) == 0
+    assert pd.read_csv(tmp_path / "episodes.csv").equals(df)
 
 
 @pytest.mark.slow

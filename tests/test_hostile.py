@@ -133,6 +133,8 @@ EPISODE_CASES = [
     ("fraction", ["--set", "camera.height=31.5"], "camera.height"),
     ("d_rr", ["--set", "field.d_rr=1e9"], "field.d_rr"),
     ("axis", ["--set", "field.d_rr=[2.5, 3.0]"], "field.d_rr"),
+    ("preset", ["--preset", "nope"], "preset"),
+    ("controller", ["--controller", "nope"], "controller.name"),
 ]
 
 
@@ -140,6 +142,20 @@ EPISODE_CASES = [
                          ids=[c[0] for c in EPISODE_CASES])
 def test_episode_rejects(tmp_path, capsys, extra, needle):
     _rejected(capsys, EP.main, ["--n", "2", "--no-progress"], extra, tmp_path / "o", needle)
+
+
+def test_episode_keeps_an_earlier_csv(tmp_path, capsys):
+    """An episodes.csv already in --out (an earlier run's) is refused before any work, in one
+    line naming --out and the file; nothing in the folder changes. --overwrite allows it."""
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "episodes.csv").write_text("earlier run\n")
+    assert EP.main(["--n", "2", "--no-progress", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: --out ") and "\n" not in err, err
+    assert str(out / "episodes.csv") in err and "--overwrite" in err, err
+    assert [p.name for p in out.iterdir()] == ["episodes.csv"]
+    assert (out / "episodes.csv").read_text() == "earlier run\n"
 
 
 @pytest.mark.parametrize("kind, needle", [("missing", "no such folder"),

@@ -13,7 +13,7 @@ from flax import struct
 from mjxrow import control, crops
 from mjxrow.crops import prims as PL
 from mjxrow.sweep import config as C
-from mjxrow.sweep import docs as SD
+from mjxrow.sweep import reference as SD
 from mjxrow.sweep import run as S
 
 

@@ -17,9 +17,9 @@ from mjxrow import crops
 from mjxrow.seg import checkpoint as C
 from mjxrow.seg import convs as SC
 from mjxrow.seg import data as D
-from mjxrow.seg import eval as E
+from mjxrow.seg import evaluation as E
 from mjxrow.seg import model as M
-from mjxrow.seg import train as T
+from mjxrow.seg import training as T
 
 H, W = 32, 48
 
@@ -263,7 +263,7 @@ def test_checkpoint_roundtrip_exact(tiny, tmp_path, monkeypatch):
 def test_onnx_export_matches_flax(tiny, apply_fn, tmp_path):
     pytest.importorskip("onnx", reason="optional export dependency onnx not installed")
     pytest.importorskip("onnxruntime", reason="optional dependency onnxruntime not installed")
-    from mjxrow.seg import export as X
+    from mjxrow.seg import onnx_export as X
 
     module, variables = tiny
     rgb, _ = blobs(2, seed=5)

@@ -19,9 +19,10 @@ import pytest  # noqa: E402
 from PIL import Image  # noqa: E402
 
 from mjxrow import field as F  # noqa: E402
-from mjxrow import worlds  # noqa: E402
 from mjxrow.crops import prims as PL  # noqa: E402
+from mjxrow.worlds import cli as worlds_cli  # noqa: E402
 from mjxrow.worlds import export as Wd  # noqa: E402
+from mjxrow.worlds import replay  # noqa: E402
 from mjxrow.worlds import scene as S  # noqa: E402
 
 # 12 × 12 m terrain, 2 groups of 2 rows: rows at y = -3.6, -1.8, 1.8, 3.6 (gaps 1.8, 3.6, 1.8),
@@ -345,7 +346,7 @@ def test_cli_bad_input_names_the_key(tmp_path, capsys):
                       (["--set", "robot.wheel_radius=-1"], "robot.wheel_radius"),
                       (["--from-run", str(tmp_path / "none"), "--cell", "0", "--episode", "0"],
                        "--from-run")):
-        assert worlds.main(["--preset", "lettuce", "--out", str(tmp_path), *args]) == 2
+        assert worlds_cli.main(["--preset", "lettuce", "--out", str(tmp_path), *args]) == 2
         err = capsys.readouterr().err
         assert key in err and len(err.strip().splitlines()) == 1, err
     assert not any(tmp_path.iterdir())
@@ -357,7 +358,7 @@ def test_cli_bad_input_names_the_key(tmp_path, capsys):
 
 def test_overrides_grow_the_shape():
     # 30 m wide chard: 10 groups of 3 rows, more than the preset shape's max_rows
-    run, shape = worlds.resolve_run("chard", 0, ["field.terrain_width=30.0",
+    run, shape = replay.resolve_run("chard", 0, ["field.terrain_width=30.0",
                                                  "field.terrain_length=8.0",
                                                  "field.row_length=6.0", "sim.path_length=5"])
     params = run.field_params()
@@ -402,7 +403,7 @@ def test_from_run_exports_the_episode_the_sweep_ran(tmp_path):
     run_dir = tmp_path / "run"
     SW.run(C.from_dict(SWEEP), run_dir, evaluate=evaluate, progress=False, figures=False)
     out = tmp_path / "world"
-    assert worlds.main(["--from-run", str(run_dir), "--cell", "0", "--episode", "1",
+    assert worlds_cli.main(["--from-run", str(run_dir), "--cell", "0", "--episode", "1",
                         "--gazebo", "none", "--out", str(out)]) == 0
     ref = seen[(0, 1)]
     assert not np.array_equal(ref.plant_pos, seen[(0, 0)].plant_pos)
@@ -410,8 +411,6 @@ def test_from_run_exports_the_episode_the_sweep_ran(tmp_path):
     r, p = np.nonzero(ref.plant_active)
     want = np.sort(ref.plant_pos[r, p], axis=0)
     np.testing.assert_allclose(np.sort(t[["x", "y", "z"]].to_numpy(), axis=0), want, atol=6e-5)
-    from mjxrow.worlds import replay
-
     ep = replay.from_run(run_dir, 0, 1)
     for name in ("plant_pos", "plant_size", "plant_active", "terrain", "obst_pos"):
         np.testing.assert_array_equal(getattr(ep.field, name), getattr(ref, name))
@@ -429,7 +428,7 @@ def test_from_run_exports_the_episode_the_sweep_ran(tmp_path):
 def test_cli_needs_what_to_export(tmp_path, capsys):
     for args in ([], ["--preset", "chard", "--all"]):
         with pytest.raises(SystemExit) as exit_info:
-            worlds.main(["--out", str(tmp_path / "w"), *args])
+            worlds_cli.main(["--out", str(tmp_path / "w"), *args])
         assert exit_info.value.code == 2
         assert "--preset" in capsys.readouterr().err
     assert not (tmp_path / "w").exists()

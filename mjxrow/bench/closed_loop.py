@@ -27,7 +27,7 @@ import time
 import numpy as np
 
 from mjxrow import control, crops, runtime, stopwatch
-from mjxrow.bench import time_runs
+from mjxrow.bench.timing import time_runs
 from mjxrow.policies import perception
 from mjxrow.rollout import build as rollout_build
 from mjxrow.rollout import episode as rollout_episode

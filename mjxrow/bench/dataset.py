@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 from mjxrow import crops
-from mjxrow.seg import synth as seg_synth
+from mjxrow.seg import synthesis as seg_synth
 
 
 def add_args(p: argparse.ArgumentParser) -> None:

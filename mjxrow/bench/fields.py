@@ -7,7 +7,7 @@ import argparse
 import jax
 
 from mjxrow import crops, field
-from mjxrow.bench import time_call
+from mjxrow.bench.timing import time_call
 from mjxrow.rollout import build as rollout_build
 
 

@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 
 from mjxrow import crops, field
-from mjxrow.bench import time_call
+from mjxrow.bench.timing import time_call
 from mjxrow.physics import sim as physics_sim
 
 

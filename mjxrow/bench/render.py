@@ -12,8 +12,8 @@ import yaml
 
 from mjxrow import crops, field
 from mjxrow import render as mjxrow_render
-from mjxrow.bench import time_call
-from mjxrow.seg import synth as seg_synth
+from mjxrow.bench.timing import time_call
+from mjxrow.seg import synthesis as seg_synth
 
 MAX_RAYS = 1 << 24  # rays per vmapped chunk when --chunk is 0 (bounds the [rays, ...] buffers)
 

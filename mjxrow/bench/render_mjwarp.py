@@ -39,10 +39,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxrow import crops, render, runtime, worlds
+from mjxrow import crops, render, runtime
 from mjxrow import field as mjxrow_field
 from mjxrow.bench import render as bench_render
-from mjxrow.bench import time_call
+from mjxrow.bench.timing import time_call
 from mjxrow.physics.quiet import mjx
 from mjxrow.worlds import mjcf, replay
 from mjxrow.worlds import scene as worlds_scene
@@ -187,7 +187,7 @@ def exported(preset: str):
     """(episode, MJCF text, assets) of `preset`'s world as `python -m mjxrow.worlds` exports
     it, without the robot."""
 
-    run, shape = worlds.resolve_run(preset)
+    run, shape = replay.resolve_run(preset)
     ep = replay.episode_world(run, shape, 0)
     xml, assets = mjcf.to_mjcf(ep.field, shape, preset)
     return ep, xml, assets

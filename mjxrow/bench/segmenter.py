@@ -13,7 +13,7 @@ import argparse
 import jax
 import numpy as np
 
-from mjxrow.bench import time_call
+from mjxrow.bench.timing import time_call
 from mjxrow.seg import checkpoint as seg_checkpoint
 from mjxrow.seg import convs as seg_convs
 from mjxrow.seg import model as seg_model

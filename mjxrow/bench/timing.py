@@ -1,7 +1,6 @@
-"""Benchmarks: `python -m mjxrow.bench STAGE [...]`. Each stage module has `add_args(parser)` and
-`run(args) -> list[dict]`; every row lands in `benchmarks.jsonl` (machine) and is printed as a
-table; BENCHMARKS.md's current figures are generated from the rows
-(`experiments/benchmarks_table.py --write BENCHMARKS.md`)."""
+"""What every benchmark stage shares: timed calls (compile apart from run, interleaved variants,
+the lock of several bench processes on one machine), the device's name, and the rows appended
+to `benchmarks.jsonl` and printed as a table."""
 
 from __future__ import annotations
 
@@ -19,9 +18,6 @@ from pathlib import Path
 from typing import Any
 
 import jax
-
-STAGES = ("fields", "physics", "render", "render_mjwarp", "segmenter", "closed_loop", "dataset",
-          "train")
 
 
 def device_name() -> str:

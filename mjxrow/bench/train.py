@@ -13,10 +13,10 @@ import jax
 import numpy as np
 
 from mjxrow import crops
-from mjxrow.bench import time_call
+from mjxrow.bench.timing import time_call
 from mjxrow.seg import convs as seg_convs
 from mjxrow.seg import model as seg_model
-from mjxrow.seg import train as seg_train
+from mjxrow.seg import training as seg_train
 from mjxrow.seg.data import onthefly
 
 

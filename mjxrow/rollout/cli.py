@@ -20,6 +20,7 @@ from mjxrow.rollout import build as rollout_build
 from mjxrow.rollout import metrics
 from mjxrow.rollout.config import RunConfig
 
+CSV = "episodes.csv"  # the file a run writes in its folder
 CSV_METRICS = metrics.METRICS
 
 
@@ -68,7 +69,8 @@ def results_table(run: RunConfig, episodes: np.ndarray, lanes: np.ndarray,
 def run_episodes(run: RunConfig, n: int, out: str | Path, progress: bool = True
                  ) -> pd.DataFrame:
     """Episodes 0..n-1 of `run` (keys as the sweep's: the same seed and config give the same
-    episodes as a sweep cell), written to OUT/episodes.csv; prints timing and the aggregate."""
+    episodes as a sweep cell), written to OUT/episodes.csv (replacing one that is there: the
+    command checks first); prints timing and the aggregate."""
     if n < 1:
         raise ValueError(f"--n: must be at least 1, got {n}")
     out = Path(out)
@@ -87,9 +89,9 @@ def run_episodes(run: RunConfig, n: int, out: str | Path, progress: bool = True
     if not runtime.writer():  # several processes: process 0 reports and writes
         return table
     out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out / "episodes.csv", table.to_csv(index=False))
+    atomic_write_text(out / CSV, table.to_csv(index=False))
     print(f"{run.controller.name} on {run.preset}: {n} episodes, compile {t1 - t0:.1f} s, "
           f"run {t2 - t1:.1f} s ({n * built.episode.n_steps / (t2 - t1):.0f} env-steps/s)")
     print(metrics.format_table({k: summary[k] for k in CSV_METRICS}))
-    print(f"wrote {out / 'episodes.csv'}")
+    print(f"wrote {out / CSV}")
     return table

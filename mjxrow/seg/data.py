@@ -23,7 +23,7 @@ from tqdm.auto import tqdm
 from mjxrow import crops as mjxrow_crops
 from mjxrow import render
 from mjxrow.physics.robot import RobotConfig
-from mjxrow.seg import synth
+from mjxrow.seg import synthesis
 
 INDEX_COLUMNS = ("rgb", "mask", "crop", "condition", "x", "y", "z", "yaw", "pitch", "lateral",
                  "split")
@@ -228,7 +228,7 @@ def augment(key: jax.Array, rgb: jax.Array, mask: jax.Array, *, flip: float = 0.
 
 def onthefly(crop: str, size: int, batch: int, fovy: float | None = None):
     """Jittable `fn(key) -> (rgb uint8 [batch, size, size, 3], mask bool [batch, size, size])`
-    rendered by `mjxrow.seg.synth.make_batch_fn`; crop "all" mixes every crop in equal parts.
+    rendered by `mjxrow.seg.synthesis.make_batch_fn`; crop "all" mixes every crop in equal parts.
     fovy: vertical field of view [deg], default the robot camera's."""
 
     crops = mjxrow_crops.names() if crop == "all" else (crop,)
@@ -243,7 +243,7 @@ def onthefly(crop: str, size: int, batch: int, fovy: float | None = None):
         except ImportError:
             fovy = 42.0
     intr = render.Intrinsics(size, size, fovy)
-    fns = [synth.make_batch_fn(c, intr) for c in crops]
+    fns = [synthesis.make_batch_fn(c, intr) for c in crops]
     n = batch // len(crops)
 
     def fn(key: jax.Array) -> tuple[jax.Array, jax.Array]:

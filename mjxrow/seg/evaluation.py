@@ -1,14 +1,10 @@
-"""Evaluation of a segmenter on a dataset folder (default: its test split) or on renders.
-
-CLI: `python -m mjxrow.seg.eval --crop zucchini [--data DIR] [--ckpt PATH]` prints pixel accuracy
-and IoU (both in [0, 1]; IoU of the plant class, prediction sigmoid(logit) > 0.7) per crop and per
-sky condition, pooled over the images of each group: IoU = Σ|M ∩ Y| / Σ|M ∪ Y|. Without `--data`
-it evaluates on a fixed set of renders of the crop (seed 20,000 + `--seed`).
+"""Evaluation of a segmenter on a dataset folder (default: its test split) or on renders: the
+work of `python -m mjxrow.seg.eval` (its parser and docs: `mjxrow.seg.eval`), and the counts,
+scores and summaries that training and the tables use.
 """
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 from typing import Any
@@ -22,9 +18,10 @@ from tqdm.auto import tqdm
 from mjxrow import crops, files
 from mjxrow.seg import checkpoint
 from mjxrow.seg import data as seg_data
+from mjxrow.seg import eval as command
 from mjxrow.seg.model import SegNet, apply
 
-THRESHOLD = 0.7  # the paper's threshold on sigmoid(logit)
+THRESHOLD = command.THRESHOLD  # the paper's threshold on sigmoid(logit)
 
 
 def counts(logits: jax.Array, mask: jax.Array, weight: jax.Array | None = None,
@@ -145,20 +142,10 @@ def cli(argv: list[str] | None = None) -> int:
 
 
 def main(argv: list[str] | None = None) -> pd.DataFrame:
-    p = argparse.ArgumentParser(prog="python -m mjxrow.seg.eval", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--crop", default="zucchini", choices=(*crops.names(), "all"),
-                   help="crop to evaluate on (and shipped model to load without --ckpt)")
-    p.add_argument("--data", help="dataset folder written by python -m mjxrow.seg.synth")
-    p.add_argument("--ckpt", help="checkpoint folder (default: the shipped model of --crop)")
-    p.add_argument("--split", default="test", help="split of the folder ('all' for every row)")
-    p.add_argument("--size", type=int, help="resize images to this side (default: model's)")
-    p.add_argument("--batch", type=int, default=32)
-    p.add_argument("--threshold", type=float, default=THRESHOLD)
-    p.add_argument("--n", type=int, default=512, help="renders to evaluate without --data")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--csv", help="also write the summary table here")
-    args = p.parse_args(argv)
+    """`python -m mjxrow.seg.eval ARGS` as a function: the summary table (printed too)."""
+    args = command.parser().parse_args(argv)
+    if args.crop != "all":
+        crops.get(args.crop)  # ValueError naming an unknown crop, before any work
     if args.csv:
         files.check_out_file(args.csv, "--csv")
     if args.ckpt and not Path(args.ckpt).exists():
@@ -181,6 +168,3 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
         files.atomic_write_text(args.csv, table.to_csv(index=False))
     return table
 
-
-if __name__ == "__main__":
-    sys.exit(cli())

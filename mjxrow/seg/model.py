@@ -10,7 +10,7 @@ halved in channels (`reduced_tail`). The LR-ASPP head (torchvision's `LRASPPHead
 to a 1×1 classifier of the 1/8 features; bilinear upsampling to the input size.
 
 Padding is explicit and symmetric ((k − 1)/2 · dilation, as in the published models), so the
-exported ONNX graph (`mjxrow.seg.export`) reproduces it exactly.
+exported ONNX graph (`mjxrow.seg.onnx_export`) reproduces it exactly.
 """
 
 from __future__ import annotations

@@ -1,23 +1,21 @@
-"""ONNX export of a trained segmenter, for robots (onnxruntime, TensorRT, OpenVINO, ...).
-
-The graph is written directly with `onnx.helper` from the resolved architecture (`model.plan`) and
-the variables, BatchNorm folded into the convolutions: input `rgb uint8 [N, H, W, 3]` (N fixed or
-dynamic, H and W fixed), output `logits float32 [N, H, W]` (sigmoid > 0.7 is the plant mask), the
-same numbers as `model.apply` (checked to 1e-3 by the tests). Needs the optional packages `onnx`
-(and `onnxruntime` to run or check it).
-
-CLI: `python -m mjxrow.seg.export (--crop C | --ckpt PATH) --out model.onnx [--size 224]`.
+"""ONNX export of a trained segmenter (the work of `python -m mjxrow.seg.export`; its parser and
+the graph's description: `mjxrow.seg.export`): `to_onnx` writes the graph with `onnx.helper` from
+the resolved architecture (`model.plan`) and the variables, BatchNorm folded into the
+convolutions; `run_onnx` runs it with onnxruntime.
 """
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Any
 
+import jax
 import numpy as np
 
 from mjxrow import files
 from mjxrow.seg import checkpoint
+from mjxrow.seg import export as command
 from mjxrow.seg.model import BN_EPS, MEAN, STD, SegNet, apply
 
 OPSET = 17
@@ -188,8 +186,6 @@ def require_onnx() -> None:
 def cli(argv: list[str] | None = None) -> int:
     """`main` as a command: 0, or 2 with a one-line error (onnx missing, a missing or damaged
     checkpoint, an output file that cannot be written)."""
-    import sys
-
     try:
         main(argv)
     except (ValueError, OSError) as e:
@@ -199,21 +195,8 @@ def cli(argv: list[str] | None = None) -> int:
 
 
 def main(argv: list[str] | None = None) -> None:
-    import argparse
-
-    import jax
-
-
-    p = argparse.ArgumentParser(prog="python -m mjxrow.seg.export", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--crop", help="shipped checkpoint of this crop")
-    src.add_argument("--ckpt", help="checkpoint folder")
-    p.add_argument("--out", required=True, help="ONNX file to write")
-    p.add_argument("--size", type=int, default=224, help="square input side [px]")
-    p.add_argument("--dynamic-batch", action="store_true", help="batch axis of any length")
-    p.add_argument("--check", type=int, default=4, help="random images compared with Flax")
-    args = p.parse_args(argv)
+    """`python -m mjxrow.seg.export ARGS` as a function (raises ValueError or OSError)."""
+    args = command.parser().parse_args(argv)
     require_onnx()
     files.check_out_file(args.out, "--out")
     module, variables = checkpoint.load(args.crop or args.ckpt)
@@ -234,9 +217,3 @@ def main(argv: list[str] | None = None) -> None:
         print(f"max |onnx − flax| over {args.check} images: {err:.2e}")
         if err > 1e-3:
             raise SystemExit(f"ONNX output differs from Flax by {err:.2e} > 1e-3")
-
-
-if __name__ == "__main__":
-    import sys
-
-    sys.exit(cli())

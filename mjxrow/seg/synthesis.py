@@ -1,20 +1,6 @@
-"""The synthetic segmentation dataset: RGB images and binary plant masks rendered by `render.py`.
-
-CLI:
-    python -m mjxrow.seg.synth --crop zucchini --n 19456 --out DIR [--seed S] [--size 224]
-        [--test-frac F] [--batch B] [--workers W]
-    python -m mjxrow.seg.synth --crop zucchini --contact-sheet docs/contact_zucchini.png
-
-Layout of DIR: `index.csv` (columns rgb, mask, crop, condition, x, y, z, yaw, pitch, lateral,
-split; paths relative to DIR), images `<condition>/rgb/<crop>_<i:06d>.png` (RGB, 8-bit) and
-`<condition>/mask/<crop>_<i:06d>.png` (8-bit, 0 or 255), four sub-datasets by sky and lighting
-(`render.CONDITIONS`), sample i in condition i mod 4.
-
-Every sample is a function of (crop, seed, i) only: its own field (the crop's preset with
-geometry, terrain and obstacles varied), a camera pose in that field and randomised lighting.
-Hence a re-run with the same arguments resumes: finished pairs are skipped, never rewritten
-(files appear through temp file + rename), and the index is rebuilt identically. The test split
-is an exact fraction of each condition, drawn with the seed.
+"""The synthetic segmentation dataset (the work of `python -m mjxrow.seg.synth`; its parser and
+the dataset's layout: `mjxrow.seg.synth`): RGB images and binary plant masks rendered by
+`render.py`, every sample a function of (crop, seed, i) only, so that a re-run resumes.
 
 Camera poses: the robot's view down a lane mostly — a random lane (lanes the robot fits in
 four times out of five), a lateral offset inside the lane's free width, anywhere along the row
@@ -25,7 +11,6 @@ steeper, one in ten turns to any heading.
 
 from __future__ import annotations
 
-import argparse
 import concurrent.futures as cf
 import functools
 import io
@@ -41,10 +26,11 @@ import pandas as pd
 from PIL import Image
 from tqdm.auto import tqdm
 
-from mjxrow import crops, files, interrupt, limits
+from mjxrow import crops, files, interrupt
 from mjxrow import field as mjxrow_field
 from mjxrow import render as mjxrow_render
 from mjxrow.field import params as field_params
+from mjxrow.seg import synth as synth_cli
 
 COLUMNS = ("rgb", "mask", "crop", "condition", "x", "y", "z", "yaw", "pitch", "lateral", "split")
 
@@ -386,52 +372,22 @@ def __getattr__(name: str):
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m mjxrow.seg.synth",
-                                 description=__doc__.split("\n")[0])
-    known = [crops.get(c) for c in crops.names()]
-    ap.add_argument("--crop", required=True, choices=crops.names())
-    ap.add_argument("--n", type=int, help="number of samples (paper: " + ", ".join(
-        f"{c.name} {c.dataset_n}" for c in known) + ")")
-    ap.add_argument("--out", help="output folder")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--size", type=int, default=224, help="image side [px]")
-    ap.add_argument("--test-frac", type=float, default=None,
-                    help="test fraction per condition (default: the crop's, " + ", ".join(
-                        f"{c.name} {c.test_frac:g}" for c in known) + ")")
-    ap.add_argument("--batch", type=int, default=64, help="images rendered per call")
-    ap.add_argument("--workers", type=int, default=4, help="PNG-encoding threads")
-    ap.add_argument("--contact-sheet", metavar="PNG",
-                    help="write a contact sheet (a few samples per condition) and exit")
-    ap.add_argument("--per-condition", type=int, default=3)
-    args = ap.parse_args(argv)
+    """`python -m mjxrow.seg.synth ARGS` (`mjxrow.seg.synth.main` hands over here)."""
+    args = synth_cli.parse(argv)
+    try:  # an unknown crop or an unwritable folder: one line, before any work
+        crops.get(args.crop)
+        if not args.contact_sheet:
+            files.check_out_dir(args.out, "--out")
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     if args.contact_sheet:
         print(contact_sheet(args.crop, args.contact_sheet, args.per_condition,
                             seed=args.seed))
         return 0
-    if args.n is None or args.out is None:
-        ap.error("--n and --out are required (or give --contact-sheet)")
-    if args.n <= 0:
-        ap.error(f"--n: must be a positive number of samples, got {args.n}")
-    if args.size < 8:
-        ap.error(f"--size: images need at least 8 pixels a side, got {args.size}")
-    if args.test_frac is not None and not 0.0 <= args.test_frac < 1.0:
-        ap.error(f"--test-frac: must lie in [0, 1), got {args.test_frac}")
-    if args.batch < 1 or args.workers < 1:
-        ap.error("--batch and --workers must be at least 1")
-    if args.n > limits.EPISODES or args.size > limits.VALUES["camera.width"][0]:
-        ap.error(f"--n {args.n} / --size {args.size}: beyond the bounds of "
-                 f"{limits.EPISODES:,} samples and {limits.VALUES['camera.width'][0]} px")
-    try:
-        files.check_out_dir(args.out, "--out")
-    except files.OutputError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
     with interrupt.HardStop():  # Ctrl-C: exit 130; a re-run resumes (and cleans up)
         index = write_dataset(args.crop, args.n, args.out, args.seed, args.size,
                               args.test_frac, args.batch, args.workers)
     print(f"{args.n} samples of {args.crop} in {args.out}; index: {index}")
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,8 +1,5 @@
-"""Training of the plant segmenter: losses, train state, jitted step, the loop with resume.
-
-CLI: `python -m mjxrow.seg.train --crop zucchini (--data DIR | --on-the-fly) [--arch small]
-[--width 1.0] [--size 224] [--steps N] [--batch B] [--loss iou|bce] [--init CKPT] [--out DIR]
-[--export-to DIR]`. `--init` fine-tunes a trained model (e.g. the all-crop one on one crop).
+"""Training of the plant segmenter: losses, train state, jitted step, the loop with resume, and
+the work of `python -m mjxrow.seg.train` (its parser and docs: `mjxrow.seg.train`).
 
 The loss default is the paper's IoU loss 1 − Σyp / Σ(y + p − yp) with p = sigmoid(logit), summed
 over the pixels of EACH image and averaged over the batch (+1 smoothing in numerator and
@@ -15,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import shutil
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -33,9 +31,10 @@ from mjxrow import crops
 from mjxrow.files import check_out_dir
 from mjxrow.seg import checkpoint
 from mjxrow.seg import data as seg_data
+from mjxrow.seg import train as train_cli
 from mjxrow.seg.data import augment
-from mjxrow.seg.eval import THRESHOLD, evaluate, make_eval
-from mjxrow.seg.model import ARCHS, SegNet, create
+from mjxrow.seg.evaluation import THRESHOLD, evaluate, make_eval
+from mjxrow.seg.model import SegNet, create
 
 
 def iou_loss(logits: jax.Array, mask: jax.Array, weight: jax.Array | None = None,
@@ -339,56 +338,17 @@ def build_data(args) -> Data:
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
-    import argparse
-    import shutil
-    import sys
-
-
-    p = argparse.ArgumentParser(prog="python -m mjxrow.seg.train", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--crop", default="zucchini", choices=(*crops.names(), "all"))
-    src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--data", help="dataset folder written by python -m mjxrow.seg.synth")
-    src.add_argument("--on-the-fly", action="store_true", help="render batches on the device")
-    p.add_argument("--arch", default="small", choices=ARCHS)
-    p.add_argument("--width", type=float, default=1.0, help="width multiplier")
-    p.add_argument("--reduced-tail", action="store_true", help="halve the last stage")
-    p.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"))
-    p.add_argument("--size", type=int, nargs="+", default=[224],
-                   help="square input side(s) [px]; several are trained in turn, step by step "
-                        "(e.g. 224 128 64 for a model that serves any camera size)")
-    p.add_argument("--steps", type=int, default=20000)
-    p.add_argument("--batch", type=int, default=32)
-    p.add_argument("--lr", type=float, default=1e-3)
-    p.add_argument("--warmup", type=int, default=500, help="warmup steps")
-    p.add_argument("--weight-decay", type=float, default=1e-4)
-    p.add_argument("--loss", default="iou", choices=tuple(LOSSES))
-    p.add_argument("--flip", type=float, default=0.5, help="probability of a horizontal flip")
-    p.add_argument("--grey", type=float, default=0.2, help="probability of greyscale")
-    p.add_argument("--jitter", type=float, default=0.0, help="colour jitter strength (0 = off)")
-    p.add_argument("--eval-every", type=int, default=500)
-    p.add_argument("--log-every", type=int, default=50)
-    p.add_argument("--val-frac", type=float, default=0.1, help="of train split (--data)")
-    p.add_argument("--val-n", type=int, default=512, help="validation renders (--on-the-fly)")
-    p.add_argument("--workers", type=int, default=4, help="image decoding threads (--data)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", help="run folder (default runs/seg_<crop>_<arch>)")
-    p.add_argument("--restart", action="store_true", help="delete the run folder first")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar (logs)")
-    p.add_argument("--init", help="start from this checkpoint's weights (a crop name for a "
-                                  "shipped model, or a checkpoint folder) instead of random "
-                                  "ones; its architecture replaces --arch/--width")
-    p.add_argument("--export-to", help="write the best model here as a shipped checkpoint")
-    p.add_argument("--export-dtype", default="float16", choices=checkpoint.WEIGHT_DTYPES)
-    args = p.parse_args(argv)
+    """`python -m mjxrow.seg.train ARGS` as a function: the fit's result (raises ValueError)."""
+    args = train_cli.parser().parse_args(argv)
     for name in ("steps", "batch", "eval_every", "log_every"):
         if getattr(args, name) < 1:
             raise ValueError(f"--{name.replace('_', '-')}: must be ≥ 1, got {getattr(args, name)}")
     for size in args.size:
         if size < 16 or size % 16:
             raise ValueError(f"--size: {size} is not a positive multiple of 16 (output stride)")
+    if args.crop != "all":
+        crops.get(args.crop)  # ValueError naming an unknown crop, before any work
     out = Path(args.out or f"runs/seg_{args.crop}_{args.arch}")
-
     check_out_dir(out, "--out")  # OutputError (a ValueError) before any work
     if args.restart and out.exists():
         shutil.rmtree(out)
@@ -433,6 +393,3 @@ def cli(argv: list[str] | None = None) -> int:
         return 130
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(cli())

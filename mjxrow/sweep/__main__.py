@@ -2,7 +2,7 @@
 
 import sys
 
-from mjxrow.sweep.run import main
+from mjxrow.sweep import cli
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli.main())

@@ -1,6 +1,6 @@
 import sys
 
-from mjxrow.worlds.cli import main
+from mjxrow.worlds import cli
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli.main())

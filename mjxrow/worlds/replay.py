@@ -5,8 +5,9 @@ An episode is what `rollout.build` makes of (run config, episode index): the key
 `episode_keys(run.seed, [episode])` split by `split_keys` into the field's key and the
 rollout's key, the field from `generate_fn` on the run's static shape, the lane
 `field.robot_lane`, and the start `sim.reset` with `k_reset, _ = split(rollout key)`
-(`rollout.episode.episode`) and the run's start-pose noise. `episode_world` repeats exactly
-that; `from_run` finds a sweep cell's run config and its group's shape (`sweep.groups.plan`).
+(`rollout.episode.episode`) and the run's start-pose noise. `resolve_run` makes the run config
+and shape of a preset with `--set` items, `episode_world` repeats exactly that; `from_run`
+finds a sweep cell's run config and its group's shape (`sweep.groups.plan`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from mjxrow import field as mjxrow_field
 from mjxrow.rollout import build as rollout_build
 from mjxrow.rollout.config import RunConfig
 from mjxrow.sweep import config as sweep_config
+from mjxrow.sweep import grid as sweep_grid
 from mjxrow.sweep import groups as sweep_groups
 from mjxrow.worlds import scene
 
@@ -45,6 +47,21 @@ def run_robot(run: RunConfig) -> scene.Robot:
     episode's SimConfig and the camera's image size."""
     return scene.Robot(run.robot_config(), run.episode.sim, (int(run.camera.width),
                                                              int(run.camera.height)))
+
+
+def resolve_run(preset: str, seed: int = 0, sets: list[str] | tuple[str, ...] = ()):
+    """(RunConfig, FieldShape) of one preset with `--set` items (the sweep's grammar and
+    checks; the controller defaults to `oracle` with ground-truth perception, which need no
+    checkpoint). ConfigError (a ValueError) naming the key."""
+    base = [f"preset={preset}", f"seed={seed}", "controller.name=oracle",
+            "perception.source=ground_truth"]
+    cfg = sweep_config.from_dict({}, ".", [*base, *sets])
+    if cfg.axis_order:
+        raise sweep_config.ConfigError(
+            f"{cfg.axis_order[0]}: one world needs one value, got a list"
+        )
+    run = sweep_grid.expand(cfg)[0].cfg
+    return run, rollout_build.fit_shape([run])
 
 
 def episode_world(run: RunConfig, shape: mjxrow_field.FieldShape, episode: int = 0,
