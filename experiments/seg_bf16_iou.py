@@ -5,7 +5,7 @@ the two predictions with each other, on the same renders.
     python experiments/seg_bf16_iou.py [--crops zucchini pear ...] [--n 256] [--size 64]
                                        [--out FILE.jsonl]
 
-Renders: `seg.eval.evaluate_renders`'s fixed set (seed 20,000), as `python -m mjxrow.seg.eval`
+Renders: `seg.evaluation.evaluate_renders`'s fixed set (seed 20,000), as `python -m mjxrow.seg.eval`
 without `--data`. IoU is pooled over the images: Σ|M ∩ Y| / Σ|M ∪ Y|, threshold 0.7.
 """
 
