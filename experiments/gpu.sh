@@ -45,10 +45,12 @@ OUT=${OUT:-/tmp/gpu_out}; WORK=${WORK:-/tmp/gpu_work}
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$root" || exit 2
 
-sets=(time_to_result surfaces scaling table3 table3_kernels speed_round loop_224 compile_flags
-      mjwarp seg_speed shading suite_bench suite_tables suite_final train_policy policy_surfaces)
+sets=(time_to_result determinism surfaces scaling table3 table3_kernels speed_round loop_224
+      compile_flags mjwarp seg_speed shading suite_bench suite_tables suite_final train_policy
+      policy_surfaces)
 declare -A about=(
   [time_to_result]="sweeps.yaml cold / warm, closed loop 64 / 224 px, Table 3 block and whole"
+  [determinism]="sweeps.yaml cold, warm, warm; the same with XLA's deterministic ops; diffs"
   [surfaces]="both sweep surfaces with SegZeros, the shipped policy and the oracle"
   [scaling]="sweeps.yaml (114 seeds) and the closed loop on one GPU and on two"
   [table3]="the whole Table 3 from an empty cache, a process per preset, then the page"
@@ -129,6 +131,40 @@ bench_job() {
 }
 
 # ---- the sets ----
+
+set_determinism() {  # raw: det.jsonl, STEP.log, DETERMINISM.txt (episodes differing per pair)
+  fresh_work; rm -f "$out/det.jsonl"
+  local sweep=("${py[@]}" -m mjxrow.sweep sweeps.yaml --no-progress ${DET_SET:-}) flags name
+  for flags in "" "--xla_gpu_deterministic_ops=true"; do
+    for name in cold warm1 warm2; do
+      local tag=${flags:+det_}$name
+      XLA_FLAGS="${XLA_FLAGS:-} $flags" timed "$out/det.jsonl" "$tag" 300 "${sweep[@]}" \
+        --cache-dir "$work/cache${flags:+_det}" --out "$work/$tag"
+      tail -n 2 "$out/$tag.log"
+    done
+  done
+  for name in cold det_cold; do cp "$work/$name/report.md" "$out/report_$name.md" 2>/dev/null; done
+  "${py[@]}" - "$work" > "$out/DETERMINISM.txt" <<'PY'
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+work = Path(sys.argv[1])
+cols = ["success", "cha", "mae", "mse", "omega_std", "time"]
+for pre in ("", "det_"):
+    runs = {n: pd.read_csv(work / f"{pre}{n}" / "results.csv").sort_values(["cell", "episode"])
+            for n in ("cold", "warm1", "warm2") if (work / f"{pre}{n}" / "results.csv").exists()}
+    names = list(runs)
+    for a, b in zip(names, names[1:], strict=False):
+        x, y = runs[a][cols].to_numpy(float), runs[b][cols].to_numpy(float)
+        rows = ~np.all(np.isclose(x, y, rtol=0, atol=1e-6, equal_nan=True), axis=1)
+        print(f"{pre or 'default '}{a} vs {b}: {int(rows.sum())} of {len(x)} episodes differ "
+              f"by more than 1e-6; max |d| {np.nanmax(np.abs(x - y)):.3g}")
+PY
+  cat "$out/DETERMINISM.txt"
+}
 set_time_to_result() {  # raw: ttr.jsonl, closed_loop.jsonl, seg_bf16_iou.jsonl, STEP.log
   budget=${BUDGET:-530}; smoke=${SMOKE:-0}; start=$(date +%s)
   scale=${LIMIT_SCALE:-$([ "$smoke" = 1 ] && echo 5 || echo 1)}; cache="$work/cache"

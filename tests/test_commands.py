@@ -88,7 +88,7 @@ def test_every_entry_point_is_listed():
 
 def test_sweep_parser_is_run_mains(capsys):
     """`mjxrow.sweep.cli.parser` and the parser `mjxrow.sweep.run.main` builds take the same
-    arguments (one help text), until run.main reads cli.parser itself."""
+    arguments (one help text): run.main parses with cli.parser."""
     from mjxrow.sweep import cli, run
 
     with pytest.raises(SystemExit):

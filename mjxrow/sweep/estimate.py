@@ -21,6 +21,8 @@ import json
 import os
 from pathlib import Path
 
+import jax
+
 from mjxrow.rollout import build as rollout_build
 from mjxrow.rollout import episode as rollout_episode
 from mjxrow.sweep import groups as sweep_groups
@@ -29,14 +31,19 @@ PHYSICS_BYTES = 1 << 20  # MJX model data + state of one world, with the solver'
 RENDER_BYTES_PER_PIXEL = 512  # rays, depth, colour, candidate plants per tile
 LOG_FLOATS_PER_STEP = 10  # pose 3, cmd 2, vel 2, alive, event, slack
 FIELD_FLOATS_PER_PLANT = 12  # position 3, size 3, yaw, phase, active, row, slack
-OVERHEAD = 512 << 20  # the compiled program, the MJX model, Python and XLA runtimes
+# peak = overhead + factor × batch × episode_bytes, fitted to measured peaks per platform: on a
+# CPU, the process's RSS (Python, JAX, XLA compiling the closed loop, the MJX model); on an
+# accelerator, the device's peak bytes in use (report.md's `memory peak` gives both)
+CALIBRATION = {"cpu": (1.83 * 2**30, 3.84),  # sweeps.yaml --smoke 2.00 GB at B = 8, the full
+                                             # sweep 4.85 GB at B = 216 (2-core CPU, 2026-11-26)
+               "gpu": (512 * 2**20, 2.0)}
 # the closed-loop figures of benchmarks.jsonl the estimate uses (`rates`), as package data
 THROUGHPUT = Path(str(importlib.resources.files("mjxrow.sweep").joinpath("throughput.json")))
 
 
 @dataclasses.dataclass(frozen=True)
 class Estimate:
-    peak_bytes: int  # largest group: batch × per-episode bytes × 2 + OVERHEAD
+    peak_bytes: int  # largest group: overhead + factor × batch × per-episode bytes
     episode_bytes: int  # per episode, of the largest group
     batch: int  # episodes per call of that group
     control_steps: int  # every episode to its timeout
@@ -82,8 +89,6 @@ def episode_bytes(cell_cfg, shape) -> int:
 def available_bytes() -> tuple[int, str]:
     """Memory the batch can use and where: the first accelerator's limit, else the host's
     available memory."""
-    import jax
-
     dev = jax.devices()[0]
     if dev.platform != "cpu":
         stats = dev.memory_stats() or {}
@@ -139,7 +144,8 @@ def estimate(groups, seeds: int, batch_size: int | str, device: str, platform: s
         steps += len(g.episodes) * cfg.episode.static().n_steps
         if b * e > batch * per:
             per, batch = e, b
-        peak = max(peak, 2 * b * e + OVERHEAD)
+        overhead, factor = CALIBRATION["cpu" if platform == "cpu" else "gpu"]
+        peak = max(peak, int(factor * b * e + overhead))
     rate = _rate(device)
     seconds = None if rate is None or not steps else steps / rate[0] + n_groups * rate[1]
     basis = (f"at the closed loop's best measured rate on {device}, {rate[0]:,.0f} control "
@@ -164,7 +170,8 @@ def check_episodes(run, n: int, force: bool = False) -> str:
 
     e = episode_bytes(run, rollout_build.fit_shape([run]))
     steps = n * run.episode.static().n_steps
-    return check(Estimate(2 * n * e + OVERHEAD, e, n, steps, None, 1), force, "--n")
+    overhead, factor = CALIBRATION["cpu" if jax.default_backend() == "cpu" else "gpu"]
+    return check(Estimate(int(factor * n * e + overhead), e, n, steps, None, 1), force, "--n")
 
 
 __all__ = ["check_episodes", "Estimate", "available_bytes", "check", "episode_bytes", "estimate"]

@@ -19,14 +19,13 @@ progress bar and the signals, and writes the outputs.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import dataclasses
 import datetime
 import json
+import resource
 import signal
 import sys
-import textwrap
 import threading
 import time
 from pathlib import Path
@@ -43,6 +42,7 @@ from mjxrow import interrupt, runtime, stopwatch
 from mjxrow import render as mjxrow_render
 from mjxrow.rollout.config import RunConfig
 from mjxrow.sweep import cells as sweep_cells
+from mjxrow.sweep import cli as sweep_cli
 from mjxrow.sweep import config as sweep_config
 from mjxrow.sweep import estimate as sweep_estimate
 from mjxrow.sweep import figures as sweep_figures
@@ -320,6 +320,7 @@ def _run(
         if old is not None:
             signal.signal(signal.SIGTERM, old)
     info["wall time"] = f"{time.perf_counter() - t0:.1f} s for {ran} episodes"
+    info["memory peak"] = memory_peak()
     split = watch.split()
     info["time"] = (f"compile {split['compile']:.1f} s, run {split['run']:.1f} s, write cells "
                     f"{split['write']:.1f} s")
@@ -331,6 +332,17 @@ def _run(
             info = _facts(out, info, ran, todo)
             files = write_outputs(cfg, groups, out, info, figures, pool)
     return {"groups": groups, "ran": ran, "skipped": skipped, "files": files, "time": watch}
+
+
+def memory_peak() -> str:
+    """The peak memory of this process (host RSS) and, on an accelerator, of its first device
+    (XLA's peak bytes in use): what the estimate before the run is calibrated against."""
+    host = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # Linux: KiB
+    text = f"host {host / 2**30:.2f} GiB"
+    stats = jax.local_devices()[0].memory_stats() or {}
+    if "peak_bytes_in_use" in stats:
+        text += f", device {stats['peak_bytes_in_use'] / 2**30:.2f} GiB"
+    return text
 
 
 def _facts(out: Path, info: dict[str, Any], ran: int, todo: int) -> dict[str, Any]:
@@ -363,24 +375,8 @@ def _device() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
-        prog="python -m mjxrow.sweep", description=__doc__.split("\n\n")[1],
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog=textwrap.fill(
-            "Exit codes: 0 done, 2 invalid configuration, output folder or resources (the key or "
-            "option is named), 130 interrupted (the finished cells are kept; run the same "
-            "command again to resume).", 88))
-    p.add_argument("config", help="sweep YAML file")
-    p.add_argument("--out", help="output directory (default: the YAML's `out`)")
-    p.add_argument("--smoke", action="store_true",
-                   help="2 × 2 cells, 2 seeds, short episodes, tiny images: a quick check")
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a dotted key, e.g. --set field.d_rr=[1.2,1.8] (repeatable)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    runtime.add_args(p)
-    p.add_argument("--force", action="store_true",
-                   help="run even when the memory estimate exceeds this machine's memory")
-    args = p.parse_args(argv)
+    """The work of `python -m mjxrow.sweep` (its parser: sweep.cli)."""
+    args = sweep_cli.parser().parse_args(argv)
     try:
         runtime.setup(args, cpu_split=True)
         cfg = sweep_config.load(args.config, args.set, args.smoke)

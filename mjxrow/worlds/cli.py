@@ -40,7 +40,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--seed", type=int, default=0, help="run seed, as `mjxrow.episode --seed`")
     ap.add_argument("--episode", type=int, help="episode index (default 0); with --from-run "
                     "the episode of results.csv")
-    ap.add_argument("--out", default="worlds", help="output folder")
+    ap.add_argument("--out", default="runs/worlds", help="output folder (default %(default)s)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="sets",
                     help="set a dotted config key, e.g. --set field.d_rr=2.0 (repeatable)")
     ap.add_argument("--lane", type=int, help="start the robot in this lane (0..n-1 by y, as in "
