@@ -136,10 +136,16 @@ set_determinism() {  # raw: det.jsonl, STEP.log, DETERMINISM.txt (episodes diffe
   fresh_work; rm -f "$out/det.jsonl"
   local sweep=("${py[@]}" -m mjxrow.sweep sweeps.yaml --no-progress ${DET_SET:-}) flags name
   for flags in "" "--xla_gpu_deterministic_ops=true"; do
-    for name in cold warm1 warm2; do
+    for name in ${DET_RUNS:-cold warm1 warm2}; do
       local tag=${flags:+det_}$name
-      XLA_FLAGS="${XLA_FLAGS:-} $flags" timed "$out/det.jsonl" "$tag" 300 "${sweep[@]}" \
-        --cache-dir "$work/cache${flags:+_det}" --out "$work/$tag"
+      local xla="${XLA_FLAGS:-}${flags:+ $flags}"; xla=${xla# }
+      if [ -n "$xla" ]; then
+        XLA_FLAGS="$xla" timed "$out/det.jsonl" "$tag" 300 "${sweep[@]}" \
+          --cache-dir "$work/cache${flags:+_det}" --out "$work/$tag"
+      else
+        (unset XLA_FLAGS; timed "$out/det.jsonl" "$tag" 300 "${sweep[@]}" \
+          --cache-dir "$work/cache" --out "$work/$tag")
+      fi
       tail -n 2 "$out/$tag.log"
     done
   done

@@ -28,6 +28,17 @@ STARTED = _time.time()  # when a command first imported the package: the start o
 # user's business; errors still show. An explicit TF_CPP_MIN_LOG_LEVEL wins.
 _os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
 
+# The same config and seed give the same numbers on a GPU too: XLA's deterministic ops (no
+# atomics in scatters, no autotuned algorithm that rounds otherwise), set before JAX starts its
+# backend. On an H100 they cost 19 % of the run time of sweeps.yaml (B = 216) and 28 % at
+# B = 4,104 (BENCHMARKS.md); MJXROW_NONDETERMINISTIC=1 or a command's --nondeterministic
+# (runtime.setup) leaves them out, and an explicit xla_gpu_deterministic_ops in XLA_FLAGS wins.
+DETERMINISTIC_FLAG = "--xla_gpu_deterministic_ops=true"
+if (not _os.environ.get("MJXROW_NONDETERMINISTIC")
+        and "xla_gpu_deterministic_ops" not in _os.environ.get("XLA_FLAGS", "")):
+    _os.environ["XLA_FLAGS"] = " ".join(
+        filter(None, [_os.environ.get("XLA_FLAGS", ""), DETERMINISTIC_FLAG]))
+
 __version__ = "0.1.0"
 
 _API = {
@@ -56,7 +67,7 @@ _API = {
     "EnvConfig": "mjxrow.env",
 }
 
-__all__ = sorted(_API) + ["STARTED", "__version__"]
+__all__ = sorted(_API) + ["DETERMINISTIC_FLAG", "STARTED", "__version__"]
 
 
 def __getattr__(name: str):

@@ -62,6 +62,10 @@ def runtime_args(p: argparse.ArgumentParser) -> None:
                    f"${CACHE_ENV}, else $XDG_CACHE_HOME/mjxrow/jax, else ~/.cache/mjxrow/jax)")
     g.add_argument("--no-cache", action="store_true", help="compile everything afresh, store "
                    "nothing")
+    g.add_argument("--nondeterministic", action="store_true",
+                   help="on a GPU, let XLA use its faster non-deterministic kernels (runs then "
+                   "differ by float rounding; the deterministic default costs about a fifth of "
+                   "the run time; or $MJXROW_NONDETERMINISTIC=1)")
     g.add_argument("--coordinator", metavar="HOST:PORT", help="address of process 0 for a run "
                    f"over several processes (or ${CLUSTER_ENV['coordinator']})")
     g.add_argument("--num-processes", type=int, metavar="N",

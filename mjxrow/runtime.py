@@ -39,6 +39,7 @@ from typing import Any
 import jax
 import numpy as np
 
+import mjxrow
 from mjxrow.commands import CACHE_ENV, CLUSTER_ENV
 from mjxrow.commands import runtime_args as add_args  # noqa: F401  (defined where --help reads it)
 
@@ -54,6 +55,8 @@ def setup(args: argparse.Namespace, cpu_split: bool = False) -> Path | None:
     backend with two local devices (a rendezvous timeout of an all-gather against an
     all-reduce), so with the cache a CPU process keeps one device. Returns the cache
     directory in use (None: off). ValueError naming the flag for bad values."""
+    if getattr(args, "nondeterministic", False):
+        nondeterministic()
     cluster = cluster_from(args)
     cache = None
     if getattr(args, "no_cache", False):
@@ -65,6 +68,15 @@ def setup(args: argparse.Namespace, cpu_split: bool = False) -> Path | None:
     if cluster is not None:
         init_cluster(*cluster)
     return cache
+
+
+def nondeterministic() -> None:
+    """Take back the deterministic-ops flag that `import mjxrow` put in XLA_FLAGS (a flag the
+    user set stays); effective before JAX starts its backend, as `setup` calls it."""
+    flags = os.environ.get("XLA_FLAGS", "").split()
+    if mjxrow.DETERMINISTIC_FLAG in flags:
+        os.environ["XLA_FLAGS"] = " ".join(f for f in flags if f != mjxrow.DETERMINISTIC_FLAG)
+    os.environ["MJXROW_NONDETERMINISTIC"] = "1"  # for the processes this one starts
 
 
 # ---------------------------------------------------------------------------------------------

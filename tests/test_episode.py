@@ -382,7 +382,8 @@ def test_bench_counts_the_steps_the_loop_runs(n_steps):
                    alive=jnp.bool_(True), event=jnp.int32(0))
         return carry, out
 
-    carry = (jnp.int32(0), None, jnp.bool_(False), None)
+    carry = (rollout_step.Carry(sim=jnp.int32(0), done=jnp.bool_(False), anchor=jnp.zeros(2)),
+             None)
     out = jax.jit(lambda c: E._run_until_done(body, c, n_steps, shapes))(carry)
     jax.block_until_ready(out)
     jax.effects_barrier()
