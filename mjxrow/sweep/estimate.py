@@ -36,7 +36,8 @@ FIELD_FLOATS_PER_PLANT = 12  # position 3, size 3, yaw, phase, active, row, slac
 # accelerator, the device's peak bytes in use (report.md's `memory peak` gives both)
 CALIBRATION = {"cpu": (1.83 * 2**30, 3.84),  # sweeps.yaml --smoke 2.00 GB at B = 8, the full
                                              # sweep 4.85 GB at B = 216 (2-core CPU, 2026-11-26)
-               "gpu": (512 * 2**20, 2.0)}
+               "gpu": (64 * 2**20, 0.70)}  # device peak 0.55 GiB at B = 216, 9.31 GiB at
+                                           # B = 4,104 (sweeps.yaml, one H100, 2026-11-26)
 # the closed-loop figures of benchmarks.jsonl the estimate uses (`rates`), as package data
 THROUGHPUT = Path(str(importlib.resources.files("mjxrow.sweep").joinpath("throughput.json")))
 
