@@ -81,8 +81,8 @@ def test_the_eta_after_the_first_batch_is_within_30_percent(tmp_path):
     """Four batches of equal work (every episode runs to its timeout): the time left that the
     bar shows after the first batch, against the time the other three took."""
     raw = {**TINY, "field": {**TINY["field"], "d_rr": [2.4, 2.5, 2.6, 2.7]},
-           "episode": {"max_time": 40.0}, "sim": {"path_length": 8.0},
-           "robot": {"v_max": 0.05}}  # 600 steps, every episode to its timeout
+           "episode": {"max_time": 120.0}, "sim": {"path_length": 8.0},
+           "robot": {"v_max": 0.05}}  # 1,800 steps, every episode to its timeout
     cfg = sweep_config.from_dict(raw)
     marks = []
 

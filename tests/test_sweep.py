@@ -236,7 +236,8 @@ def real_run(tmp_path_factory):
 
 def test_real_sweep_compiles_once_and_writes_results(real_run):
     out, res, traces = real_run
-    assert traces == 1  # 8 episodes in 2 batches of 4, one trace
+    assert traces <= 1  # 8 episodes in 2 batches of 4: one trace (none when an earlier test kept
+    # the same program, runtime.exported)
     results = pd.read_csv(out / "results.csv")
     assert len(results) == 4 * 2
     assert results["success"].all(), results[["cell", "reason"]]

@@ -124,9 +124,6 @@ def _raise_interrupt(signum, frame):
 
 
 COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"  # jax.monitoring, per XLA compile
-# tracing and lowering: program set-up time that the ETA leaves out with the compilation
-SETUP_EVENTS = ("/jax/core/compile/jaxpr_trace_duration",
-                "/jax/core/compile/jaxpr_to_mlir_module_duration")
 
 
 class _CellWriter:
@@ -141,14 +138,13 @@ class _CellWriter:
         self.pending: dict[int, list[pd.DataFrame]] = {}
         self.times = [time.perf_counter()]
         self.episodes = 0
-        self.compile_s, self.programs, self.setup_s = 0.0, 0, 0.0
+        self.compile_s, self.programs = 0.0, 0
+        self.clock = stopwatch.Stopwatch()  # this group's time, compilation apart (the ETA's)
+        self.run_s = 0.0  # this group's time outside compilation, up to its last batch
 
     def on_compile(self, event: str, seconds: float, **_) -> None:
         """A jax.monitoring listener: adds up XLA compilations, so that the bar tells compile
         from run and the ETA counts run time only."""
-        if event in SETUP_EVENTS:
-            self.setup_s += seconds
-            return
         if event != COMPILE_EVENT:
             return
         self.compile_s += seconds
@@ -160,6 +156,7 @@ class _CellWriter:
 
     def __call__(self, rows: pd.DataFrame) -> None:
         self.times.append(time.perf_counter())
+        self.run_s = self.clock.split()["run"]
         for ci, part in rows.groupby("cell", sort=False):
             parts = self.pending.setdefault(int(ci), [])
             parts.append(part)
@@ -174,11 +171,11 @@ class _CellWriter:
 
     def eta_seconds(self) -> float | None:
         """Seconds left in this group at the rate of the batches so far (tracing, lowering and
-        compilation left out); None before the first batch."""
-        run_s = self.times[-1] - self.times[0] - self.compile_s - self.setup_s
-        if not self.episodes or run_s <= 0:
+        compilation left out: the union of JAX's compile spans); None before the first
+        batch."""
+        if not self.episodes or self.run_s <= 0:
             return None
-        return (len(self.group.episodes) - self.episodes) * run_s / self.episodes
+        return (len(self.group.episodes) - self.episodes) * self.run_s / self.episodes
 
     def eta(self) -> str:
         """`eta_seconds` as the progress bar says it: known from the first batch on."""
