@@ -1,5 +1,6 @@
 """The training environment: reset / step under jit and vmap on a tiny field, a new world per
-reset, an oracle episode of the environment ending where `rollout.episode` ends it with the
+reset, one control step shared with the evaluator (the same commands through both give the same
+episode), an oracle episode of the environment ending where `rollout.episode` ends it with the
 same metrics, reward signs on hand-made states, the randomisation ranges' checks, and the
 wrappers on a toy environment (Brax conventions: truncation, steps, auto-reset to a new world).
 
@@ -202,3 +203,54 @@ def test_wrappers_truncate_and_reset_to_new_worlds(max_resets):
     done5, trunc5, _, _ = seen[4]
     np.testing.assert_array_equal(done5, [0, 0, 1, 1])
     np.testing.assert_array_equal(trunc5, [0, 0, 1, 1])  # time limit: truncation
+
+
+FRACTIONS = jnp.array([[1.0, 0.125], [1.0, 0.125], [1.0, -0.125], [1.0, -0.125]], jnp.float32)
+
+
+def _act(params, state, obs, key):
+    """The fraction of the limits `params` for step `state` (cycling through FRACTIONS)."""
+    del obs, key
+    return state + 1, FRACTIONS[state % FRACTIONS.shape[0]] * params
+
+
+REPLAY = control.Policy(init=lambda params: jnp.int32(0), act=_act)
+
+
+def test_episode_and_env_share_the_step(tiny):
+    """The same field, start and commands driven through `rollout.episode` (the sweep's loop)
+    and through `Env.step` give the same end event at the same step, the same commands and
+    events, and the same trajectory and metrics: both call `rollout.step.step`. The commands
+    are exact in both units (v = v_max, ω = ±ω_max / 8: powers of two of the limits), so the
+    environment's action scaling adds no rounding of its own. The two are different XLA
+    programs (a loop of chunks against one jitted step), which may round differently: poses
+    agree to 1e-5 m and velocities to 1e-4 m/s, not to the bit."""
+    env, reset, step = tiny
+    s = reset(jax.random.split(jax.random.key(5), 2))
+    for t in range(env.n_steps):
+        s = step(s, jnp.tile(FRACTIONS[t % FRACTIONS.shape[0]], (2, 1)))
+        if np.all(np.asarray(s.done) > 0):
+            break
+    ours = s.data.log
+    theirs = EP.compiled(REPLAY, env.episode)(
+        env.mx, s.data.field, s.data.lane, jax.random.split(jax.random.key(2), 2),
+        EP.batch_noise(None, 2), env.limits)
+    np.testing.assert_array_equal(ours.steps, theirs.steps)
+    assert np.all(np.asarray(ours.steps) < env.n_steps)  # ends before the timeout
+    assert np.all(np.asarray(ours.reason) != M.RUNNING)
+    np.testing.assert_array_equal(ours.reason, theirs.reason)
+    n = int(np.max(np.asarray(ours.steps)))
+    alive = np.asarray(ours.alive)[:, :n]
+    np.testing.assert_array_equal(alive, np.asarray(theirs.alive)[:, :n])
+    for k in ("cmd", "event"):
+        np.testing.assert_array_equal(np.where(alive[..., None] if k == "cmd" else alive,
+                                               getattr(ours, k)[:, :n], 0),
+                                      np.where(alive[..., None] if k == "cmd" else alive,
+                                               getattr(theirs, k)[:, :n], 0), err_msg=k)
+    for k, atol in (("pose", 1e-5), ("vel", 1e-4)):
+        np.testing.assert_allclose(getattr(ours, k)[:, :n], getattr(theirs, k)[:, :n], atol=atol,
+                                   err_msg=k)
+    np.testing.assert_allclose(ours.start, theirs.start, atol=1e-6)
+    a, b = (M.summarise(log, env.dt) for log in (ours, theirs))
+    for k in a:
+        np.testing.assert_allclose(a[k], b[k], rtol=1e-4, atol=1e-5, err_msg=k)
