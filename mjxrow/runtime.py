@@ -29,7 +29,6 @@ import functools
 import hashlib
 import json
 import os
-import pickle
 import re
 import sys
 import types
@@ -193,13 +192,16 @@ class _Program:
             self.call, self.keys, self.out_tree, lowered.compile()))
 
 
-def exported(fn: Any, args: tuple, key: str) -> Any | None:
+def exported(fn: Any, args: tuple, key: str, out_tree: Any) -> Any | None:
     """A function equal to `fn(*args)` (fn: a jitted function) for arguments of `args`'
     shapes, dtypes and shardings, traced once and kept in the compilation cache's directory
     (`exported/`); `key`: a description of everything static that `fn` closes over or that
-    the arguments' tree holds as aux data (for the closed loop: the MJX model's XML). None
-    (use `fn`) when the cache is off, several processes run, or the program cannot be
-    exported; a one-line warning says why, once."""
+    the arguments' tree holds as aux data (for the closed loop: the MJX model's XML);
+    `out_tree`: the tree structure of what `fn` returns (`jax.tree.structure` of an example),
+    given by the caller: a kept file holds only the serialized program (`jax.export`, data),
+    never Python objects, so a cache folder cannot run code. None (use `fn`) when the cache is
+    off, several processes run, or the program cannot be exported; a one-line warning says
+    why, once."""
     global _EXPORT_WARNED
     root = cache_dir()
     if root is None or jax.process_count() > 1:
@@ -230,30 +232,27 @@ def exported(fn: Any, args: tuple, key: str) -> Any | None:
 
     try:
         if path.is_file():
-            blob = path.read_bytes()
-            n = int.from_bytes(blob[:8], "little")
-            out_tree = pickle.loads(blob[8:8 + n])
-            fun = wrap(jax.export.deserialize(bytearray(blob[8 + n:])), out_tree)
+            exp = jax.export.deserialize(bytearray(path.read_bytes()))
+            if len(exp.out_avals) != out_tree.num_leaves:
+                raise ValueError(f"{path}: {len(exp.out_avals)} outputs, the program returns "
+                                 f"{out_tree.num_leaves}")
+            fun = wrap(exp, out_tree)
         else:
-            out_tree_box = []
-
             def flat_fn(*xs):
                 a = [jax.random.wrap_key_data(x, impl=i) if k else x
                      for x, k, i in zip(xs, keys, impls, strict=True)]
-                out = fn(*jax.tree.unflatten(treedef, a))
-                ls, t = jax.tree.flatten(out)
-                out_tree_box.append(t)
+                ls, t = jax.tree.flatten(fn(*jax.tree.unflatten(treedef, a)))
+                if t != out_tree:
+                    raise ValueError(f"exported: the program returns {t}, not {out_tree}")
                 return ls
 
             checks = [jax.export.DisabledSafetyCheck.custom_call(c) for c in _KERNEL_CALLS]
             exp = jax.export.export(jax.jit(flat_fn), disabled_checks=checks)(*flat)
-            tree_blob = pickle.dumps(out_tree_box[-1])
             path.parent.mkdir(parents=True, exist_ok=True)
             tmp = path.with_suffix(f".tmp{os.getpid()}")
-            tmp.write_bytes(len(tree_blob).to_bytes(8, "little") + tree_blob +
-                            bytes(exp.serialize()))
+            tmp.write_bytes(bytes(exp.serialize()))
             tmp.replace(path)
-            fun = wrap(exp, out_tree_box[-1])
+            fun = wrap(exp, out_tree)
     except Exception as e:  # noqa: BLE001  (any failure: trace as usual)
         if not _EXPORT_WARNED:
             print(f"note: traced programs are not kept ({type(e).__name__}: "

@@ -151,7 +151,7 @@ def test_persistent_cache_serves_a_second_process(tmp_path):
 
 
 @struct.dataclass
-class State:  # at module level: the result's tree is kept by pickle
+class State:  # the result: its tree structure (with the static n) comes from the caller
     a: jax.Array
     n: int = struct.field(pytree_node=False, default=3)
 
@@ -166,22 +166,54 @@ def test_exported_program_is_reused_without_tracing(tmp_path):
     fn = jax.jit(jax.vmap(step))
     args = (State(a=jax.numpy.arange(4.0)), jax.random.split(jax.random.key(0), 4))
     expect = fn(*args).a
+    tree = jax.tree.structure(State(a=0.0, n=3))  # what the program returns, from the caller
     R.disable_cache()
-    assert R.exported(fn, args, "toy") is None  # cache off: nothing kept
+    assert R.exported(fn, args, "toy", tree) is None  # cache off: nothing kept
     try:
         R.enable_cache(tmp_path / "cache")
-        first = R.exported(fn, args, "toy")
+        first = R.exported(fn, args, "toy", tree)
         assert first is not None and len(list((tmp_path / "cache" / "exported").iterdir())) == 1
         np.testing.assert_array_equal(first(*args).a, expect)
         n = len(traces)
         R._EXPORTED.clear()  # as a new process: read back from the file
-        again = R.exported(jax.jit(jax.vmap(step)), args, "toy")  # a new jit would trace
+        again = R.exported(jax.jit(jax.vmap(step)), args, "toy", tree)  # a new jit would trace
         out = again(*args)
         assert isinstance(out, State) and out.n == 3 and len(traces) == n  # not traced again
         np.testing.assert_array_equal(out.a, expect)
         np.testing.assert_array_equal(again.lower(*args).compile()(*args).a, expect)
-        other = R.exported(jax.jit(jax.vmap(step)), args, "another key")  # traced afresh
+        other = R.exported(jax.jit(jax.vmap(step)), args, "another key", tree)  # traced afresh
         assert other is not None and len(traces) == n + 1
+    finally:
+        R.disable_cache()
+        R._EXPORTED.clear()
+
+
+def test_a_poisoned_cache_file_runs_no_code(tmp_path, capsys):
+    """A kept program file is data (jax.export's serialization), never unpickled: a file
+    replaced by a pickle that would run a command is refused (the program is traced as usual)
+    and the command does not run."""
+    import pickle
+
+    marker = tmp_path / "pwned"
+
+    class Payload:
+        def __reduce__(self):
+            return (open, (str(marker), "w"))
+
+    fn = jax.jit(jax.vmap(lambda s, k: State(a=s.a * 2 + jax.random.uniform(k))))
+    args = (State(a=jax.numpy.arange(4.0)), jax.random.split(jax.random.key(0), 4))
+    tree = jax.tree.structure(State(a=0.0, n=3))
+    try:
+        R.enable_cache(tmp_path / "cache")
+        assert R.exported(fn, args, "poison", tree) is not None
+        (kept,) = (tmp_path / "cache" / "exported").iterdir()
+        blob = pickle.dumps(Payload())
+        kept.write_bytes(len(blob).to_bytes(8, "little") + blob + b"\0" * 64)  # the old layout
+        R._EXPORTED.clear()
+        R._EXPORT_WARNED = False
+        assert R.exported(fn, args, "poison", tree) is None  # refused: traced as usual
+        assert not marker.exists()
+        assert "traced programs are not kept" in capsys.readouterr().err
     finally:
         R.disable_cache()
         R._EXPORTED.clear()

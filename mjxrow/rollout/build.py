@@ -242,7 +242,7 @@ class Built:
             lambda x: (np.shape(x), str(getattr(x, "dtype", ""))), args))))
         if not self.key:
             return fn
-        return runtime.exported(fn, args, self.key) or fn
+        return runtime.exported(fn, args, self.key, LOG_TREE) or fn
 
     def executable(self, args: tuple):
         """`program(args)` lowered and compiled (or loaded from the cache) for `args`."""
@@ -259,6 +259,8 @@ class Built:
         return {k: v[:n] if np.ndim(v) else v for k, v in out.items()}
 
 
+# the tree structure of a batch's Log (what the closed-loop program returns; no arrays needed)
+LOG_TREE = jax.tree.structure(Log(**{f.name: 0 for f in dataclasses.fields(Log)}))
 _PROGRAMS: set = set()  # (program key, argument shapes) of every closed-loop program asked for
 
 
