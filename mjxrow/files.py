@@ -15,6 +15,7 @@ lock so that two runs never write one folder.
 from __future__ import annotations
 
 import os
+import re
 import tempfile
 from pathlib import Path
 
@@ -110,10 +111,15 @@ def atomic_save(path: str | Path, save) -> Path:
     return path
 
 
+# what `_tmp` and `atomic_save` name their temp files: .NAME.PID.tmp or .STEM.PID.tmp.SUFFIX
+TEMP_NAME = re.compile(r"^\..+\.[0-9]+\.tmp(\.[A-Za-z0-9]+)?$")
+
+
 def temp_files(folder: str | Path) -> list[Path]:
-    """Temp files that an interrupted atomic write may have left in `folder` (not recursive)."""
+    """Temp files that an interrupted atomic write of ours may have left in `folder` (not
+    recursive; only names as `_tmp` and `atomic_save` make them: another file is not ours)."""
     folder = Path(folder)
-    return sorted(folder.glob(".*.tmp")) + sorted(folder.glob(".*.tmp.*")) \
+    return sorted(p for p in folder.iterdir() if TEMP_NAME.match(p.name) and p.is_file()) \
         if folder.is_dir() else []
 
 

@@ -230,3 +230,23 @@ def test_bench_checks_its_record_file_first(capsys):
     with pytest.raises(SystemExit) as exit_info:
         bench_main(["fields", "--out", "/proc/x/bench.jsonl"])
     assert exit_info.value.code == 2 and "--out" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("data", ["missing", "not_a_dataset"])
+def test_seg_train_restart_deletes_nothing_it_did_not_write(tmp_path, capsys, data):
+    """`--restart` with a bad `--data`, or into a folder that holds no seg.train run, exits 2
+    and leaves the folder as it was."""
+    from mjxrow.seg import train
+
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "thesis.tex").write_text("years of work")
+    folder = tmp_path / data
+    if data == "not_a_dataset":
+        folder.mkdir()
+        (folder / "index.csv").write_text("path,mask,crop,condition,split\n")
+    assert train.cli(["--crop", "zucchini", "--data", str(folder), "--steps", "1", "--restart",
+                      "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    assert (out / "thesis.tex").read_text() == "years of work"

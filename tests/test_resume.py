@@ -188,3 +188,37 @@ def sweep_resume(out, raw):
     fake = Fake()
     return S.run(C.from_dict(raw), out, evaluate=fake, progress=False, figures=False), fake
 
+
+
+def test_a_sweep_leaves_the_users_files_in_cells_alone(tmp_path):
+    """Only files named as cells and the temp files of our own atomic writes are read or
+    removed in OUT/cells: a user's notes, a hidden .tmp of theirs and a CSV that is no cell
+    stay as they were."""
+    cells = tmp_path / "cells"
+    cells.mkdir()
+    mine = {"my_notes.csv": "a,b\n1,2\n", ".scratch.tmp": "keep", "notes.txt": "hello"}
+    for name, text in mine.items():
+        (cells / name).write_text(text)
+    (cells / ".0123456789abcdef.csv.4242.tmp").write_text("half a cell")  # a killed write of ours
+    sweep(tmp_path)
+    for name, text in mine.items():
+        assert (cells / name).read_text() == text, name
+    assert not (cells / ".0123456789abcdef.csv.4242.tmp").exists()
+    assert len(list(cells.glob("????????????????.csv"))) == 4
+
+
+def test_a_linked_cells_folder_is_refused(tmp_path):
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "precious.csv").write_text("x\n1\n")
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "cells").symlink_to(elsewhere)
+    with pytest.raises(FS.OutputError, match="cells/ is a link"):
+        sweep(out)
+    assert [p.name for p in elsewhere.iterdir()] == ["precious.csv"]
+
+
+def test_an_empty_out_is_refused():
+    with pytest.raises(C.ConfigError, match="out: must not be empty"):
+        C.from_dict({**RAW, "out": ""})

@@ -350,8 +350,6 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         crops.get(args.crop)  # ValueError naming an unknown crop, before any work
     out = Path(args.out or f"runs/seg_{args.crop}_{args.arch}")
     check_out_dir(out, "--out")  # OutputError (a ValueError) before any work
-    if args.restart and out.exists():
-        shutil.rmtree(out)
     if args.init:
         module, variables = checkpoint.load(args.init)  # ValueError names a missing checkpoint
         init_from = str(checkpoint.resolve(args.init))
@@ -364,7 +362,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                       grey=args.grey, jitter=args.jitter, seed=args.seed,
                       eval_every=args.eval_every, ckpt_every=args.eval_every,
                       log_every=args.log_every, progress=not args.no_progress)
-    data = build_data(args)
+    data = build_data(args)  # a bad --data names itself here, before anything is deleted
+    if args.restart and out.is_dir() and any(out.iterdir()):
+        if not (out / "train_log.jsonl").is_file():  # no run of ours: the user's folder
+            raise ValueError(f"--restart: {out} holds no seg.train run (no train_log.jsonl); "
+                             "it is not deleted: give an --out of its own")
+        shutil.rmtree(out)
     command = "python -m mjxrow.seg.train " + " ".join(sys.argv[1:] if argv is None else argv)
     meta = {"command": command, "crop": args.crop, "image_size": args.size[0],
             "image_sizes": args.size,

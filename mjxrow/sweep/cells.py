@@ -7,6 +7,7 @@ identity columns complete, every episode 0 … seeds−1 once, and its own hash 
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -46,17 +47,21 @@ def cell_file_problem(path: Path, seeds: int | None) -> str | None:
     return None
 
 
+CELL_NAME = re.compile(r"^[0-9a-f]{16}\.csv$")  # a cell file: its hash (grid.cell_hash)
+
+
 def finished_cells(cells_dir: Path, seeds: int | None = None, report: bool = False) -> set[str]:
     """Hashes of the finished cells whose file passes `cell_file_problem` (with `seeds`, every
     episode must be there). With `report` (only under the folder's lock): removes the temp
     files a killed run may have left, and each damaged cell file, saying so on stderr, so that
-    the cell is recomputed."""
+    the cell is recomputed. Only files named as cells (CELL_NAME) and our temp files are
+    read or removed: anything else in the folder is the user's."""
     if not cells_dir.is_dir():
         return set()
     for tmp in files.temp_files(cells_dir) if report else ():
         tmp.unlink(missing_ok=True)
     done = set()
-    for p in sorted(cells_dir.glob("*.csv")):
+    for p in sorted(q for q in cells_dir.glob("*.csv") if CELL_NAME.match(q.name)):
         problem = cell_file_problem(p, seeds)
         if problem is None:
             done.add(p.stem)

@@ -219,6 +219,9 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
                                                                   choices=crops.names()), True)
         elif key == "batch_size" and v == AUTO:
             top[key] = AUTO
+        elif key == "out" and isinstance(v, str) and not v.strip():
+            raise ConfigError("out: must not be empty (the folder the sweep writes, relative to "
+                              "the working directory; the CLI's --out wins)")
         elif key in TOP_KEYS:
             m = meta[key]
             kind = {str: "str", bool: "bool"}.get(m["kind"], "int")

@@ -236,6 +236,9 @@ def run(cfg: sweep_config.SweepConfig, out: str | Path,
     took."""
     evaluate = evaluate or sweep_groups.evaluate_group
     out = Path(out)
+    if (out / "cells").is_symlink():  # its files would be read, removed and written elsewhere
+        raise mjxrow_files.OutputError(f"--out {out}: cells/ is a link to another folder; give "
+                                       "a folder of its own")
     if runtime.writer():  # several processes: process 0 writes, locks and decides what is finished
         (out / "cells").mkdir(parents=True, exist_ok=True)
     with contextlib.ExitStack() as stack:
