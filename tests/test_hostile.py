@@ -31,8 +31,19 @@ def _with(**sections):
     return raw
 
 
+# each list ten aliases of the one before: 10^6 values once expanded
+ALIAS_BOMB = "a: &a [1, 1, 1, 1, 1, 1, 1, 1, 1, 1]\n" + "".join(
+    f"{c}: &{c} [{', '.join(['*' + prev] * 10)}]\n"
+    for prev, c in zip("abcde", "bcdef", strict=True))
 # (id, YAML content: a mapping or raw text, extra CLI arguments, text the message must hold)
 SWEEP_CASES = [
+    ("alias_bomb", ALIAS_BOMB, [], "f: more than 100,000 values once its aliases"),
+    ("name_a_date", "name: 2024-01-01\nseeds: 2\n", [], "name: a date or time is not a value"),
+    ("name_binary", "name: !!binary aGVsbG8=\n", [], "name: binary data is not a value"),
+    ("name_a_set", "name: !!set {a, b}\n", [], "name: a set is not a value"),
+    ("nested_lists", "field:\n  d_rr: " + "[" * 50 + "1.5" + "]" * 50 + "\n", [],
+     "field: nested more than 32 levels deep"),
+    ("out_empty", _with(out=""), [], "out: must not be empty"),
     ("seeds", _with(seeds=10**9), [], "seeds"),
     ("seed", _with(seed=2**40), [], "seed"),
     ("seed_negative", _with(seed=-1), [], "seed"),

@@ -1,5 +1,8 @@
 """Reading a sweep YAML strictly: a key given twice in one mapping and an empty file are errors
-(plain `yaml.safe_load` keeps the last duplicate and reads an empty file as no settings)."""
+(plain `yaml.safe_load` keeps the last duplicate and reads an empty file as no settings), and so
+are documents that aliases blow up (`&a` / `*a` nested: more than MAX_NODES nodes once expanded,
+or deeper than MAX_DEPTH) and values of YAML types a sweep has no use for (dates, binary, sets,
+ordered maps): each one named by its key, before anything is built from it."""
 
 from __future__ import annotations
 
@@ -40,8 +43,47 @@ def _mapping_path(loader, node) -> str:
     return "".join(f"{p}." for p in reversed(parts))
 
 
+MAX_NODES = 100_000  # nodes of the document with its aliases expanded
+MAX_DEPTH = 32  # nesting of mappings and lists
+_SCALARS = {f"tag:yaml.org,2002:{t}" for t in ("str", "int", "float", "bool", "null")}
+_KINDS = {"timestamp": "a date or time", "binary": "binary data", "set": "a set",
+          "omap": "an ordered map", "pairs": "a list of pairs"}
+
+
+def _check_nodes(root) -> None:
+    """ConfigError naming the key where the document, its aliases expanded, passes MAX_NODES
+    nodes or MAX_DEPTH levels, or holds a value of a type other than a mapping, a list, a
+    string, a number, true / false or null. Stops at the budget: a bomb costs little."""
+    stack = [(root, "", 0)]
+    count = 0
+    while stack:
+        node, path, depth = stack.pop()
+        count += 1
+        where = path or "the document"
+        top = path.split(".")[0].split("[")[0] or "the document"  # the top-level key
+        if count > MAX_NODES:
+            raise ConfigError(f"{top}: more than {MAX_NODES:,} values once its aliases (*) are "
+                              "expanded; write the values out or use a range")
+        if depth > MAX_DEPTH:
+            raise ConfigError(f"{top}: nested more than {MAX_DEPTH} levels deep")
+        tag = node.tag.rsplit(":", 1)[-1]
+        if isinstance(node, yaml.MappingNode) and node.tag == yaml.resolver.BaseResolver.\
+                DEFAULT_MAPPING_TAG:
+            stack += [(v, f"{path}.{k.value}" if path else str(k.value), depth + 1)
+                      for k, v in node.value]
+        elif isinstance(node, yaml.SequenceNode) and node.tag == yaml.resolver.BaseResolver.\
+                DEFAULT_SEQUENCE_TAG:
+            stack += [(v, f"{path}[{i}]", depth + 1) for i, v in enumerate(node.value)]
+        elif not (isinstance(node, yaml.ScalarNode) and node.tag in _SCALARS):
+            kind = _KINDS.get(tag, f"a YAML !!{tag} value")
+            raise ConfigError(f"{where}: {kind} is not a value a sweep takes; quote it if it "
+                              "is a name")
+
+
 def _compose_with_parents(loader):
     root = yaml.SafeLoader.get_single_node(loader)
+    if root is not None:
+        _check_nodes(root)
     parents: dict[int, tuple[Any, Any]] = {}
     stack = [root] if root is not None else []
     while stack:
