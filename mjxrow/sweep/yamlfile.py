@@ -75,7 +75,7 @@ def _check_nodes(root) -> None:
                 DEFAULT_SEQUENCE_TAG:
             stack += [(v, f"{path}[{i}]", depth + 1) for i, v in enumerate(node.value)]
         elif not (isinstance(node, yaml.ScalarNode) and node.tag in _SCALARS):
-            kind = _KINDS.get(tag, f"a YAML !!{tag} value")
+            kind = _KINDS.get(tag, f"a value tagged {node.tag}")
             raise ConfigError(f"{where}: {kind} is not a value a sweep takes; quote it if it "
                               "is a name")
 
