@@ -58,7 +58,7 @@ def _world(mx, field: mjxrow_field.Field, lane: jax.Array, key: jax.Array, noise
     rn = sim.robot_numbers(mx)
     half = (0.5 * rn["length"], 0.5 * rn["width"])
     ctx = dict(m=m, field=field, lane_y=lane_y, goal=goal, aux=aux, k_policy=k_policy, half=half)
-    return ctx, (rollout_step.start(m, s0), ps0), sim.pose(s0)
+    return ctx, (rollout_step.start(s0), ps0), sim.pose(s0)
 
 
 def _step(ctx: dict, policy_params: Any, carry: tuple, t: jax.Array, policy: control.Policy,

@@ -138,10 +138,8 @@ class Row(NamedTuple):
     vel: jax.Array  # float32 [2], body velocity after the step; NaN once done or failed
 
 
-def start(m, s0: sim.SimState) -> Carry:
-    """The carry of a world at its start state `s0` (m: the world's model, unused: the same
-    signature as the other steps)."""
-    del m
+def start(s0: sim.SimState) -> Carry:
+    """The carry of a world at its start state `s0`."""
     return Carry(sim=s0, done=jnp.zeros((), bool), anchor=sim.pose(s0)[:2])
 
 
