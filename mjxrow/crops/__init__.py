@@ -32,6 +32,13 @@ COMMON_PRESET: Mapping[str, float] = types.MappingProxyType(dict(
     stone_density=1.0,
     branch_density=0.3,
     scale=1.0,
+    row_amplitude=0.0,  # straight rows, no gap runs and no weeds unless asked for
+    row_wavelength=10.0,
+    row_curvature=0.0,
+    gap_rate=0.0,
+    gap_length=1.0,
+    weed_density=0.0,
+    weed_size=0.08,
 ))
 
 # local(L, W, H, yaw, phase) -> (centre [..., K, 3], rot [..., K, 3, 3], size [..., K, 3],

@@ -24,8 +24,10 @@ if TYPE_CHECKING:
     from mjxrow.field import Field, FieldShape
 
 ELLIPSOID, CAPSULE = 0, 1
-LEAF, STEM, TRUNK, CANOPY, FRUIT = 0, 1, 2, 3, 4
-MATERIAL_NAMES = ("leaf", "stem", "trunk", "canopy", "fruit")
+LEAF, STEM, TRUNK, CANOPY, FRUIT, WEED = 0, 1, 2, 3, 4, 5
+MATERIAL_NAMES = ("leaf", "stem", "trunk", "canopy", "fruit", "weed")
+# the weeds' own colours (every crop's weeds): dark and light leaf green, and a yellow-green
+WEED_PALETTE = ((0.30, 0.50, 0.10), (0.48, 0.62, 0.18), (0.58, 0.66, 0.20))
 
 
 @struct.dataclass
@@ -90,13 +92,45 @@ def compose(parts):
                  for i in range(3))
 
 
+def turn(centre: jax.Array, rot: jax.Array, heading: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Local primitives ([..., K, 3] centres, [..., K, 3, 3] rotations) turned about z by
+    `heading` [...] [rad] (written out: at heading 0 the values are unchanged to the bit)."""
+    c, s = jnp.cos(heading)[..., None], jnp.sin(heading)[..., None]
+    centre = jnp.stack([c * centre[..., 0] - s * centre[..., 1],
+                        s * centre[..., 0] + c * centre[..., 1], centre[..., 2]], -1)
+    c, s = c[..., None], s[..., None]
+    rot = jnp.stack([c * rot[..., 0, :] - s * rot[..., 1, :],
+                     s * rot[..., 0, :] + c * rot[..., 1, :], rot[..., 2, :]], -2)
+    return centre, rot
+
+
 def plant_prims(field: Field, shape: FieldShape) -> Prims:
-    """World-frame primitives of every plant of one field (pure; vmap for a batch)."""
+    """World-frame primitives of every plant of one field (pure; vmap for a batch). A plant's
+    length axis follows its row (`Field.plant_heading`)."""
     L, W, H = (field.plant_size[..., i] for i in range(3))
     centre, rot, size, kind, mat = crops.get(shape.crop).local(L, W, H, field.plant_yaw,
                                                                 field.plant_phase)
+    centre, rot = turn(centre, rot, field.plant_heading)
     centre = centre + field.plant_pos[..., None, :]
     active = jnp.broadcast_to(field.plant_active[..., None], centre.shape[:-1])
+    return Prims(centre=centre, rot=rot, size=size, active=active, kind=kind, material=mat)
+
+
+def weed_local(D, Hw, yaw, phase):
+    """A weed: 4 flat leaves spread low around the centre and a small upright one, K = 5
+    ellipsoids of material WEED (diameter D, height Hw [m], [...] arrays)."""
+    parts = [rosette(D, D, Hw, yaw, phase, 4, 0.95, 0.55, 0.30, 0.18, 0.35, 0.30),
+             upright(D, D, Hw, (0.12, 0.12, 0.45, 0.45))]
+    return (*compose(parts), np.asarray([ELLIPSOID] * 5), np.asarray([WEED] * 5))
+
+
+def weed_prims(field: Field) -> Prims:
+    """World-frame primitives of every weed of one field ([W, K] instead of [R, P, K]; W may be
+    0). Weeds are the same for every crop: not crop pixels, not obstacles."""
+    D, Hw = field.weed_size[..., 0], field.weed_size[..., 1]
+    centre, rot, size, kind, mat = weed_local(D, Hw, field.weed_yaw, field.weed_phase)
+    centre = centre + field.weed_pos[..., None, :]
+    active = jnp.broadcast_to(field.weed_active[..., None], centre.shape[:-1])
     return Prims(centre=centre, rot=rot, size=size, active=active, kind=kind, material=mat)
 
 
@@ -107,8 +141,9 @@ def n_prims(crop: str) -> int:
 
 
 def footprint(crop: str, plant_size: jax.Array) -> jax.Array:
-    """Collision footprint of each plant as an axis-aligned ellipse: semi-axes (along x, along y)
-    [..., 2] in metres, from plant_size [..., 3]. The trunk for crops with a `trunk_radius`
+    """Collision footprint of each plant as an ellipse along its row: semi-axes (along the
+    row, across it) [..., 2] in metres, from plant_size [..., 3] (turned by the plant's
+    `plant_heading`; axis-aligned on straight rows). The trunk for crops with a `trunk_radius`
     (pear, vineyard), half the plant's length and width otherwise (the leaves of low crops)."""
     r = crops.get(crop).trunk_radius
     if r is not None:

@@ -2,7 +2,8 @@
 generator `generate`. The crops themselves (presets, plants) live in `mjxrow.crops`; the
 exports to MuJoCo / Gazebo in `mjxrow.worlds`."""
 
-from mjxrow.field.generate import generate, robot_lane, terrain_axes, terrain_height
+from mjxrow.field import lanes
+from mjxrow.field.generate import gap_runs, generate, robot_lane, terrain_axes, terrain_height
 from mjxrow.field.params import (
            BRANCH,
            HEADLAND,
@@ -25,5 +26,5 @@ from mjxrow.field.params import (
 
 __all__ = ["BRANCH", "HEADLAND", "LANE_CLEARANCE", "PARAM_NAMES", "ROBOT_WIDTH", "STONE",
            "Field", "FieldParams", "FieldShape", "array_namespace", "checks", "fit_shape",
-           "generate", "make_params", "preset_shape", "robot_lane", "stack_leaves", "stack_params",
+           "gap_runs", "generate", "lanes", "make_params", "preset_shape", "robot_lane", "stack_leaves", "stack_params",
            "terrain_axes", "terrain_height", "validate"]

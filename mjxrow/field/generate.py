@@ -6,6 +6,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from mjxrow.field import lanes as field_lanes
 from mjxrow.field.params import (
     BRANCH,
     LANE_CLEARANCE,
@@ -52,8 +53,8 @@ def terrain_height(terrain: jax.Array, terrain_size: jax.Array, x: jax.Array,
     return jnp.where(fu >= fv, lower, upper)
 
 
-def _terrain(q, cells, key) -> tuple[jax.Array, jax.Array]:
-    size = jnp.stack([q["terrain_length"], q["terrain_width"]])
+def _terrain(q, lay, cells, key) -> tuple[jax.Array, jax.Array]:
+    size = jnp.stack([q["terrain_length"], lay["ground_width"]])
     x, y = terrain_axes(size, cells)
     kd, kp, ka = jax.random.split(key, 3)
     # isotropic band-limited noise: wavelengths spread around terrain_scale
@@ -109,7 +110,12 @@ def generate(params: FieldParams, shape: FieldShape, key: jax.Array,
     lay = _layout(q)
     k_ter, k_pos, k_size, k_yaw, k_phase, k_miss, k_obs = jax.random.split(key, 7)
 
-    terrain, tsize = _terrain(q, shape.terrain_cells, k_ter)
+    terrain, tsize = _terrain(q, lay, shape.terrain_cells, k_ter)
+    # keys of the later additions come from fold_in, so that a field without them is the same
+    # field, plant for plant, as before they existed
+    row_phase = jax.random.uniform(jax.random.fold_in(key, 101), (), maxval=2 * jnp.pi)
+    bend = field_lanes.Bend(curvature=q["row_curvature"], amplitude=q["row_amplitude"],
+                            wavelength=q["row_wavelength"], phase=row_phase)
 
     # rows: groups of rows_per_group, centred on y = 0
     r = jnp.arange(R, dtype=jnp.float32)
@@ -124,8 +130,9 @@ def generate(params: FieldParams, shape: FieldShape, key: jax.Array,
     x0 = -0.5 * q["row_length"]
     i = jnp.arange(P, dtype=jnp.float32)
     jit_xy = jax.random.normal(k_pos, (R, P, 2)) * q["plant_jitter"]
-    px = x0 + i[None, :] * q["d_pp"] + jit_xy[..., 0]
-    py = row_y[:, None] + jit_xy[..., 1]
+    ps = x0 + i[None, :] * q["d_pp"] + jit_xy[..., 0]
+    pu = row_y[:, None] + jit_xy[..., 1]
+    px, py = field_lanes.to_world(bend, ps, pu)
     pz = terrain_height(terrain, tsize, px, py)
     size_nom = jnp.stack([q["plant_length"], q["plant_width"], q["plant_height"]])
     size_f = jnp.clip(1.0 + q["plant_size_var"] * jax.random.normal(k_size, (R, P, 1)), 0.5, 1.5)
@@ -133,6 +140,7 @@ def generate(params: FieldParams, shape: FieldShape, key: jax.Array,
         row_active[:, None]
         & (i[None, :] < lay["n_plants"])
         & (jax.random.uniform(k_miss, (R, P)) >= q["p_missing"])
+        & ~gap_runs(q, (R, P), jax.random.fold_in(key, 102))
     )
     plant_yaw = jax.random.uniform(k_yaw, (R, P), minval=-jnp.pi, maxval=jnp.pi)
 
@@ -150,8 +158,8 @@ def generate(params: FieldParams, shape: FieldShape, key: jax.Array,
     lane_idx = jnp.floor(jax.random.uniform(ko[0], (S,)) * n_lanes).astype(jnp.int32)
     lane_idx = jnp.clip(lane_idx, 0, R - 2)
     free = jnp.maximum(lane_width[lane_idx] - q["plant_width"], 0.2)
-    oy = lane_y[lane_idx] + (jax.random.uniform(ko[1], (S,)) - 0.5) * 0.8 * free
-    ox = (jax.random.uniform(ko[2], (S,)) - 0.5) * q["row_length"]
+    ou = lane_y[lane_idx] + (jax.random.uniform(ko[1], (S,)) - 0.5) * 0.8 * free
+    os_ = (jax.random.uniform(ko[2], (S,)) - 0.5) * q["row_length"]
     stone_r = q["scale"] * jax.random.uniform(ko[3], (S,), minval=0.03, maxval=0.08)
     branch_r = q["scale"] * jax.random.uniform(ko[3], (S,), minval=0.015, maxval=0.035)
     branch_half = q["scale"] * jax.random.uniform(ko[4], (S,), minval=0.25, maxval=0.7)
@@ -159,8 +167,10 @@ def generate(params: FieldParams, shape: FieldShape, key: jax.Array,
     obst_size = jnp.stack([radius, jnp.where(is_stone, 0.0, branch_half)], -1)
     obst_yaw = jax.random.uniform(ko[5], (S,), minval=-jnp.pi, maxval=jnp.pi)
     x_end = x0 + (lay["n_plants"] - 1.0) * q["d_pp"]
-    ox = _clear_start(ox, obst_size, obst_yaw, x_end - path_length, q["row_length"],
-                      jax.random.fold_in(k_obs, 6))
+    os_ = _clear_start(os_, obst_size, obst_yaw, x_end - path_length, q["row_length"],
+                       jax.random.fold_in(k_obs, 6))
+    ox, oy = field_lanes.to_world(bend, os_, ou)
+    obst_yaw = obst_yaw + field_lanes.heading(bend, os_, ou)
     # stones sunk to half their radius; branches lie on the ground
     oz = terrain_height(terrain, tsize, ox, oy) + jnp.where(is_stone, 0.5, 1.0) * radius
     obst_pos = jnp.stack([ox, oy, oz], -1)
@@ -171,12 +181,14 @@ def generate(params: FieldParams, shape: FieldShape, key: jax.Array,
         plant_pos=jnp.stack([px, py, pz], -1).astype(jnp.float32),
         plant_size=(size_nom * size_f).astype(jnp.float32),
         plant_yaw=plant_yaw.astype(jnp.float32),
+        plant_heading=field_lanes.heading(bend, ps, pu).astype(jnp.float32),
         plant_phase=jax.random.uniform(k_phase, (R, P)),
         plant_active=plant_active,
         plant_row=jnp.broadcast_to(jnp.arange(R, dtype=jnp.int32)[:, None], (R, P)),
         row_y=row_y.astype(jnp.float32),
         row_active=row_active,
         row_x=jnp.stack([x0, x_end]).astype(jnp.float32),
+        row_phase=row_phase.astype(jnp.float32),
         lane_y=lane_y.astype(jnp.float32),
         lane_width=lane_width.astype(jnp.float32),
         lane_active=lane_active,
@@ -187,9 +199,55 @@ def generate(params: FieldParams, shape: FieldShape, key: jax.Array,
         obst_yaw=obst_yaw.astype(jnp.float32),
         obst_kind=jnp.where(is_stone, STONE, BRANCH).astype(jnp.int32),
         obst_active=obst_active,
+        **_weeds(q, lay, bend, row_y, row_active, x0, shape.weed_slots, terrain, tsize,
+                 jax.random.fold_in(key, 103)),
         n_rows=lay["n_rows"].astype(jnp.int32),
         valid=valid,
     )
+
+
+def gap_runs(q: dict, rp: tuple[int, int], key: jax.Array) -> jax.Array:
+    """bool [R, P]: plant slots inside a gap. Along each row a two-state chain (planted ↔ gap)
+    from slot to slot: a gap lasts a geometric number of slots with mean gap_length / d_pp
+    (leaving with probability q = d_pp / gap_length, at most 1: a gap is at least one plant),
+    and starts with the probability p that makes gap_rate gaps per 10 m on average (the
+    chain's stationary rate of starts, p·q / (p + q) per slot, equals gap_rate · d_pp / 10).
+    With gap_rate = 0 no slot is in a gap."""
+    R, P = rp
+    leave = jnp.clip(q["d_pp"] / q["gap_length"], 1e-6, 1.0)
+    r = q["gap_rate"] * q["d_pp"] / 10.0
+    enter = jnp.clip(r * leave / jnp.maximum(leave - r, 1e-9), 0.0, 1.0)
+    u = jax.random.uniform(key, (P, R))
+    first = u[0] < enter / jnp.maximum(enter + leave, 1e-9)  # the chain's stationary start
+
+    def slot(gap, u_i):
+        gap = jnp.where(gap, u_i >= leave, u_i < enter)
+        return gap, gap
+
+    _, rest = jax.lax.scan(slot, first, u[1:])
+    return jnp.concatenate([first[None], rest]).T
+
+
+def _weeds(q, lay, bend, row_y, row_active, x0, W, terrain, tsize, key) -> dict:
+    """The weeds of a field: `n_weeds` (weed_density per m² over the rows' length and the
+    ground from the first row to the last), uniform over it, each `weed_size` wide
+    (± 25 %, clipped to 0.5–1.5×) and 0.35 of that high, turned at random."""
+    if W == 0:
+        z = jnp.zeros((0,), jnp.float32)
+        return dict(weed_pos=jnp.zeros((0, 3), jnp.float32), weed_size=jnp.zeros((0, 2)),
+                    weed_yaw=z, weed_phase=z, weed_active=jnp.zeros((0,), bool))
+    ks = jax.random.split(key, 5)
+    lo = jnp.min(jnp.where(row_active, row_y, jnp.inf))
+    ws = x0 + jax.random.uniform(ks[0], (W,)) * q["row_length"]
+    wu = lo + jax.random.uniform(ks[1], (W,)) * lay["span"]
+    wx, wy = field_lanes.to_world(bend, ws, wu)
+    wz = terrain_height(terrain, tsize, wx, wy)
+    d = q["weed_size"] * jnp.clip(1.0 + 0.25 * jax.random.normal(ks[2], (W,)), 0.5, 1.5)
+    return dict(weed_pos=jnp.stack([wx, wy, wz], -1).astype(jnp.float32),
+                weed_size=jnp.stack([d, 0.35 * d], -1).astype(jnp.float32),
+                weed_yaw=jax.random.uniform(ks[3], (W,), maxval=2 * jnp.pi),
+                weed_phase=jax.random.uniform(ks[4], (W,)),
+                weed_active=jnp.arange(W) < lay["n_weeds"])
 
 
 LANE_MODES = ("auto", "in_group", "between_groups")  # robot_lane's choices (sim.SimConfig.lane)

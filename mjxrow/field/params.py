@@ -51,6 +51,13 @@ class FieldParams:
     stone_density: jax.Array  # stones per 100 m² of lane [count / 100 m²]
     branch_density: jax.Array  # fallen branches per 100 m² of lane [count / 100 m²]
     scale: jax.Array  # global factor on every length of the field [-]
+    row_amplitude: jax.Array  # amplitude A of the rows' common sinusoid [m] (0: straight)
+    row_wavelength: jax.Array  # wavelength λ of the rows' sinusoid [m]
+    row_curvature: jax.Array  # curvature κ of the rows bent as concentric arcs [1/m] (0: straight)
+    gap_rate: jax.Array  # runs of missing plants (gaps) per 10 m of row [count / 10 m]
+    gap_length: jax.Array  # mean length of a gap, a run of missing plants [m]
+    weed_density: jax.Array  # weeds per m² of ground between and inside the rows [count / m²]
+    weed_size: jax.Array  # nominal weed diameter [m]
 
 
 PARAM_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(FieldParams))
@@ -66,12 +73,15 @@ class FieldShape:
     max_plants_per_row: int = 80
     terrain_cells: tuple[int, int] = (160, 256)  # (ny, nx) height samples
     obstacle_slots: int = 32
+    weed_slots: int = 0  # weeds a field can hold (0: no weeds)
 
     def __post_init__(self):
         crops.get(self.crop)  # ValueError naming an unknown crop
         for name in ("max_rows", "max_plants_per_row", "obstacle_slots"):
             if int(getattr(self, name)) < (2 if name == "max_rows" else 1):
                 raise ValueError(f"{name}: must be a positive count, got {getattr(self, name)}")
+        if int(self.weed_slots) < 0:
+            raise ValueError(f"weed_slots: must be a count (≥ 0), got {self.weed_slots}")
         ny, nx = self.terrain_cells
         if ny < 2 or nx < 2:
             raise ValueError(f"terrain_cells: need at least 2×2 samples, got {self.terrain_cells}")
@@ -82,20 +92,25 @@ class Field:
     """One generated field (add a leading [B] axis to every array for a batch).
 
     R = shape.max_rows, P = shape.max_plants_per_row, S = shape.obstacle_slots,
-    (NY, NX) = shape.terrain_cells.
+    W = shape.weed_slots, (NY, NX) = shape.terrain_cells. Rows, lanes and `row_x` are in field
+    coordinates (s along the rows, u across them: `mjxrow.field.lanes`; x and y of a straight
+    field); plants, obstacles, weeds and the terrain in world coordinates.
     """
 
     params: FieldParams
     plant_pos: jax.Array  # float32 [R, P, 3], plant base centre on the terrain surface [m]
-    plant_size: jax.Array  # float32 [R, P, 3], (length, width, height) of each plant [m]
-    plant_yaw: jax.Array  # float32 [R, P], plant orientation about z [rad]
+    plant_size: jax.Array  # float32 [R, P, 3], (length along the row, width, height) [m]
+    plant_yaw: jax.Array  # float32 [R, P], turn of the plant's leaves about z [rad]
+    plant_heading: jax.Array  # float32 [R, P], direction of the row at the plant [rad] (the
+    # plant's length axis; 0 on straight rows)
     plant_phase: jax.Array  # float32 [R, P], per-plant random number in [0, 1) for its shape
     plant_active: jax.Array  # bool [R, P]
     plant_row: jax.Array  # int32 [R, P], row index of each plant
-    row_y: jax.Array  # float32 [R], lateral position of each row [m]
+    row_y: jax.Array  # float32 [R], lateral position (u) of each row [m]
     row_active: jax.Array  # bool [R]
-    row_x: jax.Array  # float32 [2], x of the first and the last plant slot of every row [m]
-    lane_y: jax.Array  # float32 [R-1], lateral position of the centre line of lane i [m]
+    row_x: jax.Array  # float32 [2], s of the first and the last plant slot of every row [m]
+    row_phase: jax.Array  # float32 [], phase φ of the rows' sinusoid [rad]
+    lane_y: jax.Array  # float32 [R-1], lateral position (u) of the centre line of lane i [m]
     lane_width: jax.Array  # float32 [R-1], distance between the rows bounding lane i [m]
     lane_active: jax.Array  # bool [R-1]
     terrain: jax.Array  # float32 [NY, NX], heights [m]; sample (j, i) lies at terrain_xy(j, i)
@@ -105,6 +120,11 @@ class Field:
     obst_yaw: jax.Array  # float32 [S], branch direction about z [rad]
     obst_kind: jax.Array  # int32 [S], 0 stone, 1 fallen branch
     obst_active: jax.Array  # bool [S]
+    weed_pos: jax.Array  # float32 [W, 3], weed base centre on the terrain surface [m]
+    weed_size: jax.Array  # float32 [W, 2], (diameter, height) [m]
+    weed_yaw: jax.Array  # float32 [W], orientation about z [rad]
+    weed_phase: jax.Array  # float32 [W], per-weed random number in [0, 1) for its shape
+    weed_active: jax.Array  # bool [W]
     n_rows: jax.Array  # int32 [], rows actually laid
     valid: jax.Array  # bool [], False when the params describe an impossible field
 
@@ -162,9 +182,10 @@ def _scaled(p: FieldParams) -> dict[str, jax.Array]:
     s = p.scale
     lengths = ("d_rr", "d_RR", "d_pp", "row_length", "terrain_length", "terrain_width",
                "plant_length", "plant_width", "plant_height", "terrain_dh", "terrain_scale",
-               "plant_jitter")
+               "plant_jitter", "row_amplitude", "row_wavelength", "gap_length", "weed_size")
     out = {k: getattr(p, k) for k in PARAM_NAMES}
     out.update({k: getattr(p, k) * s for k in lengths})
+    out["row_curvature"] = p.row_curvature / s
     out["rows_per_group"] = xp.maximum(xp.round(p.rows_per_group), 1.0)
     return out
 
@@ -182,8 +203,19 @@ def _layout(q: dict[str, jax.Array]) -> dict[str, jax.Array]:
     lane_area = q["row_length"] * xp.maximum(n_rows - 1.0, 0.0) * (pitch / rpg) / 100.0
     n_stones = xp.round(q["stone_density"] * lane_area)
     n_branches = xp.round(q["branch_density"] * lane_area)
+    span = xp.maximum((n_groups - 1.0) * pitch + group_w, 0.0)  # first row to last row
+    n_weeds = xp.round(q["weed_density"] * q["row_length"] * span)
+    # the rows' largest departure across from their straight layout over the terrain's
+    # length: the sinusoid's amplitude plus the arcs' sagitta (1 − cos(κT/2)) / |κ|, written
+    # so that it is exactly 0 on a straight field; the terrain is widened by it on each side
+    a = xp.minimum(xp.abs(q["row_curvature"]) * 0.5 * q["terrain_length"], 0.5 * np.pi)
+    sagitta = 0.5 * q["terrain_length"] * xp.sin(0.5 * a) * xp.sinc(0.5 * a / np.pi)
+    ground_width = q["terrain_width"] + 2.0 * (q["row_amplitude"] + sagitta)
+    # the narrowest width across a lane: d · cos of the sinusoid's steepest angle
+    squeeze = xp.cos(xp.arctan(2.0 * np.pi * q["row_amplitude"] / q["row_wavelength"]))
     return dict(n_groups=n_groups, n_rows=n_rows, n_plants=n_plants, pitch=pitch,
-                group_w=group_w, n_stones=n_stones, n_branches=n_branches)
+                group_w=group_w, n_stones=n_stones, n_branches=n_branches, span=span,
+                n_weeds=n_weeds, ground_width=ground_width, squeeze=squeeze)
 
 
 def checks(params: FieldParams, shape: FieldShape) -> dict[str, tuple[jax.Array, str]]:
@@ -196,8 +228,26 @@ def checks(params: FieldParams, shape: FieldShape) -> dict[str, tuple[jax.Array,
     out: dict[str, tuple[jax.Array, str]] = {}
     for k in lengths:
         out[k] = (getattr(params, k) > 0, "must be positive")
-    for k in ("plant_size_var", "plant_jitter", "terrain_dh", "stone_density", "branch_density"):
+    for k in ("plant_size_var", "plant_jitter", "terrain_dh", "stone_density", "branch_density",
+              "row_amplitude", "gap_rate", "weed_density"):
         out[k] = (getattr(params, k) >= 0, "must be non-negative")
+    for k in ("row_wavelength", "gap_length", "weed_size"):
+        out[k] = (getattr(params, k) > 0, "must be positive")
+    out["row_wavelength"] = (
+        (q["row_wavelength"] > 0) & ((q["row_amplitude"] == 0) | (q["row_wavelength"] > q["d_pp"])),
+        "the rows' wavelength must be longer than the plant spacing d_pp",
+    )
+    k_abs = xp.abs(q["row_curvature"])
+    out["row_curvature"] = (
+        (k_abs * (0.5 * lay["span"] + q["row_amplitude"] + q["plant_width"]) < 1.0)
+        & (k_abs * 0.5 * q["terrain_length"] <= 0.5 * np.pi),
+        "the rows cross or turn back: 1/|row_curvature| must exceed half the width of the rows, "
+        "and the terrain's length bend less than a half circle",
+    )
+    out["gap_length"] = (
+        (q["gap_length"] > 0) & (params.gap_rate * q["gap_length"] < 10.0),
+        "gaps cover the whole row (gap_rate · gap_length must stay below 10 m per 10 m)",
+    )
     out["p_missing"] = ((params.p_missing >= 0) & (params.p_missing < 1), "must lie in [0, 1)")
     out["rows_per_group"] = (params.rows_per_group >= 1, "must be at least 1")
     multi_row = q["rows_per_group"] > 1
@@ -226,12 +276,19 @@ def checks(params: FieldParams, shape: FieldShape) -> dict[str, tuple[jax.Array,
         lay["n_stones"] + lay["n_branches"] <= shape.obstacle_slots,
         f"more obstacles than the shape allows (obstacle_slots={shape.obstacle_slots})",
     )
-    free_in = xp.where(multi_row, q["d_rr"] - q["plant_width"], -1.0)
-    free_between = q["d_RR"] - q["plant_width"]
+    free_in = xp.where(multi_row, q["d_rr"] * lay["squeeze"] - q["plant_width"], -1.0)
+    free_between = q["d_RR"] * lay["squeeze"] - q["plant_width"]
     out["robot_lane"] = (
         xp.maximum(free_in, free_between) >= ROBOT_WIDTH + LANE_CLEARANCE,
         f"no lane is wide enough for the robot ({ROBOT_WIDTH} m + {LANE_CLEARANCE} m clearance)",
     )
+    narrowest = xp.where(multi_row, xp.minimum(free_in, free_between), free_between)
+    out["weed_size"] = (
+        (q["weed_size"] > 0) & ((params.weed_density == 0) | (q["weed_size"] < narrowest)),
+        "weeds are larger than the lane between the plants",
+    )
+    out["weed_slots"] = (lay["n_weeds"] <= shape.weed_slots,
+                         f"more weeds than the shape allows (weed_slots={shape.weed_slots})")
     return out
 
 
@@ -256,11 +313,12 @@ def fit_shape(params: FieldParams, crop: str, cell: float = 0.25, round_to: int 
         return int(max(round_to, math.ceil(float(np.max(n)) / round_to) * round_to))
 
     nx = up(np.max(q["terrain_length"]) / cell + 1)
-    ny = up(np.max(q["terrain_width"]) / cell + 1)
+    ny = up(np.max(lay["ground_width"]) / cell + 1)
     slots = obstacle_slots or up(np.max(lay["n_stones"] + lay["n_branches"]) + 1)
+    n_weeds = float(np.max(lay["n_weeds"]))
     return FieldShape(crop=crop, max_rows=up(np.max(lay["n_rows"])),
                       max_plants_per_row=up(np.max(lay["n_plants"])), terrain_cells=(ny, nx),
-                      obstacle_slots=slots)
+                      obstacle_slots=slots, weed_slots=up(n_weeds) if n_weeds > 0 else 0)
 
 
 def preset_shape(preset: str) -> FieldShape:
