@@ -2,10 +2,13 @@
 of a lane, driven as the closed loop drives it.
 
 Geom names: terrain `terrain`, plant primitives `plant_r{row}_p{index}_k{k}` (row 0..R-1 by
-increasing y, index = the plant's slot along its row, k = primitive of `crops.prims.plant_prims`),
-obstacles `stone_{i}` / `branch_{i}` (counted per kind). Groups: terrain 0, plants 1,
-obstacles 2. Plants never collide (contype = conaffinity = 0); the robot's wheels touch the
-terrain and the obstacles.
+increasing u, the rows' lateral field coordinate (y on straight rows), index = the plant's slot
+along its row, k = primitive of `crops.prims.plant_prims`), weed primitives `weed_{i}_k{k}`
+(i = the weed's slot, k = primitive of `crops.prims.weed_prims`), obstacles `stone_{i}` /
+`branch_{i}` (counted per kind). Groups: terrain 0, plants and weeds 1, obstacles 2. Plants and
+weeds never collide (contype = conaffinity = 0); the robot's wheels touch the terrain and the
+obstacles. A weed's primitives all have its colour, `weed_rgb` of its phase (geom `rgba` and
+material `weed_{dark,light,yellow}`, from `crops.prims.WEED_PALETTE`).
 
 The robot is `physics.sim.model_xml`'s own: its `<option>` (time step, integrator, solver),
 `<custom>` numbers, chassis body (free joint, sphere wheels, camera `front`) and wheel
@@ -29,6 +32,7 @@ import numpy as np
 
 from mjxrow import field as mjxrow_field
 from mjxrow.crops import prims as crops_prims
+from mjxrow.field import lanes as field_lanes
 from mjxrow.physics import robot as physics_robot
 from mjxrow.physics import sim
 from mjxrow.worlds import scene
@@ -40,21 +44,31 @@ EYE_FOVY = 45.0  # deg, vertical field of view of the `eye` camera
 SUN_DIR = (0.35, 0.45, -1.0)  # direction of the `sun` light's rays (downwards)
 HFIELD_BASE = 0.5  # m, thickness of the MuJoCo heightfield below its lowest sample
 KEYS = {"start": (0.0, 0.0), "forward": (1.0, 0.0), "left": (0.5, 0.5), "right": (0.5, -0.5)}
+WEED_CLASSES = ("weed_dark", "weed_light", "weed_yellow")  # = crops.prims.WEED_PALETTE's order
+
+
+def weed_rgb(phase: np.ndarray) -> np.ndarray:
+    """int [...]: the index into `crops.prims.WEED_PALETTE` (and WEED_CLASSES) of weeds of
+    phase `phase` [...] in [0, 1): the palette split into equal thirds of the phase."""
+    n = len(crops_prims.WEED_PALETTE)
+    return np.minimum((np.asarray(phase) * n).astype(int), n - 1)
 
 
 def lane_camera(field: mjxrow_field.Field, height: float = 1.0, back: float = 1.0,
                 pitch_deg: float = -15.0) -> tuple[np.ndarray, np.ndarray]:
-    """A camera at the start of the default lane (`field.robot_lane`), `back` metres before the
-    rows, `height` metres above the terrain, looking along +x pitched by `pitch_deg` (negative
-    = down). Returns (cam_pos float32 [3], cam_rot float32 [3, 3]) in MuJoCo's convention
-    (columns: right, up, backwards)."""
+    """A camera on the centre line of the default lane (`field.robot_lane`), `back` metres
+    (along the lane) before the rows, `height` metres above the terrain, looking along the lane
+    (+x on straight rows) pitched by `pitch_deg` (negative = down). Returns (cam_pos float32 [3],
+    cam_rot float32 [3, 3]) in MuJoCo's convention (columns: right, up, backwards)."""
     f = scene.host(field)
-    lane = int(mjxrow_field.robot_lane(f))
-    x, y = float(f.row_x[0]) - back, float(f.lane_y[lane])
+    ln = field_lanes.lane(f, int(mjxrow_field.robot_lane(f)))
+    s = f.row_x[0] - np.float32(back)
+    x, y = (float(v) for v in field_lanes.point(ln, s))
+    yaw = float(field_lanes.heading(ln.bend, s, ln.u))
     z = float(mjxrow_field.terrain_height(f.terrain, f.terrain_size, x, y)) + height
-    p = np.deg2rad(pitch_deg)
-    right = np.array([0.0, -1.0, 0.0])
-    up = np.array([-np.sin(p), 0.0, np.cos(p)])
+    p, c, sn = np.deg2rad(pitch_deg), np.cos(yaw), np.sin(yaw)
+    right = np.array([sn, -c, 0.0])
+    up = np.array([-np.sin(p) * c, -np.sin(p) * sn, np.cos(p)])
     rot = np.stack([right, up, np.cross(right, up)], 1)
     return np.array([x, y, z], np.float32), rot.astype(np.float32)
 
@@ -118,6 +132,8 @@ def to_mjcf(
     L, W = (float(s) for s in f.terrain_size)
     hfile = f"{name}_terrain.bin"
     prims = jax.tree.map(np.asarray, crops_prims.plant_prims(f, shape))
+    weeds = jax.tree.map(np.asarray, crops_prims.weed_prims(f))
+    weed_cls = [WEED_CLASSES[c] for c in weed_rgb(f.weed_phase)]
     classes = [crops_prims.MATERIAL_NAMES[m] + ("_capsule" if k == crops_prims.CAPSULE else "")
                for k, m in zip(prims.kind, prims.material, strict=True)]
     cam_pos, cam_rot = lane_camera(f)
@@ -146,6 +162,8 @@ def to_mjcf(
             f'{scene.num(z_top, 6)} {HFIELD_BASE}"/>']
     for mat, rgb in PLANT_RGB.items():
         out.append(f'    <material name="{mat}" rgba="{scene.nums(rgb, 2)} 1" specular="0.1"/>')
+    for cls, rgb in zip(WEED_CLASSES, crops_prims.WEED_PALETTE, strict=True):
+        out.append(f'    <material name="{cls}" rgba="{scene.nums(rgb, 2)} 1" specular="0.1"/>')
     out += [f'    <material name="stone" rgba="{scene.nums(STONE_RGB, 2)} 1"/>',
             f'    <material name="branch" rgba="{scene.nums(BRANCH_RGB, 2)} 1"/>',
             '  </asset>', '  <default>',
@@ -154,6 +172,12 @@ def to_mjcf(
         typ = "capsule" if cls.endswith("_capsule") else "ellipsoid"
         out.append(f'      <default class="{cls}"><geom type="{typ}" '
                    f'material="{cls.removesuffix("_capsule")}"/></default>')
+    out += ["    </default>",
+            '    <default class="weed"><geom type="ellipsoid" contype="0" conaffinity="0" '
+            'group="1"/>']
+    for cls, rgb in zip(WEED_CLASSES, crops_prims.WEED_PALETTE, strict=True):
+        out.append(f'      <default class="{cls}"><geom material="{cls}" '
+                   f'rgba="{scene.nums(rgb, 2)} 1"/></default>')
     out += [
         "    </default>",
         '    <default class="stone"><geom type="sphere" material="stone" group="2"/></default>',
@@ -180,6 +204,17 @@ def to_mjcf(
                 out.append(f'<geom name="plant_r{new_row[r]}_p{p}_k{k}"{c} '
                            f'pos="{scene.nums(prims.centre[r, p, k])}" '
                            f'euler="{scene.nums(euler[r, p, k], 4)}" size="{scene.nums(size)}"/>')
+        out.append("    </frame>")
+    active = np.flatnonzero(f.weed_active)
+    if len(active):
+        w_euler = scene.euler_zyx(weeds.rot)
+        out.append('    <frame name="weeds" childclass="weed">')
+        for i in active:
+            for k in range(weeds.centre.shape[1]):
+                out.append(f'<geom name="weed_{i}_k{k}" class="{weed_cls[i]}" '
+                           f'pos="{scene.nums(weeds.centre[i, k])}" '
+                           f'euler="{scene.nums(w_euler[i, k], 4)}" '
+                           f'size="{scene.nums(weeds.size[i, k])}"/>')
         out.append("    </frame>")
     n = {mjxrow_field.STONE: 0, mjxrow_field.BRANCH: 0}
     for i in np.flatnonzero(f.obst_active):
