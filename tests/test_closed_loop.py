@@ -11,6 +11,7 @@ import pytest
 from mjxrow import control as K
 from mjxrow import field as F
 from mjxrow import render
+from mjxrow.field.lanes import straight_lane
 from mjxrow.physics import sim
 from mjxrow.policies import perception as CL
 from mjxrow.rollout import build as B
@@ -80,8 +81,8 @@ def test_weights_are_params_of_one_compiled_step(world):
     field = jax.tree.map(lambda x: x[0], fields)
     y = field.lane_y[F.robot_lane(field)]
     cam_pos = jnp.stack([field.row_x[1] - 3.0, y, jnp.float32(0.4)])
-    obs = K.Obs(pose=jnp.stack([cam_pos[0], y, jnp.float32(0.0)]), lane_y=y,
-                lane_end_x=field.row_x[1], goal=jnp.stack([field.row_x[1], y]),
+    obs = K.Obs(pose=jnp.stack([cam_pos[0], y, jnp.float32(0.0)]),
+                lane=straight_lane(y, field.row_x[1]), goal=jnp.stack([field.row_x[1], y]),
                 cam_pos=cam_pos, cam_rot=render.camera_rot(jnp.float32(0.0), -0.17),
                 field=field)
     policy = CL.perception_policy("segzeros", shape, INTR, "learned", Ramp())

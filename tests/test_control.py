@@ -7,6 +7,7 @@ import pytest
 
 from mjxrow import control as C
 from mjxrow.control.segzeros import heading_reference
+from mjxrow.field.lanes import straight_lane
 
 H, W = 4, 40
 PAPER = C.seg_params("zeros")
@@ -22,8 +23,8 @@ def mask_with_free(*spans, h=H, w=W):
 
 
 def obs(mask=None, depth=None, pose=(0.0, 0.0, 0.0), lane_y=0.0):
-    return C.Obs(pose=jnp.asarray(pose, jnp.float32), lane_y=jnp.asarray(lane_y, jnp.float32),
-                 lane_end_x=jnp.asarray(20.0), goal=jnp.asarray([20.0, lane_y]),
+    return C.Obs(pose=jnp.asarray(pose, jnp.float32), lane=straight_lane(lane_y, 20.0),
+                 goal=jnp.asarray([20.0, lane_y]),
                  cam_pos=jnp.zeros(3), cam_rot=jnp.eye(3), mask=mask, depth=depth)
 
 
@@ -184,13 +185,13 @@ def test_vmap_over_a_batch_of_masks():
 def test_oracle_steers_back_to_the_centre_line():
     p = C.oracle_params(lookahead=1.0)
     # 0.3 m left of the line: target (√0.91, −0.3), κ = 2·(−0.3)/1 → ω = 0.5·(−0.6) = −0.3
-    cmd = C.pursuit_command(p, jnp.array([3.0, 1.3, 0.0]), jnp.asarray(1.0))
+    cmd = C.pursuit_command(p, jnp.array([3.0, 1.3, 0.0]), straight_lane(1.0, 20.0))
     np.testing.assert_allclose(np.asarray(cmd), [0.5, -0.3], atol=1e-6)
-    cmd = C.pursuit_command(p, jnp.array([3.0, 0.7, 0.0]), jnp.asarray(1.0))
+    cmd = C.pursuit_command(p, jnp.array([3.0, 0.7, 0.0]), straight_lane(1.0, 20.0))
     np.testing.assert_allclose(np.asarray(cmd), [0.5, 0.3], atol=1e-6)
-    cmd = C.pursuit_command(p, jnp.array([3.0, 1.0, 0.2]), jnp.asarray(1.0))  # heading left
+    cmd = C.pursuit_command(p, jnp.array([3.0, 1.0, 0.2]), straight_lane(1.0, 20.0))  # left
     assert float(cmd[1]) < 0
-    cmd = C.pursuit_command(p, jnp.array([3.0, 1.0, 0.0]), jnp.asarray(1.0))
+    cmd = C.pursuit_command(p, jnp.array([3.0, 1.0, 0.0]), straight_lane(1.0, 20.0))
     assert float(cmd[1]) == 0.0
 
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from mjxrow import control as C
+from mjxrow.field.lanes import straight_lane
 from mjxrow.sweep import config as CFG
 
 H, W = 4, 40
@@ -26,8 +27,8 @@ ROW, END = mask_with_free((15, 25)), mask_with_free()  # a centred lane; the row
 
 
 def obs(mask, pose):
-    return C.Obs(pose=jnp.asarray(pose, jnp.float32), lane_y=jnp.float32(0.0),
-                 lane_end_x=jnp.float32(20.0), goal=jnp.asarray([20.0, 0.0]),
+    return C.Obs(pose=jnp.asarray(pose, jnp.float32), lane=straight_lane(0.0, 20.0),
+                 goal=jnp.asarray([20.0, 0.0]),
                  cam_pos=jnp.zeros(3), cam_rot=jnp.eye(3), mask=mask)
 
 

@@ -17,6 +17,7 @@ from mjxrow import env as E
 from mjxrow import field as F
 from mjxrow.env import randomize as RZ
 from mjxrow.env import reward as RW
+from mjxrow.field.lanes import straight_lane
 from mjxrow.rollout import episode as EP
 from mjxrow.rollout import metrics as M
 from mjxrow.rollout.config import build_run
@@ -108,7 +109,7 @@ def test_reward_toward_goal_beats_away(tiny):
 
 def test_reward_terms_on_hand_made_states():
     cfg = RW.RewardConfig()
-    lane_y, dt = jnp.float32(1.0), 1.0 / 15
+    lane_y, dt = straight_lane(1.0, 20.0), 1.0 / 15
     p0 = jnp.array([0.0, 1.0, 0.0])
     toward = RW.terms(p0, jnp.array([0.03, 1.0, 0.0]), lane_y, jnp.int32(M.RUNNING), dt)
     away = RW.terms(p0, jnp.array([-0.03, 1.0, 0.0]), lane_y, jnp.int32(M.RUNNING), dt)

@@ -14,6 +14,7 @@ import pytest
 from PIL import Image
 
 from mjxrow.env import core as env_core
+from mjxrow.field.lanes import straight_lane
 from mjxrow.rollout import metrics as rollout_metrics
 from mjxrow.sweep import config as sweep_config
 from mjxrow.sweep import figures as sweep_figures
@@ -52,20 +53,21 @@ def straight_log(steps, T=12, reason=rollout_metrics.GOAL):
         pose=jnp.asarray(pose, jnp.float32), cmd=jnp.full((T, 2), 0.5, jnp.float32),
         alive=jnp.asarray(alive), event=jnp.asarray(event, jnp.int32),
         start=jnp.zeros(3, jnp.float32), goal=jnp.asarray([1.0, 0.0], jnp.float32),
-        lane_y=jnp.float32(0.0), reason=jnp.int32(reason), steps=jnp.int32(steps))
+        lane=straight_lane(0.0, 1.0), reason=jnp.int32(reason), steps=jnp.int32(steps))
 
 
 def test_built_in_registry_keeps_the_order_and_flags():
     M = rollout_metrics.METRICS
     assert list(M) == ["success", "collision", "reason", "excluded", "cha", "mae", "mse",
-                       "omega_std", "v_mean", "time", "path_ratio", "max_offset"]
+                       "omega_std", "v_mean", "time", "path_ratio", "max_offset",
+                       "heading_error"]
     assert [m for m in M if M[m].trajectory] == ["cha", "mae", "mse", "omega_std", "v_mean",
-                                                 "path_ratio", "max_offset"]
+                                                 "path_ratio", "max_offset", "heading_error"]
     assert [m for m in M if M[m].binary] == ["success", "collision", "excluded"]
     assert [m for m in M if not M[m].env] == ["excluded"]
     assert train_rollout.episode_keys() == (
         "return", "nav/success", "nav/collision", "nav/cha", "nav/mae", "nav/mse",
-        "nav/omega_std", "nav/time", "nav/max_offset")
+        "nav/omega_std", "nav/time", "nav/max_offset", "nav/heading_error")
     assert M["cha"].better == "zero" and M["reason"].better is None
     with pytest.raises(ValueError, match="already registered"):
         rollout_metrics.register(M["mae"])

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from mjxrow import field as F
+from mjxrow.field.lanes import straight_lane
 from mjxrow.rollout import metrics as M
 
 DT = 1.0 / 15.0
@@ -28,7 +29,7 @@ def make_log(xy, yaw=0.0, cmd=(0.5, 0.0), lane_y=0.0, goal=(20.0, 0.0), reason=M
     start = np.array([0.0, xy[0, 1], yaw[0]], np.float32) if start is None else start
     return M.Log(pose=jnp.asarray(pose), cmd=jnp.asarray(cmd), alive=jnp.asarray(alive),
                  event=jnp.asarray(event), start=jnp.asarray(start, jnp.float32),
-                 goal=jnp.asarray(goal, jnp.float32), lane_y=jnp.asarray(lane_y, jnp.float32),
+                 goal=jnp.asarray(goal, jnp.float32), lane=straight_lane(lane_y, goal[0]),
                  reason=jnp.asarray(reason, jnp.int32), steps=jnp.asarray(steps, jnp.int32))
 
 

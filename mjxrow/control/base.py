@@ -25,6 +25,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from mjxrow.field import Field
+from mjxrow.field.lanes import Lane
 
 
 @struct.dataclass
@@ -32,15 +33,19 @@ class Obs:
     """What a controller sees at one control step (one world; add [B] axes for a batch)."""
 
     pose: jax.Array  # float32 [3], (x [m], y [m], yaw [rad]), world frame
-    lane_y: jax.Array  # float32 [], lateral position of the lane centre line [m]
-    lane_end_x: jax.Array  # float32 [], x of the lane's end (the goal's x) [m]
-    goal: jax.Array  # float32 [2], goal (x, y) [m]
+    lane: Lane  # the driven lane's centre line (`mjxrow.field.lanes`; straight or curved)
+    goal: jax.Array  # float32 [2], goal (x, y) [m], the lane's end
     cam_pos: jax.Array  # float32 [3], camera position, world frame [m]
     cam_rot: jax.Array  # float32 [3, 3], columns: camera right, up, backward (MuJoCo)
     field: Field | None = None  # the world (no batch axis)
     mask: jax.Array | None = None  # bool [H, W], plant pixels; column 0 = image left
     depth: jax.Array | None = None  # float32 [H, W], metres along the optical axis
     aux: Any = None  # what the policy's `prepare` computed from the field before the episode
+
+    @property
+    def lane_y(self) -> jax.Array:
+        """The lane's lateral field coordinate u [m] (its y on a straight field)."""
+        return self.lane.u
 
 
 class Policy(NamedTuple):

@@ -12,6 +12,8 @@ import numpy as np
 from flax import struct
 
 from mjxrow.control.base import Controller, Obs, register
+from mjxrow.field import lanes as field_lanes
+from mjxrow.field.lanes import Lane
 
 
 @struct.dataclass
@@ -33,18 +35,21 @@ def oracle_init(params: OracleParams) -> tuple:
     return ()
 
 
-def pursuit_command(params: OracleParams, pose: jax.Array, lane_y: jax.Array) -> jax.Array:
-    """(v, ω) [2] of pure pursuit on the line y = lane_y driven towards +x.
+def pursuit_command(params: OracleParams, pose: jax.Array, lane: Lane) -> jax.Array:
+    """(v, ω) [2] of pure pursuit on the lane's centre line (straight or curved), driven
+    towards +s.
 
-    The target is the point of the line at `lookahead` from the robot (or, when the robot is
-    farther than that from the line, a point 0.1·lookahead ahead of its projection);
-    curvature κ = 2·y_r / (x_r² + y_r²) with the target at (x_r, y_r) in the robot frame;
-    ω = v_max·κ clipped to ±omega_max, v = v_max."""
-    y, yaw = pose[1], pose[2]
-    e = y - lane_y
+    The target is the point of the line `ahead` = √(lookahead² − e²) along it from the robot's
+    projection, e the robot's offset from the line (the point at `lookahead` from the robot on
+    a straight line; when the robot is farther than that from the line, 0.1·lookahead ahead of
+    its projection); curvature κ = 2·y_r / (x_r² + y_r²) with the target at (x_r, y_r) in the
+    robot frame; ω = v_max·κ clipped to ±omega_max, v = v_max."""
+    yaw = pose[2]
+    s, e, _ = field_lanes.project(lane, pose[:2])
     L = params.lookahead
     ahead = jnp.sqrt(jnp.maximum(L * L - e * e, (0.1 * L) ** 2))
-    dx, dy = ahead, lane_y - y
+    target = field_lanes.point(lane, s + ahead)
+    dx, dy = target[0] - pose[0], target[1] - pose[1]
     c, s = jnp.cos(yaw), jnp.sin(yaw)
     xr, yr = c * dx + s * dy, -s * dx + c * dy
     kappa = 2.0 * yr / jnp.maximum(xr * xr + yr * yr, 1e-9)
@@ -53,7 +58,7 @@ def pursuit_command(params: OracleParams, pose: jax.Array, lane_y: jax.Array) ->
 
 
 def oracle_act(params: OracleParams, state: tuple, obs: Obs) -> tuple[tuple, jax.Array]:
-    return state, pursuit_command(params, obs.pose, obs.lane_y)
+    return state, pursuit_command(params, obs.pose, obs.lane)
 
 
 

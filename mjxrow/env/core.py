@@ -38,6 +38,7 @@ from mjxrow import field as mjxrow_field
 from mjxrow.control.oracle import OracleConfig
 from mjxrow.env import randomize as env_randomize
 from mjxrow.env import reward as env_reward
+from mjxrow.field import lanes as field_lanes
 from mjxrow.physics import sim
 from mjxrow.policies import observe as policies_observe
 from mjxrow.rollout import build as rollout_build
@@ -89,7 +90,7 @@ class EnvData:
     field: mjxrow_field.Field
     table: tuple  # the arrays of the field's render.PlantTable (Env rebuilds the table)
     lane: jax.Array  # int32 [], the driven lane
-    goal: jax.Array  # float32 [2], (x, y) [m]
+    lane_line: field_lanes.Lane  # the driven lane's centre line; its end is the goal
     cond: Any  # render.Conditions of the episode
     jitter: jax.Array  # float32 [3], camera (height [m], pitch [rad], roll [rad]) offsets
     key: jax.Array  # PRNG key of the episode's sensor noise
@@ -191,8 +192,9 @@ class Env:
 
     def _teach(self, d: EnvData, s: sim.SimState, frame, tstate):
         cam_pos, cam_rot = sim.camera_pose(s)
-        obs = control.Obs(pose=sim.pose(s), lane_y=d.goal[1], lane_end_x=d.goal[0],
-                          goal=d.goal, cam_pos=cam_pos, cam_rot=cam_rot, field=d.field,
+        obs = control.Obs(pose=sim.pose(s), lane=d.lane_line,
+                          goal=field_lanes.goal(d.lane_line), cam_pos=cam_pos, cam_rot=cam_rot,
+                          field=d.field,
                           mask=frame.mask, depth=frame.depth)
         tstate, cmd = self.teacher.act(self.teacher_params, tstate, obs)
         return tstate, policies_observe.normalise_command(
@@ -202,7 +204,7 @@ class Env:
     def _sensor_key(self, d: EnvData, t):
         return jax.random.fold_in(d.key, t) if self.cfg.randomize.sensor_noise else None
 
-    def _empty_log(self, p0, goal, lane_y) -> rollout_metrics.Log:
+    def _empty_log(self, p0, lane_line) -> rollout_metrics.Log:
         T = self.n_steps
         return rollout_metrics.Log(
             pose=jnp.full((T, 3), jnp.nan),
@@ -210,8 +212,8 @@ class Env:
             alive=jnp.zeros(T, bool),
             event=jnp.zeros(T, jnp.int32),
             start=p0,
-            goal=goal,
-            lane_y=lane_y,
+            goal=field_lanes.goal(lane_line),
+            lane=lane_line,
             reason=jnp.int32(rollout_metrics.RUNNING),
             steps=jnp.int32(0),
             vel=jnp.full((T, 2), jnp.nan),
@@ -255,7 +257,7 @@ class Env:
         start = field.replace(row_x=field.row_x.at[1].add(ahead))  # start `ahead` m closer
         noise = sim.pose_noise(rz.start_offset_std, math.radians(rz.start_yaw_std_deg))
         s0 = sim.reset(m, start, lane, ks[3], scfg, noise)
-        goal = jnp.stack([field.row_x[1], field.lane_y[lane]])
+        lane_line = field_lanes.lane(field, lane)
         p0 = sim.pose(s0)
         d = EnvData(
             sim=s0,
@@ -263,7 +265,7 @@ class Env:
             field=field,
             table=tuple(jax.tree.leaves(render.plant_table(field, self.shape))),
             lane=lane,
-            goal=goal,
+            lane_line=lane_line,
             cond=env_randomize.sample_condition(rz, ks[4]),
             jitter=env_randomize.sample_jitter(rz, ks[5]),
             key=ks[6],
@@ -273,7 +275,7 @@ class Env:
             t=jnp.int32(0),
             ret=jnp.float32(0.0),
             teacher=self.teacher.init(self.teacher_params),
-            log=self._empty_log(p0, goal, goal[1]),
+            log=self._empty_log(p0, lane_line),
         )
         zero = jnp.float32(0.0)
         parts = {k: zero for k in env_reward.TERMS}
@@ -301,11 +303,11 @@ class Env:
         cmd = policies_observe.scale_action(a, self.limits)
         m = self.model(d.world)
         carry = rollout_step.Carry(sim=d.sim, done=state.done > 0, anchor=d.anchor)
-        nxt, row, reason = rollout_step.step(m, d.field, d.goal, self.half, carry, cmd, d.t,
+        nxt, row, reason = rollout_step.step(m, d.field, d.lane_line, self.half, carry, cmd, d.t,
                                              self.episode)
         p_old, p = sim.pose(d.sim), row.pose
         log = rollout_step.record(d.log, jnp.minimum(d.t, self.n_steps - 1), row, reason)
-        parts = env_reward.terms(p_old, p, d.goal[1], reason, self.dt)
+        parts = env_reward.terms(p_old, p, d.lane_line, reason, self.dt)
         r = env_reward.total(self.cfg.reward, parts)
         d_new = d.replace(sim=nxt.sim, prev_action=a, t=d.t + 1, ret=d.ret + r, log=log,
                           vel=policies_observe.odometry(p_old, sim.pose(nxt.sim), self.dt),

@@ -4,9 +4,9 @@ calls `rollout.step.step`, the evaluation episode's own step
 
 Reward of one control step (each term is logged as a metric `reward/<term>`):
 
-- progress: `w_progress` · Δx [m], the advance along the lane (rows run along +x);
-- lateral: −`w_lateral` · |y − lane_y| [m] · dt [s], offset from the lane centre line;
-- heading: −`w_heading` · |yaw| [rad] · dt [s], heading error from the row direction;
+- progress: `w_progress` · Δs [m], the advance along the lane's centre line;
+- lateral: −`w_lateral` · |offset| [m] · dt [s], offset from the lane's centre line;
+- heading: −`w_heading` · |yaw − the line's direction| [rad] · dt [s], heading error;
 - collision: −`w_collision` when the step ends the episode touching a plant;
 - goal: +`w_goal` when it ends within the goal radius;
 - failure: −`w_failure` when it ends otherwise before the timeout (flipped, missed goal, off
@@ -21,6 +21,8 @@ import jax
 import jax.numpy as jnp
 
 from mjxrow.control.base import wrap_angle
+from mjxrow.field import lanes as field_lanes
+from mjxrow.field.lanes import Lane
 from mjxrow.rollout import metrics as rollout_metrics
 
 TERMS = ("progress", "lateral", "heading", "collision", "goal", "failure")
@@ -51,20 +53,22 @@ class RewardConfig:
                                  f"{getattr(self, f.name)}")
 
 
-def terms(prev_pose: jax.Array, pose: jax.Array, lane_y: jax.Array, reason: jax.Array,
+def terms(prev_pose: jax.Array, pose: jax.Array, lane: Lane, reason: jax.Array,
           dt: float) -> dict[str, jax.Array]:
     """Unweighted reward terms of one step (float32 [] each, signs as in the module doc):
-    prev_pose, pose [3] (x, y, yaw) before and after the step; lane_y []; reason: the step's
-    end code; dt [s] the control period."""
+    prev_pose, pose [3] (x, y, yaw) before and after the step; lane: the driven lane's centre
+    line; reason: the step's end code; dt [s] the control period."""
     pose = jnp.where(jnp.all(jnp.isfinite(pose)), pose, prev_pose)
     f = lambda c: c.astype(jnp.float32)  # noqa: E731
     failure = jnp.zeros((), bool)
     for code in FAILURES:
         failure = failure | (reason == code)
+    s, offset, direction = field_lanes.project(lane, pose[:2])
+    s_prev = field_lanes.project(lane, prev_pose[:2])[0]
     return {
-        "progress": f(pose[0] - prev_pose[0]),
-        "lateral": -jnp.abs(pose[1] - lane_y) * dt,
-        "heading": -jnp.abs(wrap_angle(pose[2])) * dt,
+        "progress": f(s - s_prev),
+        "lateral": -jnp.abs(offset) * dt,
+        "heading": -jnp.abs(wrap_angle(pose[2] - direction)) * dt,
         "collision": -f(reason == rollout_metrics.COLLISION),
         "goal": f(reason == rollout_metrics.GOAL),
         "failure": -f(failure),

@@ -26,5 +26,6 @@ from mjxrow.field.params import (
 
 __all__ = ["BRANCH", "HEADLAND", "LANE_CLEARANCE", "PARAM_NAMES", "ROBOT_WIDTH", "STONE",
            "Field", "FieldParams", "FieldShape", "array_namespace", "checks", "fit_shape",
-           "gap_runs", "generate", "lanes", "make_params", "preset_shape", "robot_lane", "stack_leaves", "stack_params",
+           "gap_runs", "generate", "lanes", "make_params", "preset_shape", "robot_lane",
+           "stack_leaves", "stack_params",
            "terrain_axes", "terrain_height", "validate"]

@@ -54,6 +54,12 @@ def straight() -> Bend:
     return Bend(curvature=z, amplitude=z, wavelength=jnp.ones((), jnp.float32), phase=z)
 
 
+def straight_lane(u, s_end) -> Lane:
+    """The lane of a straight field: the line y = u, ending at x = s_end."""
+    return Lane(u=jnp.asarray(u, jnp.float32), s_end=jnp.asarray(s_end, jnp.float32),
+                bend=straight())
+
+
 def field_bend(field: Field) -> Bend:
     """The bend of `field` (one field, or a batch)."""
     q = _scaled(field.params)

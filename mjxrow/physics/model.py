@@ -74,6 +74,7 @@ import mujoco
 import numpy as np
 
 from mjxrow import field as mjxrow_field
+from mjxrow.field import lanes as field_lanes
 from mjxrow.field.generate import LANE_MODES
 from mjxrow.physics import robot as physics_robot
 from mjxrow.physics.quiet import mjx
@@ -289,31 +290,65 @@ def _axis_quat(angle: jax.Array, axis: int) -> jax.Array:
     return jnp.stack(parts, -1)
 
 
+PATCH_SAMPLES = 17  # points of a curved lane's centre line that place its patch
+
+
 def patch_frame(field: mjxrow_field.Field, lane: jax.Array, sim_cfg: SimConfig) -> jax.Array:
-    """float32 [2]: the patch centre (x, y) [m] for `lane`: along x it spans
-    [row end − path_length − patch_back, row end + patch_front], across it is centred on the
-    lane's centre line."""
+    """float32 [3]: the patch centre (x, y) [m] and its direction (yaw [rad]) for `lane`.
+    Along the lane it spans [row end − path_length − patch_back, row end + patch_front].
+    Straight rows: along x, centred on the lane's centre line. Curved rows: along the chord
+    between those two points of the centre line, centred across on the line's excursion from
+    the chord (the patch turns with the rows; `patch_width` must hold the excursion)."""
     x_end = field.row_x[1]
     cx = x_end + 0.5 * (sim_cfg.patch_front - sim_cfg.path_length - sim_cfg.patch_back)
-    return jnp.stack([cx, field.lane_y[lane]]).astype(jnp.float32)
+    ln = field_lanes.lane(field, lane)
+    pts = field_lanes.polyline(ln, x_end - sim_cfg.path_length - sim_cfg.patch_back,
+                               x_end + sim_cfg.patch_front, PATCH_SAMPLES)
+    chord = pts[-1] - pts[0]
+    yaw = jnp.arctan2(chord[1], chord[0])
+    normal = jnp.stack([-jnp.sin(yaw), jnp.cos(yaw)])
+    mid = 0.5 * (pts[0] + pts[-1])
+    across = (pts - mid) @ normal
+    c = mid + 0.5 * (jnp.max(across) + jnp.min(across)) * normal
+    straight = (ln.bend.curvature == 0) & (ln.bend.amplitude == 0)
+    return jnp.where(straight, jnp.stack([cx, field.lane_y[lane], 0.0]),
+                     jnp.stack([c[0], c[1], yaw])).astype(jnp.float32)
+
+
+def to_patch(frame: jax.Array, x: jax.Array, y: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """World (x, y) → the patch's own frame (origin at its centre, x along it), for a patch
+    `frame` [3] (x, y, yaw) as `patch_frame` gives (the identity shift on straight rows)."""
+    c, s = jnp.cos(frame[2]), jnp.sin(frame[2])
+    dx, dy = x - frame[0], y - frame[1]
+    return c * dx + s * dy, -s * dx + c * dy
+
+
+def patch_yaw(mx: mjx.Model, terrain_id: int) -> jax.Array:
+    """The direction [rad] of a world's terrain patch, from its geom's quaternion (a turn
+    about z)."""
+    q = mx.geom_quat[terrain_id]
+    return 2.0 * jnp.arctan2(q[3], q[0])
 
 
 def patch_heights(field: mjxrow_field.Field, lane: jax.Array, sim_cfg: SimConfig) -> jax.Array:
     """float32 [NY, NX] terrain heights [m] at the patch samples (NY, NX = sim_cfg.patch_cells;
-    row j ↔ y, column i ↔ x, as MuJoCo lays a heightfield)."""
+    row j ↔ the patch's y, column i ↔ its x, as MuJoCo lays a heightfield)."""
     ny, nx = sim_cfg.patch_cells
     lx, ly = sim_cfg.patch_size
-    c = patch_frame(field, lane, sim_cfg)
-    x = c[0] + (jnp.linspace(0.0, 1.0, nx) - 0.5) * lx
-    y = c[1] + (jnp.linspace(0.0, 1.0, ny) - 0.5) * ly
-    return mjxrow_field.terrain_height(field.terrain, field.terrain_size, x[None, :], y[:, None])
+    f = patch_frame(field, lane, sim_cfg)
+    a = ((jnp.linspace(0.0, 1.0, nx) - 0.5) * lx)[None, :]
+    b = ((jnp.linspace(0.0, 1.0, ny) - 0.5) * ly)[:, None]
+    c, s = jnp.cos(f[2]), jnp.sin(f[2])
+    x = f[0] + (c * a - s * b)
+    y = f[1] + (s * a + c * b)
+    return mjxrow_field.terrain_height(field.terrain, field.terrain_size, x, y)
 
 
-def _select_obstacles(field: mjxrow_field.Field, centre: jax.Array, sim_cfg: SimConfig, k: int):
+def _select_obstacles(field: mjxrow_field.Field, frame: jax.Array, sim_cfg: SimConfig, k: int):
     """Indices [k] of the obstacles that get a physics slot, whether each is used, and how many
-    obstacles on the patch got none."""
+    obstacles on the patch got none. frame: the patch's (x, y, yaw)."""
     lx, ly = sim_cfg.patch_size
-    d = field.obst_pos[:, :2] - centre
+    d = jnp.stack(to_patch(frame, field.obst_pos[:, 0], field.obst_pos[:, 1]), -1)
     on_patch = field.obst_active & (jnp.abs(d[:, 0]) < 0.5 * lx) & (jnp.abs(d[:, 1]) < 0.5 * ly)
     score = jnp.where(on_patch, jnp.abs(d[:, 1]), jnp.inf)
     neg, idx = jax.lax.top_k(-score, k)  # k ≤ shape.obstacle_slots (_obstacle_counts)
@@ -348,7 +383,9 @@ def world_model(
     h_min = jnp.min(h)
     data = jnp.clip((h - h_min) / sim_cfg.patch_z, 0.0, 1.0).reshape(-1)
     geom_pos = mx.geom_pos.at[terrain_id].set(jnp.stack([centre[0], centre[1], h_min]))
-    geom_quat, geom_size = mx.geom_quat, mx.geom_size
+    geom_quat = mx.geom_quat.at[terrain_id].set(
+        _axis_quat(centre[2], 2).astype(mx.geom_quat.dtype))
+    geom_size = mx.geom_size
 
     k = obst_ids.shape[0]
     if k:
@@ -369,7 +406,7 @@ def world_model(
         geom_size = geom_size.at[obst_ids].set(size.astype(geom_size.dtype))
     mx = mx.tree_replace({"hfield_data": data.astype(mx.hfield_data.dtype),
                           "geom_pos": geom_pos, "geom_quat": geom_quat, "geom_size": geom_size})
-    start = jnp.stack([field.row_x[1] - sim_cfg.path_length, field.lane_y[lane]])
+    start = field_lanes.point(field_lanes.lane(field, lane), field.row_x[1] - sim_cfg.path_length)
     return refresh_contacts(mx, start)
 
 

@@ -21,6 +21,7 @@ import numpy as np
 from flax import struct
 
 from mjxrow import field as mjxrow_field
+from mjxrow.field import lanes as field_lanes
 from mjxrow.physics import robot
 from mjxrow.physics.checks import (  # noqa: F401  (the physics' face: sim.check_lane, ...)
     auto_lane_kind,
@@ -45,8 +46,10 @@ from mjxrow.physics.model import (  # noqa: F401  (the physics' face: sim.make_m
     obstacles_dropped,
     patch_frame,
     patch_heights,
+    patch_yaw,
     refresh_contacts,
     robot_numbers,
+    to_patch,
     wheel_dofs,
     world_mjmodel,
     world_model,
@@ -91,7 +94,8 @@ def _patch_surface(mx: mjx.Model, sim_cfg: SimConfig, x: jax.Array, y: jax.Array
     c = mx.geom_pos[terrain_id]
     grid = mx.hfield_data.reshape(ny, nx) * sim_cfg.patch_z
     size = jnp.asarray(sim_cfg.patch_size, jnp.float32)
-    return c[2] + mjxrow_field.terrain_height(grid, size, x - c[0], y - c[1])
+    frame = jnp.stack([c[0], c[1], patch_yaw(mx, terrain_id)])
+    return c[2] + mjxrow_field.terrain_height(grid, size, *to_patch(frame, x, y))
 
 
 def reset(mx: mjx.Model, field: mjxrow_field.Field, lane: jax.Array | None, key: jax.Array,
@@ -102,8 +106,9 @@ def reset(mx: mjx.Model, field: mjxrow_field.Field, lane: jax.Array | None, key:
     lane: int32 [] lane index, or None for `lane_of(field, sim_cfg)`; key: PRNG key for the
     pose noise; noise: start-pose noise (None: none).
 
-    The start is x = row end − `sim_cfg.path_length`, y = lane centre + N(0, lateral_std),
-    heading N(0, heading_std) around +x; the chassis is tilted to rest on the terrain under its
+    The start is `sim_cfg.path_length` before the row end along the lane's centre line, moved
+    across it by N(0, lateral_std), heading N(0, heading_std) around the line's direction
+    (+x on straight rows); the chassis is tilted to rest on the terrain under its
     four wheels and placed 2 mm above it."""
     rn = robot_numbers(mx)
     if lane is None:
@@ -111,8 +116,10 @@ def reset(mx: mjx.Model, field: mjxrow_field.Field, lane: jax.Array | None, key:
     kl, kh = jax.random.split(key)
     lat = jnp.float32(0.0) if noise is None else noise.lateral_std * jax.random.normal(kl)
     yaw = jnp.float32(0.0) if noise is None else noise.heading_std * jax.random.normal(kh)
-    x0 = field.row_x[1] - sim_cfg.path_length
-    y0 = field.lane_y[lane] + lat
+    bend = field_lanes.field_bend(field)
+    s0, u0 = field.row_x[1] - sim_cfg.path_length, field.lane_y[lane] + lat
+    x0, y0 = field_lanes.to_world(bend, s0, u0)
+    yaw = yaw + field_lanes.heading(bend, s0, u0)
     wxy = jnp.asarray(np.stack([robot.WHEEL_FRONT * rn["wheelbase"] / 2,
                                 robot.WHEEL_SIDE * rn["track"] / 2], -1), jnp.float32)
     c, s = jnp.cos(yaw), jnp.sin(yaw)
@@ -216,4 +223,6 @@ def off_patch(mx: mjx.Model, state: SimState, sim_cfg: SimConfig, margin: float 
     terrain_id = _geom_ids(mx)[0]
     c = mx.geom_pos[terrain_id, :2]
     half = 0.5 * jnp.asarray(sim_cfg.patch_size) - margin
-    return jnp.any(jnp.abs(state.data.qpos[:2] - c) > half)
+    frame = jnp.stack([c[0], c[1], patch_yaw(mx, terrain_id)])
+    local = jnp.stack(to_patch(frame, state.data.qpos[0], state.data.qpos[1]))
+    return jnp.any(jnp.abs(local) > half)

@@ -32,6 +32,7 @@ import numpy as np
 
 from mjxrow import control
 from mjxrow import field as mjxrow_field
+from mjxrow.field import lanes as field_lanes
 from mjxrow.physics import sim
 from mjxrow.rollout import metrics
 from mjxrow.rollout import step as rollout_step
@@ -49,15 +50,14 @@ def _world(mx, field: mjxrow_field.Field, lane: jax.Array, key: jax.Array, noise
     m = sim.world_model(mx, field, lane, scfg)
     k_reset, k_policy = jax.random.split(key)
     s0 = sim.reset(m, field, lane, k_reset, scfg, noise)
-    lane_y = field.lane_y[lane]
-    goal = jnp.stack([field.row_x[1], lane_y])
+    lane_line = field_lanes.lane(field, lane)
     init = getattr(policy, "init", None)
     ps0 = init(policy_params) if init is not None else None
     prepare = getattr(policy, "prepare", None)
     aux = prepare(policy_params, field) if prepare is not None else None  # once per episode
     rn = sim.robot_numbers(mx)
     half = (0.5 * rn["length"], 0.5 * rn["width"])
-    ctx = dict(m=m, field=field, lane_y=lane_y, goal=goal, aux=aux, k_policy=k_policy, half=half)
+    ctx = dict(m=m, field=field, lane=lane_line, aux=aux, k_policy=k_policy, half=half)
     return ctx, (rollout_step.start(s0), ps0), sim.pose(s0)
 
 
@@ -65,19 +65,19 @@ def _step(ctx: dict, policy_params: Any, carry: tuple, t: jax.Array, policy: con
           cfg: rollout_step.EpisodeConfig) -> tuple[tuple, dict]:
     """One world's control step t: observation → policy → `rollout.step.step`."""
     c, ps = carry
-    obs = rollout_step.observation(c.sim, ctx["field"], ctx["goal"], ctx["aux"])
+    obs = rollout_step.observation(c.sim, ctx["field"], ctx["lane"], ctx["aux"])
     with jax.named_scope("cl_policy"):  # the scopes name the stages in profiles
         ps_new, cmd = policy(policy_params, ps, obs, jax.random.fold_in(ctx["k_policy"], t))
-    c_new, row, _ = rollout_step.step(ctx["m"], ctx["field"], ctx["goal"], ctx["half"], c, cmd,
+    c_new, row, _ = rollout_step.step(ctx["m"], ctx["field"], ctx["lane"], ctx["half"], c, cmd,
                                       t, cfg)
     ps_next = jax.tree.map(lambda x, y: jnp.where(c.done, x, y), ps, ps_new)
     return (c_new, ps_next), row._asdict()
 
 
-def _log(out: dict, p0: jax.Array, goal: jax.Array, lane_y: jax.Array) -> Log:
+def _log(out: dict, p0: jax.Array, lane: field_lanes.Lane) -> Log:
     """One world's Log from its per-step outputs ([T] each)."""
     return Log(pose=out["pose"], cmd=out["cmd"], alive=out["alive"], event=out["event"],
-               start=p0, goal=goal, lane_y=lane_y, reason=jnp.max(out["event"]),
+               start=p0, goal=field_lanes.goal(lane), lane=lane, reason=jnp.max(out["event"]),
                steps=jnp.sum(out["alive"]).astype(jnp.int32), vel=out["vel"])
 
 
@@ -103,7 +103,7 @@ def episode(mx, field: mjxrow_field.Field, lane: jax.Array, key: jax.Array, nois
     ctx, carry, p0 = _world(mx, field, lane, key, noise, policy, policy_params, cfg)
     body = functools.partial(_step, ctx, policy_params, policy=policy, cfg=cfg)
     out = _run_until_done(body, carry, cfg.n_steps, _out_shapes(carry[0].sim))
-    return _log(out, p0, ctx["goal"], ctx["lane_y"])
+    return _log(out, p0, ctx["lane"])
 
 
 def episodes(
@@ -124,7 +124,7 @@ def episodes(
     global TRACES
     TRACES += 1
     p_axes = jax.tree.unflatten(*canonical_axes(params_axes))
-    ctx_axes = dict(m=sim.model_axes(mx), field=0, lane_y=0, goal=0, aux=0, k_policy=0, half=0)
+    ctx_axes = dict(m=sim.model_axes(mx), field=0, lane=0, aux=0, k_policy=0, half=0)
     ctx, carry, p0 = jax.vmap(
         lambda f, ln, k, nz, pp: _world(mx, f, ln, k, nz, policy, pp, cfg),
         in_axes=(0, 0, 0, 0, p_axes), out_axes=(ctx_axes, 0, 0))(
@@ -134,7 +134,7 @@ def episodes(
     body = functools.partial(step, ctx, policy_params)
     s0 = jax.tree.map(lambda x: x[0], carry[0].sim)
     out = _run_until_done(body, carry, cfg.n_steps, _out_shapes(s0))
-    return jax.vmap(_log)(out, p0, ctx["goal"], ctx["lane_y"])
+    return jax.vmap(_log)(out, p0, ctx["lane"])
 
 
 def steps_run(n_steps: int) -> int:

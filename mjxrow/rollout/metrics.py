@@ -11,8 +11,10 @@ batch axes are carried through, so the same functions serve one episode or a bat
 (no vmap needed; `summarise` maps a Metric's function over a batch, so it may assume one
 episode). Steps after an episode ends are masked by `Log.alive`.
 
-Conventions: metres, radians, rows along +x, the lane centre line is the line y = lane_y. The
-robot frame has x forward and y to the left; a goal to the left has a positive bearing.
+Conventions: metres, radians; the lane's centre line is `Log.lane` (`mjxrow.field.lanes`: the
+line y = lane_y of a straight field, or the curve of curved rows), offsets are measured from it
+and headings against its direction. The robot frame has x forward and y to the left; a goal to
+the left has a positive bearing.
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ from flax import struct
 
 from mjxrow.crops import prims as crops_prims
 from mjxrow.field import Field
+from mjxrow.field import lanes as field_lanes
+from mjxrow.field.lanes import Lane
 
 # Termination reasons; code 0 marks a step at which the episode is still running. `off_patch`:
 # the robot left the simulated terrain (strayed far from its lane, or drove off its back or
@@ -58,10 +62,15 @@ class Log:
     event: jax.Array  # int32 [T], REASONS code where the episode ended, 0 elsewhere
     start: jax.Array  # float32 [3], pose at reset
     goal: jax.Array  # float32 [2], goal position (x, y) [m]
-    lane_y: jax.Array  # float32 [], lateral position of the lane centre line [m]
+    lane: Lane  # the driven lane's centre line (its end is the goal)
     reason: jax.Array  # int32 [], REASONS code of the episode's end
     steps: jax.Array  # int32 [], number of control steps that ran
     vel: jax.Array | None = None  # float32 [T, 2], measured (forward speed, yaw rate) per step
+
+    @property
+    def lane_y(self) -> jax.Array:
+        """The lane's lateral field coordinate u [m] (its y on a straight field)."""
+        return self.lane.u
 
 
 # ---------------------------------------------------------------------------------------------
@@ -82,17 +91,18 @@ def rect_ellipse_overlap(centre: jax.Array, yaw: jax.Array, half: jax.Array,
                          e_centre: jax.Array, e_axes: jax.Array) -> jax.Array:
     """Whether a rectangle overlaps axis-aligned ellipses (exact test).
 
-    centre: [2] rectangle centre [m]; yaw: [] its orientation [rad]; half: [2] half length
-    (along its own x) and half width [m]; e_centre: [..., 2] ellipse centres [m]; e_axes:
-    [..., 2] ellipse semi-axes along world x and y [m] (> 0). Returns bool [...].
+    centre: [..., 2] rectangle centre [m]; yaw: [...] its orientation [rad]; half: [2] half
+    length (along its own x) and half width [m]; e_centre: [..., 2] ellipse centres [m];
+    e_axes: [..., 2] ellipse semi-axes along world x and y [m] (> 0); the leading axes
+    broadcast. Returns bool [...].
 
     The map that turns each ellipse into the unit circle is affine, so the rectangle becomes a
     parallelogram and the shapes overlap iff the origin lies inside the parallelogram or
     within distance 1 of one of its edges."""
-    c, s = jnp.cos(yaw), jnp.sin(yaw)
+    c, s = jnp.cos(yaw)[..., None], jnp.sin(yaw)[..., None]
     sx = jnp.array([1.0, -1.0, -1.0, 1.0]) * half[0]
     sy = jnp.array([1.0, 1.0, -1.0, -1.0]) * half[1]
-    corners = centre + jnp.stack([c * sx - s * sy, s * sx + c * sy], -1)  # [4, 2], CCW
+    corners = centre[..., None, :] + jnp.stack([c * sx - s * sy, s * sx + c * sy], -1)  # CCW
     q = (corners - e_centre[..., None, :]) / e_axes[..., None, :]  # [..., 4, 2]
     edge = jnp.roll(q, -1, axis=-2) - q
     cross = edge[..., 0] * q[..., 1] - edge[..., 1] * q[..., 0]  # edge × (origin − q), negated
@@ -106,16 +116,18 @@ def rect_ellipse_overlap(centre: jax.Array, yaw: jax.Array, half: jax.Array,
 def near_plants(field: Field, xy: jax.Array, window: int) -> tuple[jax.Array, jax.Array,
                                                                     jax.Array]:
     """The plants that can be near the point `xy` [2]: the two rows on either side of it (four
-    rows) and, in each, the 2·window + 1 plants nearest along x (plant index from x via d_pp).
+    rows) and, in each, the 2·window + 1 plants nearest along the rows (plant index from the
+    point's s via d_pp; field coordinates, `field.lanes`, so curved rows too).
 
     One field (no batch axis). Returns xy [4, 2w+1, 2] [m], the row/plant indices
     ([4, 2w+1] each) into the field's [R, P] arrays, as a tuple (xy, rows, cols)."""
     R, P = field.plant_active.shape
+    s, u = field_lanes.to_field(field_lanes.field_bend(field), xy[0], xy[1])
     row_y = jnp.where(field.row_active, field.row_y, jnp.inf)
-    j = jnp.searchsorted(row_y, xy[1])
+    j = jnp.searchsorted(row_y, u)
     rows = jnp.clip(j + jnp.arange(-2, 2), 0, R - 1)
     d_pp = field.params.d_pp * field.params.scale
-    i = jnp.round((xy[0] - field.row_x[0]) / d_pp).astype(jnp.int32)
+    i = jnp.round((s - field.row_x[0]) / d_pp).astype(jnp.int32)
     cols = jnp.clip(i + jnp.arange(-window, window + 1), 0, P - 1)
     rows, cols = jnp.broadcast_arrays(rows[:, None], cols[None, :])
     return field.plant_pos[rows, cols, :2], rows, cols
@@ -136,8 +148,13 @@ def collides(pose: jax.Array, field: Field, crop: str, half: tuple[float, float]
     every preset with the default window (chard is the tightest: 4 · 0.3 m ≥ 0.62 m)."""
     pxy, rows, cols = near_plants(field, pose[:2], window)
     axes = crops_prims.footprint(crop, field.plant_size[rows, cols])
-    hit = rect_ellipse_overlap(pose[:2], pose[2], jnp.asarray(half, jnp.float32), pxy,
-                               jnp.maximum(axes, 1e-4))
+    # in each plant's own frame (its length axis along its row): the ellipse is axis-aligned
+    h = field.plant_heading[rows, cols]
+    c, s = jnp.cos(h), jnp.sin(h)
+    d = pose[:2] - pxy
+    centre = jnp.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], -1)
+    hit = rect_ellipse_overlap(centre, pose[2] - h, jnp.asarray(half, jnp.float32),
+                               jnp.zeros_like(pxy), jnp.maximum(axes, 1e-4))
     return jnp.any(hit & field.plant_active[rows, cols])
 
 
@@ -145,10 +162,23 @@ def collides(pose: jax.Array, field: Field, crop: str, half: tuple[float, float]
 # Per-episode metrics
 
 
-def lateral_offset(pose: jax.Array, lane_y: jax.Array) -> jax.Array:
-    """Signed lateral offset [m] from the lane centre line (positive: left of it, +y).
-    pose: [..., T, 3]; lane_y: [...]. Returns [..., T]."""
-    return pose[..., 1] - lane_y[..., None]
+def lateral_offset(pose: jax.Array, lane: Lane) -> jax.Array:
+    """Signed lateral offset [m] from the lane's centre line (positive: left of it, towards +u;
+    +y on a straight field), perpendicular to the line. pose: [..., T, 3]; lane: [...].
+    Returns [..., T]."""
+    return field_lanes.project(_per_step(lane), pose[..., :2])[1]
+
+
+def heading_error(pose: jax.Array, lane: Lane) -> jax.Array:
+    """Signed heading error [rad] against the direction of the lane's centre line at the
+    robot's place along it (positive: turned left of it), wrapped into [−π, π).
+    pose: [..., T, 3]; lane: [...]. Returns [..., T]."""
+    direction = field_lanes.project(_per_step(lane), pose[..., :2])[2]
+    return jnp.mod(pose[..., 2] - direction + jnp.pi, 2.0 * jnp.pi) - jnp.pi
+
+
+def _per_step(lane: Lane) -> Lane:
+    return jax.tree.map(lambda x: jnp.asarray(x)[..., None], lane)
 
 
 def _masked_mean(x, m):
@@ -175,7 +205,7 @@ def _valid_mean(log: Log, x: jax.Array) -> jax.Array:
 
 
 def _offset(log: Log) -> jax.Array:
-    return lateral_offset(jnp.asarray(log.pose), jnp.asarray(log.lane_y))
+    return lateral_offset(jnp.asarray(log.pose), log.lane)
 
 
 def _cha(log: Log, control_dt: float) -> jax.Array:
@@ -323,6 +353,12 @@ register(Metric("path_ratio", _path_ratio, "path length / straight length", "-",
 # max |dev|
 register(Metric("max_offset", _max_offset, "max lateral offset", "m", "{:.2f}", better="lower",
                 bounds=(0.0, math.inf), trajectory=True, train=True))
+# mean |heading − direction of the centre line| (the CHA above is the goal's bearing instead)
+register(Metric("heading_error",
+                lambda log, dt: _valid_mean(
+                    log, jnp.abs(heading_error(jnp.nan_to_num(jnp.asarray(log.pose)), log.lane))),
+                "mean absolute heading error to the lane's direction", "rad", "{:.3f}",
+                better="lower", bounds=(0.0, math.pi), trajectory=True, train=True))
 
 
 def summarise(log: Log, control_dt: float) -> dict[str, jax.Array]:

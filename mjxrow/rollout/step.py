@@ -7,10 +7,10 @@ nothing.
 An episode ends at the first event, in this order of precedence: sim_error (NaN or exploded
 state, or a non-finite command), flipped, collision (robot footprint touching a plant's
 collision footprint, metrics.collides), goal (within `goal_radius`), missed_goal (past the goal's
-line: x beyond the goal's x + `goal_radius`), off_patch (the robot left the simulated terrain),
-stuck (moved less than `stuck_dist` over `stuck_window` steps), timeout (after `n_steps`). A step
-that fails (sim_error) keeps the state before it; a world already done keeps its state and logs
-nothing (NaN pose and velocity, alive False, event RUNNING).
+line: beyond the lane's end + `goal_radius` along the lane), off_patch (the robot left the
+simulated terrain), stuck (moved less than `stuck_dist` over `stuck_window` steps), timeout
+(after `n_steps`). A step that fails (sim_error) keeps the state before it; a world already
+done keeps its state and logs nothing (NaN pose and velocity, alive False, event RUNNING).
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ import jax.numpy as jnp
 
 from mjxrow import control, crops
 from mjxrow import field as mjxrow_field
+from mjxrow.field import lanes as field_lanes
 from mjxrow.physics import sim
 from mjxrow.rollout import metrics
 
@@ -93,22 +94,26 @@ class EpisodeConfig:
 
 
 def end_reason(m, s_new: sim.SimState, bad: jax.Array, t: jax.Array, anchor: jax.Array,
-               goal: jax.Array, field: mjxrow_field.Field, half: tuple[float, float],
+               lane: field_lanes.Lane, field: mjxrow_field.Field, half: tuple[float, float],
                cfg: EpisodeConfig) -> jax.Array:
     """int32 [] `metrics.REASONS` code of the step that produced `s_new` (RUNNING if none), for
     the episode here and the training environment alike. m: the world's model; bad: the step
     failed (NaN, exploded, non-finite command); t: int32 [] index of the step; anchor [2]: the
-    position at the last stuck check; goal [2]; half: the robot's half length and width [m].
+    position at the last stuck check; lane: the driven lane (its end is the goal); half: the
+    robot's half length and width [m].
     Precedence: sim_error > flipped > collision > goal > missed_goal > off_patch > stuck >
     timeout."""
     scfg = cfg.sim
     p = sim.pose(s_new)
+    goal = field_lanes.goal(lane)
+    along = field_lanes.project(lane, p[:2])[0]
     check = (t + 1) % cfg.stuck_window == 0
     events = [  # lowest precedence first: later entries win
         (t >= cfg.n_steps - 1, metrics.TIMEOUT),
         (check & (jnp.linalg.norm(p[:2] - anchor) < cfg.stuck_dist), metrics.STUCK),
         (sim.off_patch(m, s_new, scfg) if cfg.end_off_patch else False, metrics.OFF_PATCH),
-        (p[0] > goal[0] + cfg.goal_radius if cfg.end_missed_goal else False, metrics.MISSED_GOAL),
+        (along > lane.s_end + cfg.goal_radius if cfg.end_missed_goal else False,
+         metrics.MISSED_GOAL),
         (jnp.linalg.norm(p[:2] - goal) <= cfg.goal_radius, metrics.GOAL),
         (metrics.collides(p, field, cfg.crop, half, cfg.collision_window), metrics.COLLISION),
         (sim.is_flipped(s_new, scfg), metrics.FLIPPED),
@@ -143,12 +148,12 @@ def start(s0: sim.SimState) -> Carry:
     return Carry(sim=s0, done=jnp.zeros((), bool), anchor=sim.pose(s0)[:2])
 
 
-def observation(s: sim.SimState, field: mjxrow_field.Field, goal: jax.Array, aux: Any = None
-                ) -> control.Obs:
-    """What a controller sees of state `s`: its pose, the lane (centre y, end x), the goal, the
+def observation(s: sim.SimState, field: mjxrow_field.Field, lane: field_lanes.Lane,
+                aux: Any = None) -> control.Obs:
+    """What a controller sees of state `s`: its pose, the lane (its centre line), the goal, the
     camera pose and the field (`aux`: the policy's per-episode data, `Policy.prepare`)."""
     cam_pos, cam_rot = sim.camera_pose(s)
-    return control.Obs(pose=sim.pose(s), lane_y=goal[1], lane_end_x=goal[0], goal=goal,
+    return control.Obs(pose=sim.pose(s), lane=lane, goal=field_lanes.goal(lane),
                        cam_pos=cam_pos, cam_rot=cam_rot, field=field, aux=aux)
 
 
@@ -161,11 +166,13 @@ def check_command(cmd) -> jax.Array:
     return cmd
 
 
-def step(m, field: mjxrow_field.Field, goal: jax.Array, half: tuple[float, float], carry: Carry,
-         cmd: jax.Array, t: jax.Array, cfg: EpisodeConfig) -> tuple[Carry, Row, jax.Array]:
+def step(m, field: mjxrow_field.Field, lane: field_lanes.Lane, half: tuple[float, float],
+         carry: Carry, cmd: jax.Array, t: jax.Array, cfg: EpisodeConfig
+         ) -> tuple[Carry, Row, jax.Array]:
     """One world's control step `t` (int32 []) under command `cmd` float32 [2] (v [m/s],
     omega [rad/s]): (next carry, log row, end reason of this step (metrics.RUNNING if none)).
-    m: the world's MJX model; goal [2]; half: the robot's half length and width [m]."""
+    m: the world's MJX model; lane: the driven lane (`field.lanes.lane`; its end is the goal);
+    half: the robot's half length and width [m]."""
     cmd = check_command(cmd)
     s, done = carry.sim, carry.done
     with jax.named_scope("cl_physics"):  # the scopes name the stages in profiles
@@ -173,7 +180,7 @@ def step(m, field: mjxrow_field.Field, goal: jax.Array, half: tuple[float, float
     bad = sim.is_bad(s_new, cfg.sim) | ~jnp.all(jnp.isfinite(cmd))
     p = sim.pose(s_new)
     with jax.named_scope("cl_events"):
-        reason = end_reason(m, s_new, bad, t, carry.anchor, goal, field, half, cfg)
+        reason = end_reason(m, s_new, bad, t, carry.anchor, lane, field, half, cfg)
     check = (t + 1) % cfg.stuck_window == 0
     keep_old = done | bad
     nxt = Carry(sim=jax.tree.map(lambda x, y: jnp.where(keep_old, x, y), s, s_new),
