@@ -165,6 +165,31 @@ def test_new_field_params_do_not_retrace(setup):
     assert np.asarray(log2.reason == M.GOAL).all()
 
 
+def test_oracle_drives_curved_lanes_to_the_goal(setup):
+    """Arcs bent either way and sinusoids: the same compiled program (curvature is traced)
+    drives every lane's centre line to its goal, measured against the curve."""
+    mx, _, _, _ = setup
+    traces0 = E.TRACES
+    fields = make_fields(9, row_curvature=[0.03, -0.03, 0.015, 0.0, 0.0, 0.02, -0.01, 0.0],
+                         row_amplitude=[0.0, 0.0, 0.0, 0.3, 0.5, 0.3, 0.2, 0.0],
+                         row_wavelength=[10.0, 10.0, 10.0, 12.0, 16.0, 14.0, 20.0, 10.0])
+    log = E.rollout(mx, fields, None, jax.random.split(jax.random.key(3), B), POLICY,
+                    policy_params(0), CFG, params_axes=AXES)
+    assert E.TRACES == traces0
+    log = jax.tree.map(np.asarray, log)
+    s = jax.tree.map(np.asarray, E.summarise(log, CFG))
+    assert s["success"].all(), [M.REASONS[int(r)] for r in s["reason"]]
+    assert (s["mae"] < 0.06).all(), s["mae"]
+    assert (s["heading_error"] < 0.06).all(), s["heading_error"]
+    # the start lies on the centre line, along its direction; the arcs turn the robot
+    _, off, direction = F.lanes.project(log.lane, log.start[:, :2])
+    np.testing.assert_allclose(off, 0.0, atol=1e-4)
+    np.testing.assert_allclose(log.start[:, 2], direction, atol=1e-4)
+    assert abs(float(log.start[0, 2])) > 0.2
+    # the straight field's lateral offset is measured as before: y − lane_y
+    np.testing.assert_allclose(log.goal[7], [float(fields.row_x[7, 1]), log.lane_y[7]])
+
+
 def test_new_shared_params_do_not_retrace(setup):
     """The shared part (None axis) is traced too: slower oracle gains, same compiled call.
     At 0.4 m/s the 42.7 s timeout comes after about 17 m, before the 20 m lane's end."""

@@ -170,3 +170,108 @@ def test_traced_parameter_change_does_not_retrace():
           jax.random.key(0))
     assert len(traces) == 1
     assert not np.allclose(np.asarray(a), np.asarray(b))
+
+
+# ---------------------------------------------------------------------------------------------
+# Curved rows: the field frame (mjxrow.field.lanes)
+
+BENDS = [dict(curvature=0.04, amplitude=0.0), dict(curvature=-0.02, amplitude=0.0),
+         dict(curvature=0.0, amplitude=0.6), dict(curvature=0.015, amplitude=0.4)]
+
+
+def _bend(curvature, amplitude, wavelength=9.0, phase=0.7):
+    f = lambda v: jnp.float32(v)  # noqa: E731
+    return F.lanes.Bend(curvature=f(curvature), amplitude=f(amplitude), wavelength=f(wavelength),
+                        phase=f(phase))
+
+
+@pytest.mark.parametrize("kw", BENDS)
+def test_field_frame_round_trip_and_direction(kw):
+    b = _bend(**kw)
+    s, u = jnp.meshgrid(jnp.linspace(-20.0, 20.0, 9), jnp.linspace(-8.0, 8.0, 7))
+    x, y = F.lanes.to_world(b, s, u)
+    s2, u2 = F.lanes.to_field(b, x, y)
+    np.testing.assert_allclose(s2, s, atol=2e-5 * 20)
+    np.testing.assert_allclose(u2, u, atol=2e-5 * 20)
+    # the direction is the tangent of the curve u = const (finite differences)
+    h = 1e-2
+    xa, ya = F.lanes.to_world(b, s - h, u)
+    xb, yb = F.lanes.to_world(b, s + h, u)
+    np.testing.assert_allclose(F.lanes.heading(b, s, u), jnp.arctan2(yb - ya, xb - xa), atol=2e-3)
+
+
+def test_arcs_keep_the_row_spacing_and_sines_the_shift():
+    arc = _bend(0.05, 0.0)
+    s = jnp.linspace(-15.0, 15.0, 31)
+    p0 = jnp.stack(F.lanes.to_world(arc, s, 0.0), -1)
+    p1 = jnp.stack(F.lanes.to_world(arc, s, 1.8), -1)
+    np.testing.assert_allclose(jnp.linalg.norm(p1 - p0, axis=-1), 1.8, atol=1e-4)  # radial
+    sine = _bend(0.0, 0.5)
+    x, y = F.lanes.to_world(sine, s, 2.0)
+    np.testing.assert_array_equal(x, s)
+    np.testing.assert_allclose(y - 2.0, 0.5 * jnp.sin(2 * jnp.pi * s / 9.0 + 0.7), atol=1e-5)
+
+
+def test_a_straight_frame_is_the_identity_to_the_bit():
+    b = _bend(0.0, 0.0)
+    s = jnp.linspace(-25.0, 25.0, 101, dtype=jnp.float32)
+    u = jnp.linspace(-9.0, 9.0, 101, dtype=jnp.float32)
+    x, y = F.lanes.to_world(b, s, u)
+    np.testing.assert_array_equal(x, s)
+    np.testing.assert_array_equal(y, u)
+    np.testing.assert_array_equal(F.lanes.to_field(b, x, y)[0], s)
+    np.testing.assert_array_equal(F.lanes.heading(b, s, u), 0.0)
+
+
+@pytest.mark.parametrize("kw", BENDS)
+def test_project_measures_the_offset_across_the_line(kw):
+    ln = F.lanes.Lane(u=jnp.float32(1.0), s_end=jnp.float32(20.0), bend=_bend(**kw))
+    s = jnp.linspace(-10.0, 10.0, 11)
+    on = F.lanes.point(ln, s)
+    d = F.lanes.heading(ln.bend, s, ln.u)
+    left = jnp.stack([-jnp.sin(d), jnp.cos(d)], -1)
+    s0, off0, d0 = F.lanes.project(ln, on)
+    np.testing.assert_allclose(s0, s, atol=1e-4)
+    np.testing.assert_allclose(off0, 0.0, atol=1e-4)
+    np.testing.assert_allclose(d0, d, atol=1e-5)
+    # 0.3 m to the left, perpendicular to the line (on a sinusoid s is x: it moves with the
+    # point, and the offset is good to first order in the line's curvature)
+    _, off, _ = F.lanes.project(ln, on + 0.3 * left)
+    np.testing.assert_allclose(off, 0.3, atol=5e-3)
+    np.testing.assert_allclose(F.lanes.goal(ln), F.lanes.point(ln, 20.0), atol=1e-6)
+
+
+def test_new_parameters_at_zero_give_the_same_field():
+    shape = F.preset_shape("zucchini")
+    key = jax.random.key(4)
+    base = F.generate(F.make_params("zucchini"), shape, key)
+    zero = F.generate(F.make_params("zucchini", row_amplitude=0.0, row_curvature=0.0,
+                                    gap_rate=0.0, weed_density=0.0, row_wavelength=3.0,
+                                    gap_length=2.5, weed_size=0.2), shape, key)
+    for name in ("plant_pos", "plant_size", "plant_yaw", "plant_active", "obst_pos", "terrain"):
+        np.testing.assert_array_equal(getattr(zero, name), getattr(base, name), err_msg=name)
+
+
+@pytest.mark.parametrize("override, key", [
+    (dict(row_curvature=0.2), "row_curvature"),  # radius 5 m: rows cross
+    (dict(row_amplitude=0.3, row_wavelength=0.5), "row_wavelength"),  # below d_pp = 0.7 m
+    (dict(weed_density=1.0, weed_size=1.2), "weed_size"),  # wider than the 0.9 m free lane
+    (dict(gap_rate=5.0, gap_length=2.5), "gap_length"),  # gaps would cover the row
+])
+def test_impossible_curves_gaps_and_weeds_name_the_key(override, key):
+    params = F.make_params("zucchini", host=True, **override)
+    shape = F.fit_shape(params, "zucchini")
+    with pytest.raises(ValueError, match=f"^{key}: "):
+        F.validate(params, shape)
+
+
+def test_gap_runs_have_the_configured_rate_and_length():
+    q = dict(d_pp=jnp.float32(0.5), gap_length=jnp.float32(2.0), gap_rate=jnp.float32(1.5))
+    gap = np.asarray(F.gap_runs(q, (64, 2000), jax.random.key(0)))  # 64 rows of 1 km
+    starts = gap[:, 1:] & ~gap[:, :-1]
+    runs = gap.sum() / max(starts.sum() + gap[:, 0].sum(), 1)
+    assert abs(runs * 0.5 - 2.0) < 0.1, runs * 0.5
+    rate = (starts.sum() + gap[:, 0].sum()) / (64 * 2000 * 0.5) * 10.0
+    assert abs(rate - 1.5) < 0.1, rate
+    none = F.gap_runs(dict(q, gap_rate=jnp.float32(0.0)), (4, 100), jax.random.key(0))
+    assert not np.asarray(none).any()
