@@ -1,6 +1,7 @@
 """Exported worlds: spacings read back from the CSV, MJCF and SDF of a tiny field, MuJoCo loading
 and stepping with the robot, heightfield heights, camera view, both Gazebo flavours (parsed by
-sdformat where installed), the export of a sweep episode, CLI errors."""
+sdformat where installed), a curved field with gaps and weeds in every format, the export of a
+sweep episode, CLI errors."""
 
 import os
 import shutil
@@ -22,6 +23,7 @@ from mjxrow import field as F  # noqa: E402
 from mjxrow.crops import prims as PL  # noqa: E402
 from mjxrow.worlds import cli as worlds_cli  # noqa: E402
 from mjxrow.worlds import export as Wd  # noqa: E402
+from mjxrow.worlds import mjcf as worlds_mjcf  # noqa: E402
 from mjxrow.worlds import replay  # noqa: E402
 from mjxrow.worlds import scene as S  # noqa: E402
 
@@ -89,7 +91,13 @@ def test_lanes_csv(tiny, paths):
     t = pd.read_csv(paths["lanes"])
     assert list(t.columns) == ["lane", "y", "x_start", "x_end", "z_start", "z_end", "width",
                                "default"] + [f"spawn_{k}" for k in ("x", "y", "z", "roll",
-                                                                    "pitch", "yaw")]
+                                                                    "pitch", "yaw")] + [
+        f"{k}_{end}" for k in ("y", "s", "heading") for end in ("start", "end")]
+    # straight rows: the ends' world coordinates are the field coordinates, heading +x
+    np.testing.assert_array_equal(t[["y_start", "y_end"]].to_numpy(), t[["y", "y"]].to_numpy())
+    np.testing.assert_array_equal(t[["s_start", "s_end"]].to_numpy(),
+                                  t[["x_start", "x_end"]].to_numpy())
+    assert (t[["heading_start", "heading_end"]] == 0).all().all()
     np.testing.assert_allclose(t["width"], [D_RR, D_RGROUP, D_RR], atol=1e-3)
     np.testing.assert_allclose(t["y"], [-2.7, 0.0, 2.7], atol=1e-3)
     # rows start at −row_length/2 and end at the last plant slot: −4 + 11 · 0.7 = 3.7 m
@@ -309,8 +317,10 @@ def _sdformat() -> str | None:
 SDFORMAT_NOISE = ("Library error: libignition-tools-backward.so not found",)
 
 
-def test_sdformat_parses_every_file(paths):
+@pytest.mark.parametrize("export", ["paths", "curvy_paths"])
+def test_sdformat_parses_every_file(request, export):
     ign = _sdformat()
+    paths = request.getfixturevalue(export)
     out_dir = paths["xml"].parent
     files = [paths["sdf"], paths["world"], *sorted(out_dir.glob("models/*/model.sdf"))]
     assert len(files) == 6
@@ -335,6 +345,157 @@ def test_sdformat_check_catches_errors(tmp_path):
     lines = [ln for ln in (res.stdout + res.stderr).splitlines()
              if ln.strip() and not ln.startswith(SDFORMAT_NOISE)]
     assert res.returncode != 0 or lines != ["Valid."]
+
+
+# ---------------------------------------------------------------------------------------------
+# A curved field (arcs and a sinusoid) with gap runs and weeds: 2 rows of 6 m on 8 × 6 m
+
+
+@pytest.fixture(scope="module")
+def curvy():
+    params = F.make_params("zucchini", host=True, terrain_length=8.0, row_length=6.0,
+                           terrain_width=6.0, rows_per_group=2, stone_density=8.0,
+                           branch_density=4.0, row_curvature=0.06, row_amplitude=0.15,
+                           row_wavelength=4.0, gap_rate=2.0, gap_length=1.0, weed_density=1.0)
+    shape = F.fit_shape(params, "zucchini")
+    F.validate(params, shape)
+    gen = jax.jit(F.generate, static_argnums=1)
+    field = jax.tree.map(np.asarray, gen(jax.tree.map(jax.numpy.asarray, params), shape,
+                                         jax.random.key(1)))
+    assert int(field.n_rows) == 2 and field.weed_active.sum() >= 5
+    assert np.ptp(field.plant_heading[field.plant_active]) > 0.2
+    return field, shape
+
+
+@pytest.fixture(scope="module")
+def curvy_paths(curvy, tmp_path_factory):
+    return Wd.export(*curvy, tmp_path_factory.mktemp("curvy"), "curvy", gazebo="both")
+
+
+@pytest.fixture(scope="module")
+def curvy_model(curvy_paths):
+    m = mujoco.MjModel.from_xml_path(str(curvy_paths["xml"]))
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    return m, d
+
+
+def _weed_geoms(m) -> dict[tuple[int, int], int]:
+    out = {}
+    for g in range(m.ngeom):
+        name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or ""
+        if name.startswith("weed_"):
+            i, k = name.removeprefix("weed_").split("_k")
+            out[(int(i), int(k))] = g
+    return out
+
+
+def test_curved_mjcf_has_the_prims_of_plants_and_weeds(curvy, curvy_paths, curvy_model):
+    field, shape = curvy
+    m, d = curvy_model
+    plants = _plant_geoms(m)
+    assert len(plants) == field.plant_active.sum() * K
+    prims = jax.tree.map(np.asarray, PL.plant_prims(field, shape))
+    r, p, k = np.array(list(plants)).T
+    ids = np.array(list(plants.values()))
+    np.testing.assert_allclose(d.geom_xpos[ids], prims.centre[r, p, k], atol=1e-3)
+    np.testing.assert_allclose(d.geom_xmat[ids].reshape(-1, 3, 3), prims.rot[r, p, k], atol=2e-3)
+    # weeds: every primitive of weed_prims, visual only, in the plants' group, palette colours
+    weeds = _weed_geoms(m)
+    n_weed = PL.weed_prims(field).centre.shape[1]
+    active = np.flatnonzero(field.weed_active)
+    assert sorted(weeds) == [(i, j) for i in active for j in range(n_weed)]
+    wp = jax.tree.map(np.asarray, PL.weed_prims(field))
+    i, k = np.array(list(weeds)).T
+    ids = np.array(list(weeds.values()))
+    assert (m.geom_contype[ids] == 0).all() and (m.geom_conaffinity[ids] == 0).all()
+    assert (m.geom_group[ids] == 1).all()
+    assert (m.geom_type[ids] == mujoco.mjtGeom.mjGEOM_ELLIPSOID).all()
+    np.testing.assert_allclose(d.geom_xpos[ids], wp.centre[i, k], atol=1e-3)
+    np.testing.assert_allclose(d.geom_xmat[ids].reshape(-1, 3, 3), wp.rot[i, k], atol=2e-3)
+    np.testing.assert_allclose(m.geom_size[ids], wp.size[i, k], atol=1e-3)
+    palette = np.array(PL.WEED_PALETTE)[worlds_mjcf.weed_rgb(field.weed_phase[i])]
+    np.testing.assert_allclose(m.geom_rgba[ids, :3], palette, atol=6e-3)
+    assert len(np.unique(m.geom_rgba[ids, :3], axis=0)) > 1
+    # the weeds CSV: the same weeds
+    t = pd.read_csv(curvy_paths["weeds"])
+    np.testing.assert_array_equal(t["weed"], active)
+    np.testing.assert_allclose(t[["x", "y", "z"]], field.weed_pos[active], atol=1e-4)
+    np.testing.assert_allclose(t[["diameter", "height"]], field.weed_size[active], atol=1e-4)
+    np.testing.assert_allclose(t["yaw"], field.weed_yaw[active], atol=1e-4)
+
+
+def test_curved_start_and_camera_on_the_lane_centre_line(curvy, curvy_paths, curvy_model):
+    """The robot's start (lanes CSV, MJCF, both SDF worlds) lies on its lane's centre line
+    path_length before the row end, heading along the line; the `eye` camera stands on the
+    default lane's centre line and looks along it."""
+    field, _ = curvy
+    m, d = curvy_model
+    lanes = pd.read_csv(curvy_paths["lanes"])
+    poly = pd.read_csv(curvy_paths["lanes_polyline"])
+    robot = S.robot_for(field)
+    for i, field_lane in enumerate(S.field_lanes(field)):
+        ln = F.lanes.lane(field, int(field_lane))
+        s = ln.s_end - robot.sim.path_length
+        row = lanes[lanes["lane"] == i].iloc[0]
+        np.testing.assert_allclose(row[["spawn_x", "spawn_y"]], F.lanes.point(ln, s), atol=1e-3)
+        np.testing.assert_allclose(row["spawn_yaw"], F.lanes.heading(ln.bend, s, ln.u),
+                                   atol=1e-3)
+        # the goal: the centre line's end, the polyline's last point
+        np.testing.assert_allclose(row[["x_end", "y_end"]], F.lanes.goal(ln), atol=2e-4)
+        pts = poly[poly["lane"] == i]
+        np.testing.assert_allclose(pts[["x", "y"]].iloc[-1], F.lanes.goal(ln), atol=2e-4)
+        np.testing.assert_allclose(pts[["x", "y"]], F.lanes.point(ln, pts["s"].to_numpy()),
+                                   atol=2e-4)
+    assert np.ptp(lanes["spawn_yaw"]) < 0.2 and np.abs(lanes["spawn_yaw"]).max() > 0.05
+    spawn = lanes[lanes["default"] == 1].iloc[0]
+    chassis = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "chassis")
+    np.testing.assert_allclose(d.xpos[chassis][:2], spawn[["spawn_x", "spawn_y"]], atol=1e-3)
+    forward = d.xmat[chassis].reshape(3, 3)[:, 0]
+    assert abs(np.arctan2(forward[1], forward[0]) - spawn["spawn_yaw"]) < 1e-3
+    for flavour in ("sim", "classic"):
+        _, root, _ = _models(curvy_paths, flavour)
+        pose = np.array(root.find("world/include[name='robot']/pose").text.split(), float)
+        np.testing.assert_allclose(pose[[0, 1, 5]], spawn[["spawn_x", "spawn_y", "spawn_yaw"]],
+                                   atol=1e-3)
+    ln = F.lanes.lane(field, int(F.robot_lane(field)))
+    s0 = field.row_x[0] - 1.0
+    cam = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, "eye")
+    np.testing.assert_allclose(d.cam_xpos[cam][:2], F.lanes.point(ln, s0), atol=1e-3)
+    look = -d.cam_xmat[cam].reshape(3, 3)[:, 2]
+    assert abs(np.arctan2(look[1], look[0]) - F.lanes.heading(ln.bend, s0, ln.u)) < 1e-3
+
+
+@pytest.mark.parametrize("flavour", ["sim", "classic"])
+def test_curved_sdf_weeds_and_footprints(curvy, curvy_paths, flavour):
+    """Weeds are visuals only (the MJCF's names, positions and sizes); each plant's footprint
+    collision is turned along its row."""
+    field, shape = curvy
+    _, _, models = _models(curvy_paths, flavour)
+    fm = models["field"]
+    link = fm.find("model/link[@name='weeds']")
+    assert link is not None and link.find("collision") is None
+    assert not [c for c in fm.iter("collision") if c.get("name").startswith("weed_")]
+    wp = jax.tree.map(np.asarray, PL.weed_prims(field))
+    vis = {v.get("name"): v for v in link.iter("visual")}
+    active = np.flatnonzero(field.weed_active)
+    assert sorted(vis) == sorted(f"weed_{i}_k{k}" for i in active
+                                 for k in range(wp.centre.shape[1]))
+    for name, v in vis.items():
+        i, k = (int(x) for x in name.removeprefix("weed_").split("_k"))
+        pose = np.array(v.findtext("pose").split(), float)
+        np.testing.assert_allclose(pose[:3], wp.centre[i, k], atol=1e-3)
+        radii = v.findtext("geometry/ellipsoid/radii") or v.findtext("geometry/mesh/scale")
+        np.testing.assert_allclose(np.array(radii.split(), float), wp.size[i, k], atol=1e-3)
+    order, new_row = S.active_rows(field)
+    for c in fm.iter("collision"):
+        name = c.get("name")
+        if name.startswith("plant_"):
+            r, p = (int(x[1:]) for x in name.split("_")[1:])
+            pose = np.array(c.findtext("pose").split(), float)
+            fr = order[r]
+            np.testing.assert_allclose(pose[:3], field.plant_pos[fr, p], atol=1e-3)
+            assert abs(pose[5] - field.plant_heading[fr, p]) < 1e-3
 
 
 def test_cli_bad_input_names_the_key(tmp_path, capsys):

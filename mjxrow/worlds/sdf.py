@@ -12,14 +12,16 @@ directory once `models/` is on the resource path, `GAZEBO_MODEL_PATH` for Classi
 
     <name>.sdf | <name>_classic.world      the world: sun, scene, physics, the two includes
     models/<field>/model.config, model.sdf  the field: ONE static model, links `terrain`,
-                                            `row_{i}` (plants), `obstacles`
+                                            `row_{i}` (plants), `weeds` (when there are
+                                            any), `obstacles`
     models/<field>/materials/textures/      heightmap.png, soil.png, soil_normal.png
     models/<field>/meshes/sphere.dae        (classic)
     models/<robot>/model.config, model.sdf  the robot (gzrobot), included at the start pose
 
 with <field> = `<name>_field` and <robot> = `<name>_robot` (`_classic` appended for Classic).
-Visual names follow the MJCF (`plant_r{row}_p{index}_k{k}`; a Classic capsule's end spheres add
-`_end0`, `_end1`). Materials have ambient and diffuse colours.
+Visual names follow the MJCF (`plant_r{row}_p{index}_k{k}`, `weed_{i}_k{k}`; a Classic capsule's
+end spheres add `_end0`, `_end1`). Weeds are visuals only (no collision), in the MJCF's colours
+(`mjcf.weed_rgb`). Materials have ambient and diffuse colours.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ from PIL import Image
 from mjxrow import field as mjxrow_field
 from mjxrow.crops import prims as crops_prims
 from mjxrow.worlds import gzrobot, scene
-from mjxrow.worlds.mjcf import BRANCH_RGB, PLANT_RGB, SOIL_RGB, STONE_RGB
+from mjxrow.worlds.mjcf import BRANCH_RGB, PLANT_RGB, SOIL_RGB, STONE_RGB, weed_rgb
 
 FLAVOURS = ("sim", "classic")
 SDF_COLLISIONS = ("footprint", "primitives", "none")
@@ -170,7 +172,8 @@ def field_sdf(field: mjxrow_field.Field, shape: mjxrow_field.FieldShape, model: 
     model folder). Plant collisions: "footprint" (default) one per plant, `plant_r{row}_p{index}`:
     an ellipsoid centred at the base (a dome above ground) with the semi-axes of
     `crops.prims.footprint` and the plant's height, the footprint the navigation metrics count
-    as a collision; "primitives" every primitive (`<visual name>_collision`); "none"."""
+    as a collision (turned along the row, `Field.plant_heading`); "primitives" every primitive
+    (`<visual name>_collision`); "none". Weeds: visuals only."""
     if collisions not in SDF_COLLISIONS:
         raise ValueError(f"sdf_collisions: {collisions!r} is not one of {SDF_COLLISIONS}")
     f = scene.host(field)
@@ -220,8 +223,20 @@ def field_sdf(field: mjxrow_field.Field, shape: mjxrow_field.FieldShape, model: 
                         out.append(w.ellipsoid(nm + suffix, pose[r, p, k], size, c))
             if collisions == "footprint":
                 radii = np.r_[foot[r, p], f.plant_size[r, p, 2]]
-                out.append(w.ellipsoid(f"plant_r{row}_p{p}", np.r_[f.plant_pos[r, p], 0, 0, 0],
+                out.append(w.ellipsoid(f"plant_r{row}_p{p}",
+                                       np.r_[f.plant_pos[r, p], 0, 0, f.plant_heading[r, p]],
                                        radii))
+        out.append("</link>")
+    active = np.flatnonzero(f.weed_active)
+    if len(active):
+        weeds = jax.tree.map(np.asarray, crops_prims.weed_prims(f))
+        w_pose = np.concatenate([weeds.centre, scene.euler_zyx(weeds.rot)[..., ::-1]], -1)
+        colour = weed_rgb(f.weed_phase)
+        out.append('<link name="weeds">')
+        for i in active:
+            rgb = crops_prims.WEED_PALETTE[colour[i]]
+            out += [w.ellipsoid(f"weed_{i}_k{k}", w_pose[i, k], weeds.size[i, k], rgb)
+                    for k in range(weeds.centre.shape[1])]
         out.append("</link>")
     out.append('<link name="obstacles">')
     n = {mjxrow_field.STONE: 0, mjxrow_field.BRANCH: 0}
