@@ -498,6 +498,23 @@ def test_curved_sdf_weeds_and_footprints(curvy, curvy_paths, flavour):
             assert abs(pose[5] - field.plant_heading[fr, p]) < 1e-3
 
 
+def test_cli_exports_a_curved_weedy_field(tmp_path):
+    """`--set` of the new field keys reaches every export: weeds in the CSV and the MJCF, the
+    lanes' polylines along the arcs."""
+    sets = ["terrain_length=8", "row_length=6", "terrain_width=6", "rows_per_group=2",
+            "row_curvature=0.05", "gap_rate=1", "weed_density=1", "sim.path_length=3"]
+    args = [a for s in sets for a in ("--set", s if s.startswith("sim.") else f"field.{s}")]
+    assert worlds_cli.main(["--preset", "zucchini", "--gazebo", "none", "--out", str(tmp_path),
+                            *args]) == 0
+    weeds = pd.read_csv(tmp_path / "zucchini_weeds.csv")
+    assert len(weeds) >= 5
+    m = mujoco.MjModel.from_xml_path(str(tmp_path / "zucchini.xml"))
+    assert len(_weed_geoms(m)) == 5 * len(weeds)
+    poly = pd.read_csv(tmp_path / "zucchini_lanes_polyline.csv")
+    heading = poly.groupby("lane")["heading"].agg(np.ptp)
+    np.testing.assert_allclose(heading, 0.05 * np.ptp(poly["s"]), rtol=1e-3)
+
+
 def test_cli_bad_input_names_the_key(tmp_path, capsys):
     for args, key in ((["--set", "field.d_rr=-1"], "field.d_rr"),
                       (["--set", "field.bogus=1"], "field.bogus"),

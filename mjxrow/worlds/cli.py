@@ -43,8 +43,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--out", default="runs/worlds", help="output folder (default %(default)s)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="sets",
                     help="set a dotted config key, e.g. --set field.d_rr=2.0 (repeatable)")
-    ap.add_argument("--lane", type=int, help="start the robot in this lane (0..n-1 by y, as in "
-                    "<name>_lanes.csv) without pose noise; default: the episode's lane and start")
+    ap.add_argument("--lane", type=int, help="start the robot in this lane (0..n-1 across the "
+                    "rows, as in <name>_lanes.csv) without pose noise; default: the episode's "
+                    "lane and start")
     ap.add_argument("--gazebo", choices=GAZEBO, default="sim",
                     help="Gazebo flavour(s) to write (default: sim)")
     ap.add_argument("--sdf-collisions", choices=SDF_COLLISIONS, default="footprint",

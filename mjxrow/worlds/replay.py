@@ -33,7 +33,7 @@ from mjxrow.worlds import scene
 @dataclasses.dataclass(frozen=True)
 class Episode:
     """One episode, ready to export: `field` (numpy, one field), its static `shape`, the robot
-    as the run drives it, and the `start` (lane index by y and the exact start qpos)."""
+    as the run drives it, and the `start` (lane index across the rows and the exact start qpos)."""
 
     field: mjxrow_field.Field
     shape: mjxrow_field.FieldShape
@@ -67,7 +67,7 @@ def resolve_run(preset: str, seed: int = 0, sets: list[str] | tuple[str, ...] = 
 def episode_world(run: RunConfig, shape: mjxrow_field.FieldShape, episode: int = 0,
                   lane: int | None = None, name: str | None = None) -> Episode:
     """Episode `episode` of `run` on the static `shape` (module doc). With `lane` (index of
-    `lanes_table`, 0..n-1 by y), the robot starts in that lane instead, without pose noise."""
+    `lanes_table`, 0..n-1 by u), the robot starts in that lane instead, without pose noise."""
     if episode < 0:
         raise ValueError(f"episode: must be non-negative, got {episode}")
     fkeys, rkeys = rollout_build.split_keys(rollout_build.episode_keys(run.seed, [episode]))

@@ -63,7 +63,8 @@ def host(field: mjxrow_field.Field) -> mjxrow_field.Field:
 
 
 def active_rows(f: mjxrow_field.Field) -> tuple[np.ndarray, np.ndarray]:
-    """Active rows sorted by y: (field row index [n], new index 0..n-1 per field row [R])."""
+    """Active rows sorted by u, across the rows (y on straight rows): (field row index [n], new
+    index 0..n-1 per field row [R])."""
     act = np.flatnonzero(f.row_active)
     order = act[np.argsort(f.row_y[act], kind="stable")]
     new = np.full(f.row_y.shape, -1)
@@ -72,7 +73,7 @@ def active_rows(f: mjxrow_field.Field) -> tuple[np.ndarray, np.ndarray]:
 
 
 def field_lanes(f: mjxrow_field.Field) -> np.ndarray:
-    """Field lane indices (into `lane_y`) of the lanes between consecutive active rows, by y."""
+    """Field lane indices (into `lane_y`) of the lanes between consecutive active rows, by u."""
     order, _ = active_rows(f)
     return order[:-1]
 
@@ -108,7 +109,7 @@ def robot_for(field: mjxrow_field.Field, robot: physics_robot.RobotConfig | None
 
 @dataclasses.dataclass(frozen=True)
 class Start:
-    """Where the robot starts: `lane` (index of `lanes_table`, 0..n-1 by y) and its free-joint
+    """Where the robot starts: `lane` (index of `lanes_table`, 0..n-1 by u) and its free-joint
     pose `qpos` float64 [7] = (x, y, z [m], quaternion w, x, y, z) of the chassis origin."""
 
     lane: int
@@ -134,8 +135,9 @@ def _reset_fn(shape: mjxrow_field.FieldShape, robot: Robot):
 def start_poses(field: mjxrow_field.Field, shape: mjxrow_field.FieldShape, robot: Robot, lanes=None,
                 keys: jax.Array | None = None, noise: sim.PoseNoise | None = None) -> np.ndarray:
     """float64 [N, 7]: the chassis qpos (x, y, z, qw, qx, qy, qz) of `sim.reset` in each of
-    `lanes` (field lane indices [N]; default: every lane between active rows, by y), with
-    reset keys `keys` [N] and start-pose `noise` (default: none, the lane centre heading +x)."""
+    `lanes` (field lane indices [N]; default: every lane between active rows, by u), with
+    reset keys `keys` [N] and start-pose `noise` (default: none: on the lane's centre line,
+    heading along it)."""
     f = host(field)
     lanes = field_lanes(f) if lanes is None else np.atleast_1d(np.asarray(lanes))
     if keys is None:
@@ -147,7 +149,7 @@ def start_poses(field: mjxrow_field.Field, shape: mjxrow_field.FieldShape, robot
 
 def default_start(field: mjxrow_field.Field, shape: mjxrow_field.FieldShape, robot: Robot,
                   lane: int | None = None) -> Start:
-    """The start in table lane `lane` (0..n-1 by y; None: the field's `robot_lane`), without
+    """The start in table lane `lane` (0..n-1 by u; None: the field's `robot_lane`), without
     noise. ValueError naming `lane` when it does not exist."""
     f = host(field)
     lanes = field_lanes(f)
