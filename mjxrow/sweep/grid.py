@@ -193,9 +193,9 @@ def check(cfg: Grid) -> None:
         [mjxrow_field.make_params(c.cfg.preset, host=True, **c.cfg.field_values()) for c in cells]
     )
     roomy = mjxrow_field.FieldShape(crop="zucchini", max_rows=10**9, max_plants_per_row=10**9,
-                                    obstacle_slots=10**9)
+                                    obstacle_slots=10**9, weed_slots=10**9)
     for name, (ok, reason) in mjxrow_field.checks(params, roomy).items():
-        if name in ("max_rows", "max_plants_per_row", "obstacle_slots"):
+        if name in ("max_rows", "max_plants_per_row", "obstacle_slots", "weed_slots"):
             continue
         ok = np.asarray(ok).reshape(-1)
         if not ok.all():
