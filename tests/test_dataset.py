@@ -1,7 +1,10 @@
-"""The synthetic dataset: the CLI writes the asked pairs with the paper's splits, resumes without
-rewriting, rejects bad arguments; the on-the-fly batch function; valid sampled fields."""
+"""The synthetic dataset: the CLI writes the asked samples (RGB, crop mask, class image) with the
+paper's splits, resumes without rewriting, refuses a folder of another seed or variety, rejects
+bad arguments; the on-the-fly batch function; valid sampled fields with curved rows, gaps and
+weeds; camera poses along curved lanes; weeds are their own class, never crop."""
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 import pytest
@@ -9,6 +12,8 @@ from PIL import Image
 
 from mjxrow import field as F
 from mjxrow import render as RD
+from mjxrow.field import lanes as L
+from mjxrow.seg import scenes as SC
 from mjxrow.seg import synthesis as DS
 
 N, SIZE = 8, 16
@@ -38,14 +43,18 @@ def test_writes_the_asked_pairs(written):
     assert sorted(p.name for p in written.glob("*/rgb/*.png")) == sorted(
         f"zucchini_{i:06d}.png" for i in range(N))
     assert len(list(written.glob("*/mask/*.png"))) == N
+    assert len(list(written.glob("*/class/*.png"))) == N
     assert not list(written.rglob(".tmp_*"))
     for i, row in index.iterrows():
         cond = RD.CONDITIONS[i % 4]
         assert row.condition == cond and row.rgb == f"{cond}/rgb/zucchini_{i:06d}.png"
         rgb = np.asarray(Image.open(written / row.rgb))
         mask = np.asarray(Image.open(written / row["mask"]))
+        classes = np.asarray(Image.open(written / row.classes))
         assert rgb.shape == (SIZE, SIZE, 3) and rgb.dtype == np.uint8
         assert mask.shape == (SIZE, SIZE) and set(np.unique(mask)) <= {0, 255}
+        assert set(np.unique(classes)) <= {RD.SKY, RD.SOIL, RD.PLANT, RD.OBSTACLE, RD.WEED}
+        np.testing.assert_array_equal(mask == 255, classes == RD.PLANT)  # the crop, no weeds
     # robot-height cameras about 10° down, most of them inside the field's rows
     assert (index.pitch < np.deg2rad(5)).all() and (index.pitch > np.deg2rad(-40)).all()
     assert (index.lateral.abs() < 1.0).all()
@@ -103,6 +112,15 @@ def test_resume_renders_damaged_images_again(written, capsys):
     assert {p: p.stat().st_mtime_ns for p in others} == others
 
 
+def test_another_seed_or_variety_is_refused(written, capsys):
+    files = {p: p.stat().st_mtime_ns for p in written.rglob("*") if p.is_file()}
+    for extra in (["--variety", "none"], ["--seed", "1"]):
+        assert run_cli("--crop", "zucchini", "--n", N, "--out", written, "--size", SIZE,
+                       "--batch", 4, "--workers", 2, *extra) == 2
+        assert "another --seed or --variety" in capsys.readouterr().err
+    assert {p: p.stat().st_mtime_ns for p in written.rglob("*") if p.is_file()} == files
+
+
 def test_bad_arguments_exit_2(tmp_path, capsys):
     assert run_cli("--crop", "cabbage", "--n", 4, "--out", tmp_path) == 2
     assert "cabbage" in capsys.readouterr().err
@@ -126,9 +144,76 @@ def test_batch_fn_and_fields(written):
     assert np.array_equal(np.asarray(rgb), np.asarray(again))
     other, _ = fn(jax.random.key(1), 4)
     assert not np.array_equal(np.asarray(rgb), np.asarray(other))
-    # every field the sampler draws fits the dataset's static shape and is valid
+    # every field the sampler draws fits the dataset's static shape and is valid; a share of
+    # them curved (sinusoid, arcs), gappy and weedy; variety "none": none of these
+    keys = jax.random.split(jax.random.key(1), 64)
     for crop in ("lettuce", "pear"):
         shape = DS.dataset_shape(crop)
-        keys = jax.random.split(jax.random.key(1), 64)
+        assert shape.weed_slots > 0 and DS.dataset_shape(crop, "none").weed_slots == 0
         params = jax.vmap(lambda k, c=crop: DS.random_params(c, k))(keys)
         F.validate(params, shape)
+        for name in ("row_amplitude", "row_curvature", "gap_rate", "weed_density"):
+            share = np.mean(np.asarray(getattr(params, name)) != 0)
+            assert 0.2 < share < 0.7, (crop, name, share)
+        plain = jax.vmap(lambda k, c=crop: DS.random_params(c, k, "none"))(keys)
+        F.validate(plain, DS.dataset_shape(crop, "none"))
+        for name in ("row_amplitude", "row_curvature", "gap_rate", "weed_density"):
+            assert not np.asarray(getattr(plain, name)).any()
+        np.testing.assert_array_equal(plain.d_rr, params.d_rr)  # the same geometry draws
+
+
+@pytest.fixture(scope="module")
+def small():
+    """A small flat lettuce field bent into arcs, with a few weeds and no obstacles: (field,
+    shape)."""
+    params = F.make_params("lettuce", host=True, row_length=6.0, terrain_length=10.0,
+                           terrain_width=8.0, p_missing=0.0, stone_density=0.0,
+                           branch_density=0.0, terrain_dh=0.0, row_curvature=0.08,
+                           weed_density=0.2, weed_size=0.2)
+    F.validate(params, shape := F.fit_shape(params, "lettuce"))
+    return jax.jit(F.generate, static_argnums=1)(params, shape, jax.random.key(0)), shape
+
+
+def test_poses_follow_curved_lanes(small):
+    """On arcs, a pose lies on a lane's centre line offset by its `lateral` and looks along
+    the lane (or back), not along x."""
+    field, _ = small
+    bend = L.field_bend(field)
+    _, _, meta = jax.jit(jax.vmap(lambda k: SC.sample_pose(field, k)))(
+        jax.random.split(jax.random.key(2), 64))
+    meta = np.asarray(meta)
+    s, u = (np.asarray(a) for a in L.to_field(bend, meta[:, 0], meta[:, 1]))
+    lanes_u = np.asarray(field.lane_y)[np.asarray(field.lane_active)]
+    assert np.abs((u - meta[:, 5])[:, None] - lanes_u[None]).min(1).max() < 1e-3
+    along = np.asarray(L.heading(bend, s, u))
+    turn = np.angle(np.exp(1j * (meta[:, 3] - along)))
+    off = np.minimum(np.abs(turn), np.pi - np.abs(turn))  # forwards or backwards
+    assert np.mean(off < np.deg2rad(20)) >= 0.8
+    assert np.abs(along).max() > np.deg2rad(10)  # the lane does turn there
+
+
+def test_a_weed_under_the_camera_is_weed_not_crop(small):
+    """One weed in the middle of the widest lane, 1 m in front of a camera looking down at it
+    along the curved lane: its pixels are of the weed class and none of them is in the crop
+    mask (the dataset's ground truth); without the weed they are soil."""
+    field, shape = small
+    lane = int(np.argmax(np.where(field.lane_active, field.lane_width, 0.0)))
+    bend = L.field_bend(field)
+    wx, wy = L.to_world(bend, 0.0, field.lane_y[lane])
+    wz = F.terrain_height(field.terrain, field.terrain_size, wx, wy)
+    one = np.arange(shape.weed_slots) == 0
+    field = field.replace(
+        weed_pos=field.weed_pos.at[0].set(jnp.stack([wx, wy, wz])),
+        weed_size=field.weed_size.at[0].set(jnp.asarray([0.25, 0.09])), weed_active=one)
+    cam_xy = L.to_world(bend, -1.0, field.lane_y[lane])
+    pos = jnp.stack([*cam_xy, wz + 0.5]).astype(jnp.float32)
+    rot = RD.camera_rot(L.heading(bend, -1.0, field.lane_y[lane]), -np.arctan2(0.5, 1.0))
+    intr, cond = RD.Intrinsics(32, 32), RD.conditions("cloudy")
+    draw = jax.jit(lambda f: RD.render(f, shape, pos, rot, intr, cond))
+    frame = draw(field)
+    weed = np.asarray(frame.classes) == RD.WEED
+    assert weed.sum() >= 6
+    assert not np.asarray(frame.mask)[weed].any()
+    bare = draw(field.replace(weed_active=np.zeros_like(one)))
+    assert (np.asarray(bare.classes)[weed] == RD.SOIL).all()
+    assert not np.asarray(bare.mask)[weed].any()

@@ -14,6 +14,7 @@ import pytest
 from PIL import Image
 
 from mjxrow import crops
+from mjxrow import render as RD
 from mjxrow.seg import checkpoint as C
 from mjxrow.seg import convs as SC
 from mjxrow.seg import data as D
@@ -274,20 +275,29 @@ def test_onnx_export_matches_flax(tiny, apply_fn, tmp_path):
     assert np.abs(got - ref).max() < 1e-3
 
 
-def _write_folder(root, n=8):
+def _write_folder(root, n=8, classes=False):
+    """A dataset folder of `blobs`; with `classes`, class images too, where images 4 and 5 hold
+    a 3 × 4 weed in their top-left corner (drawn plant-green in the RGB)."""
     rgb, mask = blobs(n, seed=7)
     rows = []
     for i in range(n):
         crop, cond = ("zucchini", "lettuce")[i % 2], ("sunny", "cloudy")[i // 2 % 2]
-        for sub in ("rgb", "mask"):
+        for sub in ("rgb", "mask", "class"):
             (root / cond / sub).mkdir(parents=True, exist_ok=True)
+        cls = np.where(mask[i], RD.PLANT, RD.SOIL).astype(np.uint8)
+        if classes and i in (4, 5):
+            mask[i, :3, :4] = False
+            cls[:3, :4] = RD.WEED
+            rgb[i, :3, :4] = (40, 160, 50)
         Image.fromarray(rgb[i]).save(root / cond / "rgb" / f"{crop}_{i:06d}.png")
         Image.fromarray(mask[i].astype(np.uint8) * 255).save(
             root / cond / "mask" / f"{crop}_{i:06d}.png")
+        Image.fromarray(cls).save(root / cond / "class" / f"{crop}_{i:06d}.png")
         rows.append(dict(rgb=f"{cond}/rgb/{crop}_{i:06d}.png",
                          mask=f"{cond}/mask/{crop}_{i:06d}.png", crop=crop, condition=cond,
                          x=0.0, y=0.0, z=0.4, yaw=0.0, pitch=-10.0, lateral=0.0,
-                         split="test" if i >= 4 else "train"))
+                         split="test" if i >= 4 else "train")
+                    | ({"classes": f"{cond}/class/{crop}_{i:06d}.png"} if classes else {}))
     pd.DataFrame(rows).to_csv(root / "index.csv", index=False)
     return rgb, mask
 
@@ -357,6 +367,64 @@ def test_eval_tables(tiny, tmp_path):
     assert set(table["crop"]) == {"zucchini", "all"}
     assert table["images"].iloc[-1] == 2
     assert ((table["iou"] >= 0) & (table["iou"] <= 1) & (table["accuracy"] <= 1)).all()
+    assert (table["weedy_images"] == 0).all() and table["weed_as_crop"].isna().all()
+
+
+def test_weed_share_hand_computed():
+    """Weeds are not crop: the share of weed pixels predicted crop, and the IoU over the
+    weedy images only."""
+    # image 0 predicts crop everywhere (p = 0.75): 2 weed pixels, both called crop; image 1
+    # predicts nothing: 1 weed pixel, not called crop; image 2 has no weeds
+    logits = jnp.stack([jnp.full((2, 2), math.log(3.0)), jnp.zeros((2, 2)),
+                        jnp.full((2, 2), math.log(3.0))])
+    mask = jnp.array([[[True, False], [False, False]], [[True, True], [False, False]],
+                      [[True, True], [True, True]]])
+    weed = jnp.array([[[False, True], [True, False]], [[False, False], [True, False]],
+                      [[False, False], [False, False]]])
+    c = {k: np.asarray(v) for k, v in E.image_counts(logits, mask, weed=weed).items()}
+    np.testing.assert_array_equal(c["weed"], [2, 1, 0])
+    np.testing.assert_array_equal(c["weed_crop"], [2, 0, 0])
+    df = pd.DataFrame({"crop": "a", "condition": ["sunny", "cloudy", "sunny"], **c})
+    t = E.summarise(df).set_index(["crop", "condition"])
+    total = t.loc[("all", "all")]
+    assert total["weedy_images"] == 2
+    assert total["weed_as_crop"] == pytest.approx(2 / 3)
+    assert total["weedy_iou"] == pytest.approx(1 / 6)  # (1 + 0) / (4 + 2)
+    assert total["iou"] == pytest.approx(5 / 10)  # (1 + 0 + 4) / (4 + 2 + 4)
+    assert t.loc[("a", "sunny"), "weedy_images"] == 1
+    assert t.loc[("a", "sunny"), "weed_as_crop"] == pytest.approx(1.0)
+    assert np.isnan(E.summarise(df[df["weed"] == 0])["weed_as_crop"]).all()
+
+
+def test_eval_and_table2_report_the_weeds(tiny, tmp_path):
+    """A folder with class images: seg.eval and Table 2 report the weedy images, their IoU
+    and the share of weed pixels called crop (per crop)."""
+    from paper import table2
+
+    _write_folder(tmp_path / "ds", classes=True)
+    module, variables = tiny
+    C.save(tmp_path / "ck" / "all", module, variables, meta={"image_size": H})
+    rows = D.select(D.read_index(tmp_path / "ds"), None, "test")
+    weed = D.load_weeds(tmp_path / "ds", rows)
+    assert weed.shape == (4, H, W) and weed.sum(axis=(1, 2)).tolist() == [12, 12, 0, 0]
+    df = E.evaluate_folder(module, variables, tmp_path / "ds", batch=4)
+    np.testing.assert_array_equal(df["weed"], [12, 12, 0, 0])
+    table = E.summarise(df).set_index(["crop", "condition"])
+    assert table.loc[("zucchini", "all"), "weedy_images"] == 1
+    share = df["weed_crop"].iloc[0] / 12
+    assert table.loc[("zucchini", "all"), "weed_as_crop"] == pytest.approx(share)
+    # Table 2 runs the model at its own size (H × H)
+    df = E.evaluate_folder(module, variables, tmp_path / "ds", "zucchini", size=H, batch=4)
+    share = df["weed_crop"].iloc[0] / df["weed"].iloc[0]
+    page = tmp_path / "table2.md"
+    t2, cross = table2.main(["--ckpt-root", str(tmp_path / "ck"), "--data-root",
+                             str(tmp_path / "ds"), "--crops", "zucchini", "lettuce", "--batch",
+                             "4", "--out", str(page)])
+    assert list(t2["weedy images"]) == [1, 1]
+    assert t2["weed → crop"].iloc[0] == f"{share:.3f}"
+    assert cross["weed_as_crop"].iloc[0] == pytest.approx(share)
+    text = page.read_text()
+    assert "weed → crop" in text and "## IoU per sky condition" in text
 
 
 SHIPPED = [c for c in crops.names() if any((C.CHECKPOINT_DIR / n / "config.json").is_file()
@@ -372,7 +440,9 @@ def test_shipped_checkpoint_segments_a_rendered_frame(crop):
     module, variables = C.load(crop)
     meta = C.read_config(crop)["meta"]
     size = meta.get("image_size", 224)  # the size the model is evaluated at (Table 2)
-    rgb, mask = D.fixed_set(D.onthefly(crop, size, 2), 1, 123)[0][:2]
+    # straight rows without weeds, the fields the shipped model was trained on (it calls most
+    # weed pixels crop: Table 2's weed columns)
+    rgb, mask = D.fixed_set(D.onthefly(crop, size, 2, variety="none"), 1, 123)[0][:2]
     logits = jax.jit(M.apply, static_argnums=0)(module, variables, rgb)
     iou = E.scores(E.counts(logits, jnp.asarray(mask)))["iou"]
     assert iou >= 0.8, f"{crop}: IoU {iou:.3f} of the shipped model on 2 renders at {size} px"

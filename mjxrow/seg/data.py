@@ -1,8 +1,10 @@
 """Segmentation data: the dataset folder on disk (host side) and jittable batch augmentation.
 
 A dataset folder (written by `python -m mjxrow.seg.synth`) holds `index.csv` with columns
-`rgb,mask,crop,condition,x,y,z,yaw,pitch,lateral,split` (image paths relative to the folder),
-RGB PNGs and 8-bit masks (0 / 255). Splits: the `split` column (`train` / `test`, optionally `val`).
+`rgb,mask,classes,crop,condition,x,y,z,yaw,pitch,lateral,...,split` (image paths relative to the
+folder), RGB PNGs, 8-bit crop masks (0 / 255) and 8-bit class images (`mjxrow.render`'s class
+ids: weeds are their own class, not crop; folders written before them lack the column).
+Splits: the `split` column (`train` / `test`, optionally `val`).
 """
 
 from __future__ import annotations
@@ -25,8 +27,7 @@ from mjxrow import render
 from mjxrow.physics.robot import RobotConfig
 from mjxrow.seg import synthesis
 
-INDEX_COLUMNS = ("rgb", "mask", "crop", "condition", "x", "y", "z", "yaw", "pitch", "lateral",
-                 "split")
+INDEX_COLUMNS = synthesis.COLUMNS
 REQUIRED = ("rgb", "mask", "crop", "condition", "split")
 LUMA = (0.299, 0.587, 0.114)  # ITU-R 601 greyscale weights
 
@@ -93,6 +94,25 @@ def load_sample(root: str | Path, rgb_path: str, mask_path: str,
             mask = mask.resize((size, size), Image.NEAREST)
         mask = np.asarray(mask) > 127
     return rgb, mask
+
+
+def load_weed(root: str | Path, classes_path: str, size: int | None = None) -> np.ndarray:
+    """bool [S, S]: the weed pixels of a sample's class image (resized, nearest, to `size`)."""
+    with Image.open(Path(root) / classes_path) as im:
+        cls = im.convert("L")
+        if size is not None and cls.size != (size, size):
+            cls = cls.resize((size, size), Image.NEAREST)
+        return np.asarray(cls) == render.WEED
+
+
+def load_weeds(root: str | Path, df: pd.DataFrame, size: int | None = None,
+               workers: int = 4) -> np.ndarray | None:
+    """bool [N, S, S]: the weed pixels of every row of `df`; None for a folder without class
+    images (written before weeds had their own class)."""
+    if "classes" not in df.columns or df["classes"].isna().any():
+        return None
+    with ThreadPoolExecutor(workers) as pool:
+        return np.stack(list(pool.map(lambda p: load_weed(root, p, size), df["classes"])))
 
 
 def load_arrays(root: str | Path, df: pd.DataFrame, size: int | None = None,
@@ -176,20 +196,21 @@ class Loader:
             stop.set()
 
 
-def batches(rgb: np.ndarray, mask: np.ndarray,
-            batch: int) -> list[tuple[np.ndarray, np.ndarray]]:
+def batches(rgb: np.ndarray, mask: np.ndarray, batch: int,
+            weed: np.ndarray | None = None) -> list[tuple[np.ndarray, ...]]:
     """Split arrays into consecutive batches; the last one is padded by repeating its last image
-    and returned with a weight mask so padded images count zero: [(rgb, mask, weight bool [B])]."""
+    and returned with a weight mask so padded images count zero: [(rgb, mask, weight bool [B])],
+    or [(rgb, mask, weight, weed)] with the weed pixels `weed` bool [N, H, W]."""
+    arrays = (rgb, mask) if weed is None else (rgb, mask, weed)
     out = []
     for i in range(0, len(rgb), batch):
-        r, m = rgb[i:i + batch], mask[i:i + batch]
-        w = np.ones(len(r), bool)
-        if len(r) < batch:
-            pad = batch - len(r)
-            r = np.concatenate([r, np.repeat(r[-1:], pad, 0)])
-            m = np.concatenate([m, np.repeat(m[-1:], pad, 0)])
+        part = [a[i:i + batch] for a in arrays]
+        w = np.ones(len(part[0]), bool)
+        if len(w) < batch:
+            pad = batch - len(w)
+            part = [np.concatenate([a, np.repeat(a[-1:], pad, 0)]) for a in part]
             w = np.concatenate([w, np.zeros(pad, bool)])
-        out.append((r, m, w))
+        out.append((part[0], part[1], w, *part[2:]))
     return out
 
 
@@ -226,10 +247,13 @@ def augment(key: jax.Array, rgb: jax.Array, mask: jax.Array, *, flip: float = 0.
     return jnp.clip(jnp.round(x), 0, 255).astype(jnp.uint8), mask
 
 
-def onthefly(crop: str, size: int, batch: int, fovy: float | None = None):
+def onthefly(crop: str, size: int, batch: int, fovy: float | None = None,
+             variety: str = "fields", labels: bool = False):
     """Jittable `fn(key) -> (rgb uint8 [batch, size, size, 3], mask bool [batch, size, size])`
-    rendered by `mjxrow.seg.synthesis.make_batch_fn`; crop "all" mixes every crop in equal parts.
-    fovy: vertical field of view [deg], default the robot camera's."""
+    rendered by `mjxrow.seg.synthesis.make_batch_fn`; crop "all" mixes every crop in equal parts
+    (crop by crop, in `crops.names()` order). fovy: vertical field of view [deg], default the
+    robot camera's; variety: the fields' ("fields": curved rows, gaps and weeds in a share of
+    them; "none"); labels: also (classes uint8 [batch, size, size], condition int32 [batch])."""
 
     crops = mjxrow_crops.names() if crop == "all" else (crop,)
     if crop != "all" and crop not in mjxrow_crops.CROPS:
@@ -243,23 +267,24 @@ def onthefly(crop: str, size: int, batch: int, fovy: float | None = None):
         except ImportError:
             fovy = 42.0
     intr = render.Intrinsics(size, size, fovy)
-    fns = [synthesis.make_batch_fn(c, intr) for c in crops]
+    fns = [synthesis.make_batch_fn(c, intr, variety=variety, labels=labels) for c in crops]
     n = batch // len(crops)
 
-    def fn(key: jax.Array) -> tuple[jax.Array, jax.Array]:
+    def fn(key: jax.Array) -> tuple[jax.Array, ...]:
         outs = [f(k, n) for f, k in zip(fns, jax.random.split(key, len(fns)), strict=True)]
-        return (jnp.concatenate([o[0] for o in outs]), jnp.concatenate([o[1] for o in outs]))
+        return tuple(jnp.concatenate(parts) for parts in zip(*outs, strict=True))
 
     return fn
 
 
 def fixed_set(batch_fn, n_batches: int, seed: int) -> list[tuple[np.ndarray, ...]]:
     """A fixed evaluation set from a jittable batch function: `n_batches` batches made with keys
-    fold_in(key(seed), i), as [(rgb, mask, weight)] on the host."""
+    fold_in(key(seed), i), as [(rgb, mask, weight)] on the host ([(rgb, mask, weight, *rest)]
+    when the function returns more than (rgb, mask))."""
     fn = jax.jit(batch_fn)
     base = jax.random.key(seed)
     out = []
     for i in tqdm(range(n_batches), desc="render eval set", leave=False):
-        rgb, mask = jax.device_get(fn(jax.random.fold_in(base, i)))
-        out.append((np.asarray(rgb), np.asarray(mask), np.ones(len(rgb), bool)))
+        rgb, mask, *rest = (np.asarray(a) for a in jax.device_get(fn(jax.random.fold_in(base, i))))
+        out.append((rgb, mask, np.ones(len(rgb), bool), *rest))
     return out

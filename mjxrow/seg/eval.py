@@ -1,9 +1,12 @@
 """Evaluation of a segmenter on a dataset folder (default: its test split) or on renders.
 
 CLI: `python -m mjxrow.seg.eval --crop zucchini [--data DIR] [--ckpt PATH]` prints pixel accuracy
-and IoU (both in [0, 1]; IoU of the plant class, prediction sigmoid(logit) > 0.7) per crop and per
-sky condition, pooled over the images of each group: IoU = Σ|M ∩ Y| / Σ|M ∪ Y|. Without `--data`
-it evaluates on a fixed set of renders of the crop (seed 20,000 + `--seed`).
+and IoU (both in [0, 1]; IoU of the crop class, prediction sigmoid(logit) > 0.7) per crop and per
+sky condition, pooled over the images of each group: IoU = Σ|M ∩ Y| / Σ|M ∪ Y|. Weeds are not
+crop; where the class images are known, it also prints the number of weedy images (with weed
+pixels), the IoU pooled over them and the share of weed pixels predicted crop (weed_as_crop).
+Without `--data` it evaluates on a fixed set of renders of the crop (seed 20,000 + `--seed`;
+`--variety`: the fields' variety, curved rows, gaps and weeds by default).
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ import argparse
 import sys
 
 from mjxrow import commands
+from mjxrow.seg.synth import VARIETIES
 
 # the command's light half (mjxrow.commands): the parser and the hand-over to the heavy module
 RUN = "mjxrow.seg.evaluation"  # the heavy module: its cli(argv) evaluates
@@ -33,6 +37,9 @@ def parser() -> argparse.ArgumentParser:
                    help="plant where sigmoid(logit) exceeds it (default %(default)s, the paper's)")
     p.add_argument("--n", type=int, default=512, help="renders to evaluate without --data")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--variety", default="fields", choices=VARIETIES,
+                   help="fields of the renders without --data: fields (curved rows, gaps and "
+                   "weeds in a share of them, default) or none")
     p.add_argument("--csv", help="also write the summary table here")
     return p
 

@@ -1,6 +1,11 @@
 """Evaluation of a segmenter on a dataset folder (default: its test split) or on renders: the
 work of `python -m mjxrow.seg.eval` (its parser and docs: `mjxrow.seg.eval`), and the counts,
 scores and summaries that training and the tables use.
+
+Weeds are not crop: the ground truth is the crop mask, and where the class image is known
+(renders, folders with class images) the summary also tells how the model treats the weeds:
+the IoU over the weedy images (those with at least one weed pixel) and the share of weed
+pixels it calls crop.
 """
 
 from __future__ import annotations
@@ -15,7 +20,7 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
-from mjxrow import crops, files
+from mjxrow import crops, files, render
 from mjxrow.seg import checkpoint
 from mjxrow.seg import data as seg_data
 from mjxrow.seg import eval as command
@@ -59,35 +64,56 @@ def evaluate(eval_fn, variables: dict, batches) -> dict[str, float]:
     return scores(total)
 
 
-def image_counts(logits: jax.Array, mask: jax.Array,
-                 threshold: float = THRESHOLD) -> dict[str, jax.Array]:
-    """Per-image pixel counts (float32 [B] each): inter, union, correct, total."""
+def image_counts(logits: jax.Array, mask: jax.Array, threshold: float = THRESHOLD,
+                 weed: jax.Array | None = None) -> dict[str, jax.Array]:
+    """Per-image pixel counts (float32 [B] each): inter, union, correct, total; with the weed
+    pixels `weed` bool [B, H, W] also weed (their number) and weed_crop (those predicted crop)."""
     pred = jax.nn.sigmoid(logits.astype(jnp.float32)) > threshold
     s = lambda a: jnp.sum(a.astype(jnp.float32), axis=(1, 2))  # noqa: E731
     total = jnp.full(mask.shape[:1], mask.shape[1] * mask.shape[2], jnp.float32)
-    return {"inter": s(pred & mask), "union": s(pred | mask), "correct": s(pred == mask),
-            "total": total}
+    out = {"inter": s(pred & mask), "union": s(pred | mask), "correct": s(pred == mask),
+           "total": total}
+    if weed is not None:
+        out.update(weed=s(weed), weed_crop=s(pred & weed))
+    return out
 
 
 def count_batches(module: SegNet, variables: dict, batches, threshold: float = THRESHOLD,
                   progress: bool = True) -> pd.DataFrame:
-    """Per-image counts over batches [(rgb, mask, weight)]; padded images (weight 0) dropped."""
-    fn = jax.jit(lambda v, rgb, mask: image_counts(apply(module, v, rgb), mask, threshold))
+    """Per-image counts over batches [(rgb, mask, weight)] or [(rgb, mask, weight, weed)];
+    padded images (weight 0) dropped."""
+    fn = jax.jit(lambda v, rgb, mask, weed: image_counts(apply(module, v, rgb), mask, threshold,
+                                                         weed))
     rows = []
-    for rgb, mask, weight in tqdm(batches, desc="evaluate", disable=not progress, leave=False):
-        c = jax.device_get(fn(variables, rgb, mask))
+    for rgb, mask, weight, *weed in tqdm(batches, desc="evaluate", disable=not progress,
+                                         leave=False):
+        c = jax.device_get(fn(variables, rgb, mask, weed[0] if weed else None))
         keep = np.asarray(weight, bool)
         rows.append(pd.DataFrame({k: np.asarray(v)[keep] for k, v in c.items()}))
     return pd.concat(rows, ignore_index=True)
 
 
+SUMMARY = ("images", "accuracy", "iou", "weedy_images", "weedy_iou", "weed_as_crop")
+
+
 def summarise(df: pd.DataFrame, by: tuple[str, ...] = ("crop", "condition")) -> pd.DataFrame:
     """Pooled accuracy and IoU per group of `by` columns, per crop ("all" conditions) and over
-    everything: columns [*by, images, accuracy, iou]."""
+    everything: columns [*by, images, accuracy, iou, weedy_images, weedy_iou, weed_as_crop].
+    weedy_images: images with weed pixels; weedy_iou: the IoU pooled over them; weed_as_crop:
+    the share of weed pixels predicted crop (NaN without weeds, or counts without them)."""
     def pooled(g: pd.DataFrame) -> pd.Series:
         union = g["union"].sum()
-        return pd.Series({"images": len(g), "accuracy": g["correct"].sum() / g["total"].sum(),
-                          "iou": g["inter"].sum() / union if union > 0 else 1.0})
+        out = {"images": len(g), "accuracy": g["correct"].sum() / g["total"].sum(),
+               "iou": g["inter"].sum() / union if union > 0 else 1.0,
+               "weedy_images": 0, "weedy_iou": np.nan, "weed_as_crop": np.nan}
+        if "weed" in g.columns:
+            weedy = g[g["weed"] > 0]
+            out["weedy_images"] = len(weedy)
+            if len(weedy):
+                w_union = weedy["union"].sum()
+                out["weedy_iou"] = weedy["inter"].sum() / w_union if w_union > 0 else 1.0
+                out["weed_as_crop"] = weedy["weed_crop"].sum() / weedy["weed"].sum()
+        return pd.Series(out)
 
     parts = [df.groupby(list(by)).apply(pooled, include_groups=False).reset_index()]
     if len(by) > 1:
@@ -99,33 +125,50 @@ def summarise(df: pd.DataFrame, by: tuple[str, ...] = ("crop", "condition")) -> 
     for col in by:
         total[col] = "all"
     parts.append(total)
-    out = pd.concat(parts, ignore_index=True)[[*by, "images", "accuracy", "iou"]]
+    out = pd.concat(parts, ignore_index=True)[[*by, *SUMMARY]]
     out["images"] = out["images"].astype(int)
+    out["weedy_images"] = out["weedy_images"].astype(int)
     return out
 
 
 def evaluate_folder(module: SegNet, variables: dict, root: str | Path, crop: str | None = None,
                     split: str | None = "test", size: int | None = None, batch: int = 32,
                     threshold: float = THRESHOLD, workers: int = 4) -> pd.DataFrame:
-    """Per-image counts with the index columns (crop, condition, ...) of the selected rows."""
+    """Per-image counts with the index columns (crop, condition, ...) of the selected rows (the
+    weed counts too where the folder has class images)."""
     rows = seg_data.select(seg_data.read_index(root), crop, split)
     if len(rows) == 0:
         raise ValueError(f"dataset {str(root)!r}: no images of crop {crop!r} in split {split!r}")
     rgb, mask = seg_data.load_arrays(root, rows, size, workers)
-    counts = count_batches(module, variables, seg_data.batches(rgb, mask, batch), threshold)
+    weed = seg_data.load_weeds(root, rows, size, workers)
+    counts = count_batches(module, variables, seg_data.batches(rgb, mask, batch, weed),
+                           threshold)
     return pd.concat([rows.reset_index(drop=True), counts], axis=1)
 
 
-def evaluate_renders(module: SegNet, variables: dict, crop: str, n: int, size: int,
-                     batch: int = 32, seed: int = 0,
-                     threshold: float = THRESHOLD) -> pd.DataFrame:
-    """Per-image counts on ⌈n / batch⌉ batches rendered on the fly (fixed seed 20,000 + seed)."""
-    fn = seg_data.onthefly(crop, size, batch)
-    batches = seg_data.fixed_set(fn, max(1, -(-n // batch)), 20_000 + seed)
-    counts = count_batches(module, variables, batches, threshold)
+def render_set(crop: str, n: int, size: int, batch: int = 32, seed: int = 0,
+               variety: str = "fields") -> tuple[list, pd.DataFrame]:
+    """The fixed test renders: ⌈n / batch⌉ batches [(rgb, mask, weight, weed)] (seed
+    20,000 + seed) and their images' crop and condition (a frame, one row per image)."""
+    fn = seg_data.onthefly(crop, size, batch, variety=variety, labels=True)
+    rendered = seg_data.fixed_set(fn, max(1, -(-n // batch)), 20_000 + seed)
     names = crops.names()
     per_batch = [crop] * batch if crop != "all" else list(np.repeat(names, batch // len(names)))
-    return counts.assign(crop=per_batch * len(batches), condition="mixed")
+    conds = np.concatenate([b[4] for b in rendered])
+    labels = pd.DataFrame({"crop": per_batch * len(rendered),
+                           "condition": np.asarray(render.CONDITIONS)[conds]})
+    return [(rgb, mask, w, classes == render.WEED)
+            for rgb, mask, w, classes, _ in rendered], labels
+
+
+def evaluate_renders(module: SegNet, variables: dict, crop: str, n: int, size: int,
+                     batch: int = 32, seed: int = 0, threshold: float = THRESHOLD,
+                     variety: str = "fields") -> pd.DataFrame:
+    """Per-image counts (weeds included) on `render_set`'s renders, with their crop and
+    condition."""
+    batches, labels = render_set(crop, n, size, batch, seed, variety)
+    counts = count_batches(module, variables, batches, threshold)
+    return pd.concat([labels, counts], axis=1)
 
 
 def cli(argv: list[str] | None = None) -> int:
@@ -160,7 +203,7 @@ def main(argv: list[str] | None = None) -> pd.DataFrame:
                              args.threshold)
     else:
         df = evaluate_renders(module, variables, args.crop, args.n, size, args.batch, args.seed,
-                              args.threshold)
+                              args.threshold, args.variety)
     table = summarise(df)
     with pd.option_context("display.float_format", "{:.4f}".format, "display.width", 120):
         print(table.to_string(index=False))

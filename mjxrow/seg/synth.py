@@ -2,19 +2,24 @@
 
 CLI:
     python -m mjxrow.seg.synth --crop zucchini --n 19456 --out DIR [--seed S] [--size 224]
-        [--test-frac F] [--batch B] [--workers W]
+        [--test-frac F] [--batch B] [--workers W] [--variety fields|none]
     python -m mjxrow.seg.synth --crop zucchini --contact-sheet docs/contact_zucchini.png
 
-Layout of DIR: `index.csv` (columns rgb, mask, crop, condition, x, y, z, yaw, pitch, lateral,
-split; paths relative to DIR), images `<condition>/rgb/<crop>_<i:06d>.png` (RGB, 8-bit) and
-`<condition>/mask/<crop>_<i:06d>.png` (8-bit, 0 or 255), four sub-datasets by sky and lighting
-(`render.CONDITIONS`), sample i in condition i mod 4.
+Layout of DIR: `index.csv` (columns rgb, mask, classes, crop, condition, x, y, z, yaw, pitch,
+lateral, row_amplitude, row_curvature, gap_rate, weed_density, split; paths relative to DIR),
+images `<condition>/rgb/<crop>_<i:06d>.png` (RGB, 8-bit), `<condition>/mask/<crop>_<i:06d>.png`
+(the crop plants: 8-bit, 0 or 255; weeds are not crop) and `<condition>/class/<crop>_<i:06d>.png`
+(8-bit class ids of `mjxrow.render`: sky, soil, plant, obstacle, weed), four sub-datasets by
+sky and lighting (`render.CONDITIONS`), sample i in condition i mod 4.
 
-Every sample is a function of (crop, seed, i) only: its own field (the crop's preset with
-geometry, terrain and obstacles varied), a camera pose in that field and randomised lighting.
-Hence a re-run with the same arguments resumes: finished pairs are skipped, never rewritten
-(files appear through temp file + rename), and the index is rebuilt identically. The test split
-is an exact fraction of each condition, drawn with the seed.
+Every sample is a function of (crop, seed, variety, i) only: its own field (the crop's preset
+with geometry, terrain and obstacles varied; with `--variety fields`, the default, also curved
+rows, gap runs and weeds in a share of the fields; `--variety none`: straight rows without gaps
+or weeds), a camera pose in that field and randomised lighting. Hence a re-run with the same
+arguments resumes: finished samples are skipped, never rewritten (files appear through temp
+file + rename), and the index is rebuilt identically; a folder holding samples of another seed
+or variety is refused. The test split is an exact fraction of each condition, drawn with the
+seed.
 
 The samples (fields, camera poses, lighting) are `mjxrow.seg.synthesis`'s.
 """
@@ -29,6 +34,7 @@ from mjxrow import commands, limits
 # the command's light half (mjxrow.commands): the parser, the checks of the flags, and the
 # hand-over to the heavy module
 RUN = "mjxrow.seg.synthesis"  # the heavy module: its main(argv) writes the dataset
+VARIETIES = ("fields", "none")  # = seg.scenes.VARIETIES: with curved rows, gaps, weeds or not
 
 
 def parser() -> argparse.ArgumentParser:
@@ -47,6 +53,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--contact-sheet", metavar="PNG",
                     help="write a contact sheet (a few samples per condition) and exit")
     ap.add_argument("--per-condition", type=int, default=3)
+    ap.add_argument("--variety", default="fields", choices=VARIETIES,
+                    help="fields: curved rows, gap runs and weeds in a share of the fields "
+                    "(default); none: straight rows without gaps or weeds")
     return ap
 
 

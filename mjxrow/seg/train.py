@@ -19,6 +19,7 @@ import argparse
 import sys
 
 from mjxrow import commands
+from mjxrow.seg.synth import VARIETIES
 
 # the command's light half (mjxrow.commands): the parser and the hand-over to the heavy module
 RUN = "mjxrow.seg.training"  # the heavy module: its cli(argv) trains
@@ -55,6 +56,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--log-every", type=int, default=50)
     p.add_argument("--val-frac", type=float, default=0.1, help="of train split (--data)")
     p.add_argument("--val-n", type=int, default=512, help="validation renders (--on-the-fly)")
+    p.add_argument("--variety", default="fields", choices=VARIETIES,
+                   help="fields of the renders (--on-the-fly): fields (curved rows, gaps and "
+                   "weeds in a share of them, default) or none")
     p.add_argument("--workers", type=int, default=4, help="image decoding threads (--data)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", help="run folder (default runs/seg_<crop>_<arch>)")

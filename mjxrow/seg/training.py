@@ -327,13 +327,15 @@ def build_data(args) -> Data:
         return Data(val=val, batches=loader,
                     describe=f"folder {Path(args.data).resolve()} crop {args.crop}: "
                              f"{len(train_df)} train / {len(val_df)} val images, sizes {sizes}")
-    fns = tuple(seg_data.onthefly(args.crop, size, args.batch) for size in args.size)
+    fns = tuple(seg_data.onthefly(args.crop, size, args.batch, variety=args.variety)
+                for size in args.size)
     n_val = max(1, -(-args.val_n // args.batch))
     val = [
         b for i, fn in enumerate(fns) for b in seg_data.fixed_set(fn, n_val, 10_000 + args.seed + i)
     ]
     return Data(val=val, batch_fn=fns,
-                describe=f"on-the-fly renders crop {args.crop}, sizes {sizes}, "
+                describe=f"on-the-fly renders crop {args.crop} (variety {args.variety}), "
+                         f"sizes {sizes}, "
                          f"{n_val * args.batch} val images per size (seed {10_000 + args.seed})")
 
 
