@@ -63,6 +63,8 @@ class RenderConfig:
     terrain_refine: int = 7  # bisections of the first bracket before the exact triangle
     obstacles: int = 8  # nearest obstacles (ahead of the camera) tested per frame
     obstacle_keep: int = 2  # of those, the ones per tile that its rays test (entered first)
+    weeds: int = 64  # nearest weeds in view kept per frame (`render.weeds`; fields with weeds)
+    weed_keep: int = 4  # of those, the ones per tile that its rays (and shadow rays) test
     shadows: bool = True  # plants and obstacles cast sun shadows
     kernel: str | None = None  # how the per-ray tests run (KERNELS; None: `default_kernel`)
     settle: str | None = None  # what is kept in memory before its consumers read it: the
@@ -75,7 +77,7 @@ class RenderConfig:
     def __post_init__(self):
         for name in ("tile", "row_blocks", "block_keep", "keep", "deep_row_blocks",
                      "deep_block_keep", "shadow_row_blocks", "shadow_block_keep", "shadow_keep",
-                     "terrain_steps", "obstacles", "obstacle_keep"):
+                     "terrain_steps", "obstacles", "obstacle_keep", "weeds", "weed_keep"):
             v = getattr(self, name)
             if v is not None and int(v) < 1:
                 raise ValueError(f"render.{name}: must be at least 1, got {v}")

@@ -34,9 +34,12 @@ import numpy as np
 from flax import struct
 
 from mjxrow import field as mjxrow_field
+from mjxrow.crops import prims as crops_prims
+from mjxrow.field import lanes as field_lanes
 from mjxrow.render import geom, pallas, shade
 from mjxrow.render import terrain as render_terrain
 from mjxrow.render import tiles as render_tiles
+from mjxrow.render import weeds as render_weeds
 from mjxrow.render.config import DEFAULT_CONFIG, Intrinsics, RenderConfig, resolve
 from mjxrow.render.geom import PlantTable, plant_table
 from mjxrow.render.shade import (
@@ -45,13 +48,14 @@ from mjxrow.render.shade import (
     PLANT,
     SKY,
     SOIL,
+    WEED,
     Conditions,
     condition_by_index,
     conditions,
 )
 
 __all__ = ["CONDITIONS", "DEFAULT_CONFIG", "Conditions", "Frame", "Intrinsics", "PlantTable",
-           "RenderConfig", "SKY_DEPTH", "geometry", "plant_table",
+           "RenderConfig", "SKY_DEPTH", "WEED", "geometry", "plant_table",
            "camera_rot", "condition_by_index", "conditions", "render"]
 
 INF = jnp.inf
@@ -67,13 +71,24 @@ def _settle(tree, how: str):
 
 
 @struct.dataclass
+class _Surface:
+    """What the shading needs of the plant or weed under each pixel ([N]; any value
+    elsewhere)."""
+
+    material: jax.Array  # int32 [N], crops.prims.LEAF ... WEED
+    base: jax.Array  # float32 [N, 3]: base z [m], height [m], phase [0, 1)
+    item: jax.Array  # int32 [N], plant index (R·P + the weed's slot for a weed): texture seed
+    k: jax.Array  # int32 [N], primitive
+
+
+@struct.dataclass
 class Frame:
     """One rendered image (add [B] in front for a batch)."""
 
     rgb: jax.Array  # uint8 [H, W, 3]
     depth: jax.Array  # float32 [H, W], metres along the optical axis; SKY_DEPTH for sky
-    mask: jax.Array  # bool [H, W], plant pixels (classes == PLANT)
-    classes: jax.Array  # uint8 [H, W]: 0 sky, 1 soil, 2 plant, 3 obstacle
+    mask: jax.Array  # bool [H, W], crop plant pixels (classes == PLANT; never weeds)
+    classes: jax.Array  # uint8 [H, W]: SKY 0, SOIL 1, PLANT 2, OBSTACLE 3, WEED 4
 
 
 def camera_rot(yaw: jax.Array, pitch: jax.Array, roll: jax.Array = 0.0) -> jax.Array:
@@ -99,9 +114,10 @@ def pixel_rays(intr: Intrinsics) -> np.ndarray:
     return np.stack([xx, yy, -np.ones_like(xx)], -1).reshape(-1, 3).astype(np.float32)
 
 
-def _trace(field, shape, tab, obst, rays, cfg):
+def _trace(field, shape, tab, obst, wtab, rays, cfg):
     """Nearest surface of each ray (flat, tile-major [N = T·P]): (t, class, point, normal,
-    plant, primitive k, is_branch, point in the plant primitive's frame)."""
+    point in the plant's or weed's primitive frame, `_Surface` of the plant or weed pixels,
+    is_branch). wtab: the frame's `weeds.table`, or None (a field without weeds)."""
     cam, d, c, tan_a = rays
     nt, npx = tan_a.shape[0], d.shape[0] // tan_a.shape[0]
     n = d.shape[0]
@@ -133,19 +149,42 @@ def _trace(field, shape, tab, obst, rays, cfg):
                                                           t_min.reshape(nt, npx))
         t_obs, branch = t_obs.reshape(-1), branch.reshape(-1)
     t_far = jnp.minimum(jnp.minimum(t_ter, t_obs), far)
+    t_wd = jnp.full((n,), INF)
+    if wtab is not None:
+        with jax.named_scope("rd_weeds"):
+            t_cut = t_far.reshape(nt, npx)
+            wid, went = render_tiles.cull_weeds(wtab, *sweep, jnp.max(t_cut, axis=1),
+                                                cfg.weed_keep)
+            t_wd, weed, k_wd = (x.reshape(-1) for x in render_tiles.exact(
+                wtab, wid, went, oc, geom.xyz(d.reshape(nt, npx, 3)), t_min.reshape(nt, npx),
+                t_cut, kernel=cfg.kernel))
+        t_far = jnp.minimum(t_far, t_wd)
     t_pl, plant, k = _trace_plants(shape, tab, sweep, oc, d.reshape(nt, npx, 3),
                                    t_far.reshape(nt, npx), cfg)
     cls = jnp.where(jnp.isfinite(t_pl), PLANT,
-                    jnp.where((t_obs < t_ter) & (t_obs < cfg.far), OBSTACLE,
-                              jnp.where(t_ter < cfg.far, SOIL, SKY)))
+                    jnp.where(jnp.isfinite(t_wd), WEED,
+                              jnp.where((t_obs < t_ter) & (t_obs < cfg.far), OBSTACLE,
+                                        jnp.where(t_ter < cfg.far, SOIL, SKY))))
     t = jnp.where(cls == PLANT, t_pl, jnp.where(cls == OBSTACLE, t_obs, t_ter))
+    t = jnp.where(cls == WEED, t_wd, t)
     t = jnp.where(cls == SKY, 0.0, t)
     p = o + t[:, None] * d
     with jax.named_scope("rd_plant_normal"):
         n_pl, local = geom.plant_normal(tab, plant, k, p)
-    normal = jnp.where((cls == PLANT)[:, None], n_pl,
+    surf = _Surface(material=jnp.asarray(tab.material)[k], base=tab.base[plant], item=plant, k=k)
+    if wtab is not None:
+        with jax.named_scope("rd_weed_normal"):
+            n_wd, local_wd = geom.plant_normal(wtab, weed, k_wd, p)
+        is_weed = cls == WEED
+        n_pl = jnp.where(is_weed[:, None], n_wd, n_pl)
+        local = jnp.where(is_weed[:, None], local_wd, local)
+        surf = _Surface(material=jnp.where(is_weed, crops_prims.WEED, surf.material),
+                        base=jnp.where(is_weed[:, None], wtab.base[weed], surf.base),
+                        item=jnp.where(is_weed, tab.base.shape[0] + wtab.index[weed], plant),
+                        k=jnp.where(is_weed, k_wd, k))
+    normal = jnp.where(((cls == PLANT) | (cls == WEED))[:, None], n_pl,
                        jnp.where((cls == OBSTACLE)[:, None], n_obs, n_ter))
-    return t, cls, p, normal, plant, k, branch, local
+    return t, cls, p, normal, local, surf, branch
 
 
 def _trace_plants(shape, tab, sweep, oc, d, t_far, cfg):
@@ -208,9 +247,9 @@ def _deep_pass(tab, P, sweep, d, t_min, u, live, oc, cfg):
     return out
 
 
-def _shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, nt):
+def _shadow(field, shape, tab, obst, wtab, p, normal, cls, cond, cfg, nt):
     """Visibility of the sun from surface points p [N, 3] (tile-major; cls [N] their class):
-    1 lit, 0 in a plant's or obstacle's shadow."""
+    1 lit, 0 in a plant's, weed's or obstacle's shadow."""
     n = p.shape[0]
     l = cond.sun_dir
     o = p + 2e-3 * normal + 1e-3 * l
@@ -238,13 +277,21 @@ def _shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, nt):
     oid, oent = render_tiles.cull_obstacles(obst, *sweep, t_max, cfg.obstacle_keep)
     t_ob = geom.trace_obstacles_tiled(obst, oid, oent, geom.xyz(ot), ls, t_min.reshape(nt, -1),
                                    any_hit=True).reshape(-1)
-    return jnp.where(jnp.isfinite(t_pl) | jnp.isfinite(t_ob), 0.0, 1.0)
+    shade_ = jnp.isfinite(t_pl) | jnp.isfinite(t_ob)
+    if wtab is not None:
+        wid, went = render_tiles.cull_weeds(wtab, *sweep, t_max, cfg.weed_keep)
+        t_wd = render_tiles.exact(wtab, wid, went, geom.xyz(ot), ls, t_min.reshape(nt, -1),
+                                  jnp.full(ot.shape[:2], SHADOW_REACH, jnp.float32),
+                                  any_hit=True, kernel=cfg.kernel).reshape(-1)
+        shade_ = shade_ | jnp.isfinite(t_wd)
+    return jnp.where(shade_, 0.0, 1.0)
 
 
 def _ground_occlusion(tab, p):
     """Ambient occlusion of the ground near the rows: 0.55 under a canopy line .. 1 in a lane."""
     ok = tab.row_zhi > tab.row_zlo  # rows with plants
-    dist = jnp.min(jnp.where(ok, jnp.abs(p[:, 1:2] - tab.row_y), 1e3), axis=1)
+    u = field_lanes.to_field(tab.bend, p[:, 0:1], p[:, 1:2])[1]  # across the rows (y if straight)
+    dist = jnp.min(jnp.where(ok, jnp.abs(u - tab.row_y), 1e3), axis=1)
     s = jnp.clip((dist - 0.2 * tab.reach_y) / jnp.maximum(1.2 * tab.reach_y, 1e-3), 0.0, 1.0)
     return 0.55 + 0.45 * s * s * (3 - 2 * s)
 
@@ -255,9 +302,9 @@ def _rotate(v, rot):
 
 
 def _setup(field, shape, cam_pos, cam_rot, intr, cfg, table=None):
-    """Field with its terrain in memory, plant table, obstacle table, rays (camera [3],
-    directions [N, 3] tile-major, tile centres [T, 3], tan of the tile half-angles [T]),
-    |z = −1 pixel ray| [N], tile grid."""
+    """Field with its terrain in memory, plant table, obstacle table, weed table (None: the
+    shape holds no weeds), rays (camera [3], directions [N, 3] tile-major, tile centres
+    [T, 3], tan of the tile half-angles [T]), |z = −1 pixel ray| [N], tile grid."""
     # a terrain generated in the same jit must be in memory before the per-ray gathers
     field = field.replace(terrain=geom.materialise(field.terrain))
     dirs, norm, centre, tan_a, tiles = render_tiles.tile_layout(intr.width, intr.height, intr.fovy,
@@ -270,8 +317,13 @@ def _setup(field, shape, cam_pos, cam_rot, intr, cfg, table=None):
         tab = geom.plant_table(field, shape) if table is None else table
     obst = geom.obstacle_table(field, cam_pos, -cam_rot[:, 2],
                             min(cfg.obstacles, shape.obstacle_slots))
+    wtab = None
+    if shape.weed_slots > 0:
+        with jax.named_scope("rd_weed_table"):
+            wtab = render_weeds.table(field, cam_pos, cam_rot, intr,
+                                      min(cfg.weeds, shape.weed_slots))
     rays = (cam_pos, d, c, jnp.asarray(tan_a))
-    return field, tab, obst, rays, jnp.asarray(norm.reshape(-1)), tiles
+    return field, tab, obst, wtab, rays, jnp.asarray(norm.reshape(-1)), tiles
 
 
 def geometry(
@@ -286,9 +338,9 @@ def geometry(
     """What `render` sees, without shading: (depth float32 [H, W] (metres along the optical
     axis, SKY_DEPTH for sky), classes uint8 [H, W]). Same arguments as `render`."""
     cfg = resolve(cfg, shape.crop, intr)
-    field, tab, obst, rays, norm, tiles = _setup(field, shape, cam_pos, cam_rot, intr, cfg,
-                                                 table)
-    t, cls, *_ = _trace(field, shape, tab, obst, rays, cfg)
+    field, tab, obst, wtab, rays, norm, tiles = _setup(field, shape, cam_pos, cam_rot, intr,
+                                                       cfg, table)
+    t, cls, *_ = _trace(field, shape, tab, obst, wtab, rays, cfg)
     depth = jnp.where(cls == SKY, SKY_DEPTH, t / norm).astype(jnp.float32)
     to_image = functools.partial(_image, tiles=tiles, intr=intr)
     return to_image(depth), to_image(cls.astype(jnp.uint8))
@@ -320,27 +372,26 @@ def render(
     same field (an episode), or None to compute it here. Returns a `Frame` of [H, W] images."""
     cfg = resolve(cfg, shape.crop, intr)
     with jax.named_scope("rd_setup"):
-        field, tab, obst, rays, norm, tiles = _setup(field, shape, cam_pos, cam_rot, intr, cfg,
-                                                     table)
+        field, tab, obst, wtab, rays, norm, tiles = _setup(field, shape, cam_pos, cam_rot,
+                                                           intr, cfg, table)
     d = rays[1]
-    t, cls, p, normal, plant, k, is_branch, local = _trace(field, shape, tab, obst, rays, cfg)
+    t, cls, p, normal, local, surf, is_branch = _trace(field, shape, tab, obst, wtab, rays, cfg)
     if cfg.settle == "barrier":
         p, normal, local = jax.lax.optimization_barrier((p, normal, local))
     with jax.named_scope("rd_shadow"):
-        vis = (_shadow(field, shape, tab, obst, p, normal, cls, cond, cfg, tiles[0] * tiles[1])
-               if cfg.shadows else jnp.ones_like(t))
+        vis = (_shadow(field, shape, tab, obst, wtab, p, normal, cls, cond, cfg,
+                       tiles[0] * tiles[1]) if cfg.shadows else jnp.ones_like(t))
 
-    material = jnp.asarray(tab.material)[k]
-    phase = tab.base[plant, 2]
-    albedo, normal, sky = shade.surfaces(shape.crop, cls, material, p, local, phase, plant, k,
-                                     is_branch, normal, d, cond,
-                                     keep=functools.partial(_settle, how=cfg.settle))
-    # light: sky ambient (occluded near plants and under canopies) + sun (shadowed)
+    albedo, normal, sky = shade.surfaces(shape.crop, cls, surf.material, p, local,
+                                         surf.base[:, 2], surf.item, surf.k, is_branch, normal,
+                                         d, cond, keep=functools.partial(_settle, how=cfg.settle))
+    # light: sky ambient (occluded near plants and under canopies) + sun (shadowed); weeds are
+    # lit as leaves
+    leafy = (cls == PLANT) | (cls == WEED)
     ndl = jnp.sum(normal * cond.sun_dir, -1)
-    rel_h = jnp.clip((p[:, 2] - tab.base[plant, 0]) / jnp.maximum(tab.base[plant, 1], 1e-3),
-                     0.0, 1.0)
-    ao = jnp.where(cls == PLANT, 0.45 + 0.55 * jnp.sqrt(rel_h), _ground_occlusion(tab, p))
-    sun = jnp.maximum(ndl, 0.0) + jnp.where(cls == PLANT, 0.3 * jnp.maximum(-ndl, 0.0), 0.0)
+    rel_h = jnp.clip((p[:, 2] - surf.base[:, 0]) / jnp.maximum(surf.base[:, 1], 1e-3), 0.0, 1.0)
+    ao = jnp.where(leafy, 0.45 + 0.55 * jnp.sqrt(rel_h), _ground_occlusion(tab, p))
+    sun = jnp.maximum(ndl, 0.0) + jnp.where(leafy, 0.3 * jnp.maximum(-ndl, 0.0), 0.0)
     # the per-pixel terms once, not once per colour channel
     albedo, ao, sun, vis = _settle((albedo, ao, sun, vis), cfg.settle)
     light = ao[:, None] * cond.ambient + (vis * sun)[:, None] * cond.sun_rgb

@@ -18,10 +18,11 @@ from flax import struct
 
 from mjxrow import field as mjxrow_field
 from mjxrow.crops import prims as crops_prims
-from mjxrow.field import params as field_params
+from mjxrow.field import lanes as field_lanes
+from mjxrow.render import rows as render_rows
 
 INF = jnp.inf
-BLOCK = 4  # plants per block of the first culling level
+BLOCK = render_rows.BLOCK  # plants per block of the first culling level
 _EPS_DIR = 1e-9  # |direction component| below this counts as parallel
 
 
@@ -154,66 +155,86 @@ class PlantTable:
     semi-axis_i); capsule = centre (3), axis (3), radius, half length, 4 zeros. `box_t` is each
     plant's axis-aligned bounding box (x lo, x hi, y lo, y hi, z lo, z hi); an inactive plant
     has an empty box. `block_t` holds the boxes of blocks of BLOCK consecutive plants of a
-    row."""
+    row, `seg_t` the strips around segments of `seg` consecutive plant slots of a row
+    (`render.rows`), through which a tile finds the blocks it can meet on straight and curved
+    rows alike."""
 
     prim: jax.Array  # float32 [K, R·P, 12]
     box_t: jax.Array  # float32 [6, R·P] [m]
     block_t: jax.Array  # float32 [6, R·NB] [m], boxes of BLOCK consecutive plants of a row
+    seg_t: jax.Array  # float32 [12, R·NS], segments of `seg` plant slots (`rows.segments`)
     base: jax.Array  # float32 [R·P, 3]: base z [m], height [m], phase [0, 1)
-    row_y: jax.Array  # float32 [R], row centre lines [m]
+    row_y: jax.Array  # float32 [R], row centre lines: their u in field coordinates [m]
     row_zlo: jax.Array  # float32 [R], lowest point of any plant of the row [m]
     row_zhi: jax.Array  # float32 [R], highest point of any plant of the row [m]
-    reach_y: jax.Array  # float32 [], largest lateral reach of a plant from its row line [m]
-    reach_x: jax.Array  # float32 [], largest reach along x from the plant's nominal x [m]
-    x0: jax.Array  # float32 [], nominal x of plant 0 [m]
-    d_pp: jax.Array  # float32 [], nominal plant spacing [m]
+    reach_y: jax.Array  # float32 [], largest reach of a plant's box corner across its row
+    # (in u) [m]
+    bend: field_lanes.Bend  # the rows' centre line (`mjxrow.field.lanes`)
     kind: np.ndarray = struct.field(pytree_node=False)  # int [K], plants.ELLIPSOID / CAPSULE
     material: np.ndarray = struct.field(pytree_node=False)  # int [K], plants.LEAF ...
+    seg: int = struct.field(pytree_node=False, default=BLOCK)  # plant slots per segment
 
 
-def plant_table(field: mjxrow_field.Field, shape: mjxrow_field.FieldShape) -> PlantTable:
-    """Primitive table, bounding boxes and row bounds of one field (pure; cost ~R·P·K,
-    small next to the rays). Every bound comes from the actual primitives, so culling never
-    drops a plant that reaches into a box."""
-    pr = crops_prims.plant_prims(field, shape)
-    R, P, K = pr.active.shape
+def prim_rows(pr: crops_prims.Prims) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The ray-casting rows of primitives `pr` ([..., K] leading axes flattened to N items):
+    (prim float32 [K, N, 12] (see PlantTable), lo, hi float32 [N, 3]: each item's axis-aligned
+    box over its K primitives, from the primitives themselves)."""
+    K = pr.kind.shape[0]
     rot, size, c = pr.rot, pr.size, pr.centre
-    is_caps = jnp.asarray(pr.kind == crops_prims.CAPSULE)[None, None, :]
+    lead = c.shape[:-2]
+    is_caps = jnp.asarray(pr.kind == crops_prims.CAPSULE)
     # ellipsoid A = diag(1/size) · rotᵀ ; capsule (axis, r, h)
     A = jnp.swapaxes(rot, -1, -2) / jnp.maximum(size[..., :, None], 1e-6)
     axis = rot[..., :, 2]
     caps = jnp.concatenate([axis, size[..., :1], size[..., 2:3], jnp.zeros(size.shape[:-1] + (4,))],
                            -1)
-    data = jnp.where(is_caps[..., None], caps, A.reshape(A.shape[:-2] + (9,)))
-    prim = jnp.moveaxis(jnp.concatenate([c, data], -1).reshape(R * P, K, 12), 1, 0)
+    data = jnp.where(is_caps[:, None], caps, A.reshape(A.shape[:-2] + (9,)))
+    prim = jnp.moveaxis(jnp.concatenate([c, data], -1).reshape(-1, K, 12), 1, 0)
     # axis-aligned half extents of each primitive (elementwise: no tiny matrix products)
     rs = rot * size[..., None, :]
     ext_e = jnp.sqrt(rs[..., 0] ** 2 + rs[..., 1] ** 2 + rs[..., 2] ** 2)
     ext_c = jnp.abs(axis) * size[..., 2:3] + size[..., :1]
-    ext = jnp.where(is_caps[..., None], ext_c, ext_e)  # [R, P, K, 3]
+    ext = jnp.where(is_caps[:, None], ext_c, ext_e)  # [..., K, 3]
+    lo = jnp.min(c - ext, axis=-2).reshape(lead + (3,))
+    hi = jnp.max(c + ext, axis=-2).reshape(lead + (3,))
+    return prim, lo, hi
+
+
+def plant_table(field: mjxrow_field.Field, shape: mjxrow_field.FieldShape) -> PlantTable:
+    """Primitive table, bounding boxes and row segments of one field (pure; cost ~R·P·K,
+    small next to the rays). Every bound comes from the actual primitives, so culling never
+    drops a plant that reaches into a box."""
+    pr = crops_prims.plant_prims(field, shape)
+    R, P, K = pr.active.shape
+    prim, lo, hi = prim_rows(pr)
     act = field.plant_active
     big = jnp.float32(1e9)
-    lo = jnp.where(act[..., None, None], jnp.min(c - ext, axis=2, keepdims=True), big)[:, :, 0]
-    hi = jnp.where(act[..., None, None], jnp.max(c + ext, axis=2, keepdims=True), -big)[:, :, 0]
+    lo = jnp.where(act[..., None], lo, big)
+    hi = jnp.where(act[..., None], hi, -big)
     box = jnp.stack([lo[..., 0], hi[..., 0], lo[..., 1], hi[..., 1], lo[..., 2], hi[..., 2]])
     nb = -(-P // BLOCK)
     pad = jnp.stack([jnp.full((R, nb * BLOCK - P), v) for v in (big, -big) * 3])
     blk = jnp.concatenate([box, pad], -1).reshape(6, R, nb, BLOCK)
     blk = jnp.concatenate([jnp.min(blk[0::2], -1), jnp.max(blk[1::2], -1)])[jnp.array(
         [0, 3, 1, 4, 2, 5])]
-    lat = jnp.maximum(hi[..., 1] - field.row_y[:, None], field.row_y[:, None] - lo[..., 1])
+    seg = render_rows.segment_plants(shape.crop, P)
+    seg_t = render_rows.segments(field, lo, hi, act, seg)
+    # reach across the rows (the ground's occlusion): the boxes' corners in field coordinates
+    # (on a straight field u = y, and this is max(y hi − row_y, row_y − y lo))
+    bend = field_lanes.field_bend(field)
+    lat = jnp.full((R, P), -jnp.inf)
+    for cx in (lo[..., 0], hi[..., 0]):
+        for cy in (lo[..., 1], hi[..., 1]):
+            u = field_lanes.to_field(bend, cx, cy)[1] - field.row_y[:, None]
+            lat = jnp.maximum(lat, jnp.maximum(u, -u))
     reach_y = jnp.max(jnp.where(act, lat, 0.0))
-    d_pp = field_params._scaled(field.params)["d_pp"]
-    x0 = field.row_x[0]
-    x_nom = x0 + jnp.arange(P, dtype=jnp.float32) * d_pp
-    reach_x = jnp.max(jnp.where(act, jnp.maximum(hi[..., 0] - x_nom, x_nom - lo[..., 0]), 0.0))
     base = jnp.stack([field.plant_pos[..., 2], field.plant_size[..., 2], field.plant_phase], -1)
-    prim, box_t, block_t, base = materialise(
-        (prim, box.reshape(6, R * P), blk.reshape(6, R * nb), base.reshape(R * P, 3)))
-    return PlantTable(prim=prim, box_t=box_t, block_t=block_t, base=base, row_y=field.row_y,
-                      row_zlo=jnp.min(lo[..., 2], axis=1), row_zhi=jnp.max(hi[..., 2], axis=1),
-                      reach_y=reach_y, reach_x=reach_x, x0=x0, d_pp=d_pp,
-                      kind=np.asarray(pr.kind), material=np.asarray(pr.material))
+    prim, box_t, block_t, seg_t, base = materialise(
+        (prim, box.reshape(6, R * P), blk.reshape(6, R * nb), seg_t, base.reshape(R * P, 3)))
+    return PlantTable(prim=prim, box_t=box_t, block_t=block_t, seg_t=seg_t, base=base,
+                      row_y=field.row_y, row_zlo=jnp.min(lo[..., 2], axis=1),
+                      row_zhi=jnp.max(hi[..., 2], axis=1), reach_y=reach_y, bend=bend,
+                      kind=np.asarray(pr.kind), material=np.asarray(pr.material), seg=seg)
 
 
 def unroll() -> bool:

@@ -140,12 +140,15 @@ def _lin(rgb) -> jax.Array:
     return jnp.asarray(rgb, jnp.float32) ** 2.2
 
 
-SKY, SOIL, PLANT, OBSTACLE = 0, 1, 2, 3  # pixel classes (`Frame.classes`)
+# pixel classes (`Frame.classes`): the crop's plants are PLANT (the mask controllers and the
+# segmenter's ground truth use); weeds are their own class WEED, never part of that mask
+SKY, SOIL, PLANT, OBSTACLE, WEED = 0, 1, 2, 3, 4
 
 # Every pixel's textures come from NOISE_SLOTS value noises, evaluated once per pixel at the
 # lattice coordinates and seeds its class asks for: a plant its material's one or two (mottle
 # or bark; pale patches or the canopy's clumps, whose second octave takes a third slot) and
-# three for its bumped normal, soil five, sky four (clouds), obstacles one. Evaluating every
+# three for its bumped normal (a weed: mottle and three), soil five, sky four (clouds),
+# obstacles one. Evaluating every
 # class's textures and then picking one would take 18 noises (72 hashes) a pixel, and XLA
 # would compute them once per colour channel; this takes 6 (24 hashes), which `surfaces`'
 # `keep` (the renderer's `settle`) can put in memory before any colour is formed.
@@ -195,7 +198,8 @@ def _noise_inputs(crop: str, cls, material, p, d):
     canopy = material == crops_prims.CANOPY
     plant = [pick(material == crops_prims.TRUNK, bark, mottle), pick(canopy, clumps[0], silver),
              pick(canopy, clumps[1], pad)] + bumps
-    by_class = {SKY: sky, SOIL: soil, PLANT: plant, OBSTACLE: obstacle}
+    weed = [mottle, pad, pad] + bumps
+    by_class = {SKY: sky, SOIL: soil, PLANT: plant, OBSTACLE: obstacle, WEED: weed}
     slots = []
     for i in range(NOISE_SLOTS):
         out = pad
@@ -211,9 +215,10 @@ def surfaces(crop: str, cls: jax.Array, material: jax.Array, p: jax.Array, local
              normal: jax.Array, d: jax.Array, cond: Conditions, keep=lambda x: x):
     """Albedo (linear) [N, 3], shading normal [N, 3] and sky radiance [N, 3] of the pixels.
 
-    cls [N]: their class; p [N, 3] the hit points; for plant pixels material, plant, k [N] ints
-    (the primitive's material, plant and primitive index), local [N, 3] the point in the
-    primitive's frame, phase [N] the plant's phase; is_branch [N] for obstacle pixels; normal
+    cls [N]: their class; p [N, 3] the hit points; for plant and weed pixels material, plant,
+    k [N] ints (the primitive's material, the plant's index or another number per weed, and
+    primitive index), local [N, 3] the point in the primitive's frame, phase [N] the plant's
+    or weed's phase; is_branch [N] for obstacle pixels; normal
     [N, 3] the geometric normals; d [N, 3] the unit view directions. `keep(tree)` is applied to
     the per-pixel noises before they reach the colour channels (`render.core._settle`).
 
@@ -222,6 +227,9 @@ def surfaces(crop: str, cls: jax.Array, material: jax.Array, p: jax.Array, local
       primitive, leaf veins (a pale midrib along the leaf's long axis and lateral veins), pale
       patches on the blades of crops with `Crop.silver_leaf`, clumps of foliage on canopies,
       bark streaks on trunks; normals perturbed by value noise (stronger on canopies);
+    - weeds: leaves of one of `crops.prims.WEED_PALETTE`'s colours, the third of the palette
+      its phase falls in (as the exports' `worlds.mjcf.weed_rgb`), varied within it, with
+      the leaves' mottle, veins and bumps;
     - obstacles: stone or branch colour with a streaky noise;
     - sky: zenith-horizon gradient, sun disk and glow, a cloud layer textured with value noise.
     """
@@ -239,7 +247,7 @@ def surfaces(crop: str, cls: jax.Array, material: jax.Array, p: jax.Array, local
     # plants
     spec = crops.get(crop)
     pal = _lin(spec.palette)  # [5, 3]
-    base = pal[material]
+    base = pal[jnp.minimum(material, pal.shape[0] - 1)]
     per_plant = 0.80 + 0.40 * phase
     yellow = 1.0 + 0.18 * (phase - 0.5)[:, None] * jnp.array([1.0, 0.3, -1.0])
     mottle = bark = v[0]
@@ -258,6 +266,14 @@ def surfaces(crop: str, cls: jax.Array, material: jax.Array, p: jax.Array, local
                                              jnp.where(material == crops_prims.TRUNK, f_trunk,
                                                        0.8 + 0.4 * mottle)))
     a_plant = base * cond.leaf_tint * yellow * (per_plant * per_prim * fine)[:, None]
+    # weeds: a palette colour by the third of the phase, the phase within it varying it
+    n_w = len(crops_prims.WEED_PALETTE)
+    colour = jnp.minimum(jnp.floor(phase * n_w), n_w - 1)
+    within = phase * n_w - colour
+    f_weed = (0.8 + 0.4 * mottle) * (1.0 + 0.45 * veins) * (1.0 - 0.25 * rim)
+    a_weed = (_lin(crops_prims.WEED_PALETTE)[colour.astype(jnp.int32)] * cond.leaf_tint
+              * (1.0 + 0.18 * (within - 0.5)[:, None] * jnp.array([1.0, 0.3, -1.0]))
+              * ((0.80 + 0.40 * within) * per_prim * f_weed)[:, None])
     bump = jnp.stack([v[3], v[4], v[5]], -1) - 0.5
     amp = jnp.where(material == crops_prims.CANOPY, 1.1, 0.35)[:, None]
     m = normal + amp * bump
@@ -268,9 +284,12 @@ def surfaces(crop: str, cls: jax.Array, material: jax.Array, p: jax.Array, local
     a_obst = jnp.where(is_branch[:, None], _lin(_BRANCH), _lin(_STONE)) * n[:, None]
 
     is_plant = (cls == PLANT)[:, None]
+    is_weed = (cls == WEED)[:, None]
     albedo = jnp.where(is_plant, a_plant,
                        jnp.where((cls == OBSTACLE)[:, None], a_obst, a_soil))
-    return albedo, jnp.where(is_plant, bumped, normal), _sky(d, cond, _octaves(v[0:4]))
+    albedo = jnp.where(is_weed, a_weed, albedo)
+    return (albedo, jnp.where(is_plant | is_weed, bumped, normal),
+            _sky(d, cond, _octaves(v[0:4])))
 
 
 def _sky(d: jax.Array, cond: Conditions, c: jax.Array) -> jax.Array:

@@ -41,6 +41,7 @@ import numpy as np
 
 from mjxrow.crops import prims as crops_prims
 from mjxrow.render import geom, pallas
+from mjxrow.render import rows as render_rows
 
 INF = jnp.inf
 
@@ -106,12 +107,14 @@ def _sweep_entry(o, c, g, tau, box, t_max):
     return jnp.where((box[0] <= box[1]) & (t_in <= t_out), t_in, INF)
 
 
-def _span(o, c, g, tau, t_max, a: int, lo, hi):
-    """Interval [s0, s1] [T, M] of the centre ray where the swept set can reach the slab
-    lo ≤ coordinate a ≤ hi ([M] or scalars): o_a + s·c_a ∈ [lo − g_a − s·τ, hi + g_a + s·τ],
-    two linear inequalities in s."""
-    oa, ca, ga, t = o[:, a:a + 1], c[:, a:a + 1], g[:, a:a + 1], tau[:, None]
-    s0 = jnp.zeros(jnp.broadcast_shapes(oa.shape, jnp.shape(lo)), jnp.float32)
+def _interval(oa, ca, ga, tau, t_max, lo, hi):
+    """Interval [s0, s1] of the centre ray where the swept set can reach the slab
+    lo ≤ coordinate ≤ hi along one direction: oa + s·ca ∈ [lo − ga − s·τ, hi + ga + s·τ], two
+    linear inequalities in s (oa, ca: the centre ray's origin and direction along it, ga the
+    sweep's growth along it, [T, 1] or [T, M]; tau, t_max [T]; lo, hi [M] or scalars)."""
+    t = tau[:, None]
+    s0 = jnp.zeros(jnp.broadcast_shapes(jnp.shape(oa), jnp.shape(ca), jnp.shape(lo)),
+                   jnp.float32)
     s1 = jnp.broadcast_to(t_max[:, None], s0.shape)
     for k, b in ((ca - t, hi + ga - oa), (-ca - t, oa - lo + ga)):  # k·s ≤ b
         q = b / jnp.where(k == 0, 1.0, k)
@@ -121,34 +124,64 @@ def _span(o, c, g, tau, t_max, a: int, lo, hi):
 
 
 def _window(tab: geom.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks: int):
-    """Blocks a tile's sweep can meet, through the row structure: per row, the stretch of the
-    centre ray where the sweep reaches the row's slab (lateral reach, height band, the rows' x
-    extent) gives the x range and so the plants it can meet; the first `row_blocks` blocks of
-    that range along the ray are kept. Returns (block id int32 [T, R·row_blocks], ok bool)."""
+    """Blocks a tile's sweep can meet, through the row structure: per row segment
+    (`render.rows`), the stretch of the centre ray where the sweep reaches the segment's strip
+    (across and along its chord, its height band) gives the range along the chord and so the
+    plant slots it can meet; per row, `row_blocks` blocks are kept from the segment the sweep
+    enters first, onward in the direction the ray runs along that segment's chord, within the
+    row's slots met. The sweep's growth: g per world axis, turned onto the chord as a box, and
+    s·τ (Euclidean: the same along any direction). Returns (block id int32 [T, R·row_blocks],
+    ok bool)."""
     R = tab.row_y.shape[0]
     nb = tab.block_t.shape[1] // R
-    sy0, sy1 = _span(o, c, g, tau, t_max, 1, tab.row_y - tab.reach_y, tab.row_y + tab.reach_y)
-    sz0, sz1 = _span(o, c, g, tau, t_max, 2, tab.row_zlo, tab.row_zhi)
-    x_lo = tab.x0 - tab.reach_x
-    x_hi = tab.x0 + (n_plants - 1) * tab.d_pp + tab.reach_x
-    sx0, sx1 = _span(o, c, g, tau, t_max, 0, x_lo, x_hi)
-    s0 = jnp.maximum(jnp.maximum(sy0, sz0), sx0)
-    s1 = jnp.minimum(jnp.minimum(sy1, sz1), sx1)
-    ok = (s0 <= s1) & (tab.row_zlo <= tab.row_zhi)  # [T, R]
-    xa, xb = o[:, 0:1] + s0 * c[:, 0:1], o[:, 0:1] + s1 * c[:, 0:1]
-    reach = g[:, 0:1] + s1 * tau[:, None] + tab.reach_x
-    lim = float(n_plants)
-    i_lo = jnp.clip(jnp.ceil((jnp.minimum(xa, xb) - reach - tab.x0) / tab.d_pp), -1.0, lim)
-    i_hi = jnp.clip(jnp.floor((jnp.maximum(xa, xb) + reach - tab.x0) / tab.d_pp), -1.0, lim)
-    ok = ok & (i_lo <= i_hi) & (i_hi >= 0) & (i_lo <= lim - 1)
-    b_lo = jnp.floor(jnp.maximum(i_lo, 0.0) / geom.BLOCK)
-    b_hi = jnp.floor(jnp.minimum(i_hi, lim - 1) / geom.BLOCK)
+    sg = tab.seg_t
+    ns = sg.shape[1] // R
+    ex, ey = sg[render_rows.SEG_EX], sg[render_rows.SEG_EY]
+    rx, ry = o[:, 0:1] - sg[render_rows.SEG_AX], o[:, 1:2] - sg[render_rows.SEG_AY]  # [T, M]
+    cx, cy, gx, gy = c[:, 0:1], c[:, 1:2], g[:, 0:1], g[:, 1:2]
+    oe, on = rx * ex + ry * ey, ry * ex - rx * ey
+    ce, cn = cx * ex + cy * ey, cy * ex - cx * ey
+    ge = gx * jnp.abs(ex) + gy * jnp.abs(ey)
+    gn = gx * jnp.abs(ey) + gy * jnp.abs(ex)
+    sn0, sn1 = _interval(on, cn, gn, tau, t_max, sg[render_rows.SEG_LAT_LO],
+                         sg[render_rows.SEG_LAT_HI])
+    se0, se1 = _interval(oe, ce, ge, tau, t_max, sg[render_rows.SEG_AL_LO],
+                         sg[render_rows.SEG_AL_HI])
+    sz0, sz1 = _interval(o[:, 2:3], c[:, 2:3], g[:, 2:3], tau, t_max, sg[render_rows.SEG_Z_LO],
+                         sg[render_rows.SEG_Z_HI])
+    s0 = jnp.maximum(jnp.maximum(sn0, se0), sz0)
+    s1 = jnp.minimum(jnp.minimum(sn1, se1), sz1)
+    # slots m of the segment whose boxes lie within reach of the centre ray's stretch
+    aa, ab = oe + s0 * ce, oe + s1 * ce
+    reach = ge + s1 * tau[:, None] + sg[render_rows.SEG_REACH]
+    step = sg[render_rows.SEG_STEP]
+    first = jnp.asarray(np.tile(np.arange(ns, dtype=np.float32) * tab.seg, R))  # [M]
+    last = jnp.minimum(first + (tab.seg - 1), float(n_plants - 1))
+    i_lo = first + jnp.ceil((jnp.minimum(aa, ab) - reach) / step)
+    i_hi = first + jnp.floor((jnp.maximum(aa, ab) + reach) / step)
+    hit = ((s0 <= s1) & (sg[render_rows.SEG_Z_LO] <= sg[render_rows.SEG_Z_HI])
+           & (i_lo <= i_hi) & (i_hi >= first) & (i_lo <= last))
+    i_lo, i_hi = jnp.maximum(i_lo, first), jnp.minimum(i_hi, last)
+    T = o.shape[0]
+    per_row = lambda v: v.reshape(T, R, ns)  # noqa: E731
+    hit, s0, ce, i_lo, i_hi = map(per_row, (hit, s0, ce, i_lo, i_hi))
+    # the segment entered first (ties: all of them), and the way the ray runs along it
+    s_in = jnp.where(hit, s0, INF)
+    s_first = jnp.min(s_in, -1, keepdims=True)
+    fwd = jnp.take_along_axis(ce, jnp.argmin(s_in, -1)[..., None], -1)[..., 0] >= 0  # [T, R]
+    tie = hit & (s_in <= s_first)
+    start = jnp.where(fwd, jnp.min(jnp.where(tie, i_lo, INF), -1),
+                      jnp.max(jnp.where(tie, i_hi, -INF), -1))
+    lo = jnp.min(jnp.where(hit, i_lo, INF), -1)
+    hi = jnp.max(jnp.where(hit, i_hi, -INF), -1)
+    ok = jnp.any(hit, -1)
+    start, lo, hi = (jnp.where(ok, v, 0.0) for v in (start, lo, hi))
+    b_st = jnp.floor(start / geom.BLOCK)
+    b_lo, b_hi = jnp.floor(lo / geom.BLOCK), jnp.floor(hi / geom.BLOCK)
     j = jnp.arange(row_blocks, dtype=jnp.float32)
-    fwd = (c[:, 0:1] >= 0)[..., None]
-    b = jnp.where(fwd, b_lo[..., None] + j, b_hi[..., None] - j)  # [T, R, row_blocks]
+    b = jnp.where(fwd[..., None], b_st[..., None] + j, b_st[..., None] - j)  # [T, R, row_blocks]
     ok = ok[..., None] & (b >= b_lo[..., None]) & (b <= b_hi[..., None])
     bid = jnp.arange(R, dtype=jnp.int32)[:, None] * nb + jnp.clip(b, 0, nb - 1).astype(jnp.int32)
-    T = o.shape[0]
     return bid.reshape(T, -1), ok.reshape(T, -1)
 
 
@@ -185,13 +218,24 @@ def cull(tab: geom.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks: i
     return ids, ent, rest
 
 
-def cull_obstacles(obst, o, c, g, tau, t_max, n: int):
-    """The n obstacles of a frame's table (`render_geom.obstacle_table`) a tile's sweep enters
-    first, by the same entry bound as the plants': (ids int32 [T, n], entry [T, n] (+inf:
-    none))."""
-    ent = _sweep_entry(o, c, g, tau, geom.obstacle_boxes(obst), t_max)
+def _cull_boxes(box, o, c, g, tau, t_max, n: int):
+    """The n of a frame's boxes (6 arrays [M]) a tile's sweep enters first, by the same entry
+    bound as the plants': (ids int32 [T, n] into the boxes, entry [T, n] (+inf: none))."""
+    ent = _sweep_entry(o, c, g, tau, box, t_max)
     ids = jnp.broadcast_to(jnp.arange(ent.shape[1], dtype=jnp.int32), ent.shape)
     return _first(ent, ids, n)
+
+
+def cull_obstacles(obst, o, c, g, tau, t_max, n: int):
+    """The n obstacles of a frame's table (`render_geom.obstacle_table`) a tile's sweep enters
+    first: (ids int32 [T, n], entry [T, n] (+inf: none))."""
+    return _cull_boxes(geom.obstacle_boxes(obst), o, c, g, tau, t_max, n)
+
+
+def cull_weeds(wt, o, c, g, tau, t_max, n: int):
+    """The n weeds of a frame's weed table (`render.weeds.table`) a tile's sweep enters
+    first: (ids int32 [T, n], entry [T, n] (+inf: none))."""
+    return _cull_boxes([wt.box_t[j] for j in range(6)], o, c, g, tau, t_max, n)
 
 
 def camera_sweep(cam, c, tan_a):
