@@ -31,6 +31,7 @@ import numpy as np
 
 from mjxrow import control, crops, runtime
 from mjxrow import field as mjxrow_field
+from mjxrow.field import lanes as field_lanes
 from mjxrow.field.generate import PATH_LENGTH
 from mjxrow.physics import sim
 from mjxrow.policies import perception
@@ -260,7 +261,9 @@ class Built:
 
 
 # the tree structure of a batch's Log (what the closed-loop program returns; no arrays needed)
-LOG_TREE = jax.tree.structure(Log(**{f.name: 0 for f in dataclasses.fields(Log)}))
+LOG_TREE = jax.tree.structure(Log(**{
+    **{f.name: 0 for f in dataclasses.fields(Log)},
+    "lane": field_lanes.Lane(u=0, s_end=0, bend=field_lanes.Bend(0, 0, 0, 0))}))
 _PROGRAMS: set = set()  # (program key, argument shapes) of every closed-loop program asked for
 
 
