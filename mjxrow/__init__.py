@@ -12,7 +12,7 @@ The packages, bottom-up (each imports only from the ones below it; `lint-imports
 `commands` (the light half of every command), `limits`, `crops`, `field` (the traced generator)
 → `physics`, `render`, `seg` → `control` (leaf controllers) → `policies` (perception, the
 learned policy) → `rollout` (the step, the build, the episode loop, the metrics) → `env`,
-`sweep`, `worlds` → `train`, `bench` → `episode`.
+`sweep` → `search` → `worlds` → `train`, `bench` → `episode`.
 
 The names below are loaded when first used, so that `import mjxrow` stays cheap: every command
 parses its arguments (and answers `--help`) before JAX is imported (`mjxrow.commands`).
@@ -55,6 +55,9 @@ _API = {
     "format_table": "mjxrow.rollout.metrics",
     # a whole sweep into a folder (results.csv, summary.csv, heatmaps, report.md)
     "run_sweep": ("mjxrow.sweep.run", "run"),
+    # a failure search into a folder (candidates.csv, failures.csv, figures, report.md)
+    "load_search": ("mjxrow.search.config", "load"),
+    "run_search": ("mjxrow.search.run", "run"),
     # fields and the registries
     "FieldParams": "mjxrow.field",
     "FieldShape": "mjxrow.field",

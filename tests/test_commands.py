@@ -17,6 +17,7 @@ BOUND_S = 5.0  # generous for a loaded 2-core CI machine; about 0.2 s unloaded
 # (command as run: a module after -m, or a script; arguments; exit code)
 COMMANDS = [
     ("mjxrow.sweep", ["--help"], 0),
+    ("mjxrow.search", ["--help"], 0),
     ("mjxrow.episode", ["--help"], 0),
     ("mjxrow.worlds", ["--help"], 0),
     ("mjxrow.bench", ["--help"], 0),

@@ -148,6 +148,12 @@ def _scalar(path: str, v: Any, kind: str, optional: bool = False, choices=None,
     return v
 
 
+# The checked scalar and the unknown-key message, for the configs that share this vocabulary
+# (mjxrow.search.config).
+scalar = _scalar
+unknown_key = _unknown
+
+
 def _value(path: str, v: Any, parse, axis_ok: bool) -> Any:
     """A scalar (parse(path, v)), or a tuple of scalars for a grid axis."""
     if isinstance(v, (list, dict)) and not axis_ok:
@@ -327,5 +333,5 @@ def to_dict(cfg: SweepConfig) -> dict[str, Any]:
 
 
 __all__ = ["ConfigError", "ControllerChoice", "RunConfig", "Section", "SweepConfig", "apply_sets",
-           "field_values", "from_dict", "get", "is_static", "leaf_keys", "load", "shrink",
-           "to_dict", "with_values"]
+           "field_values", "from_dict", "get", "is_static", "leaf_keys", "load", "scalar",
+           "shrink", "to_dict", "unknown_key", "with_values"]

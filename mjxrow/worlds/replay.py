@@ -7,12 +7,15 @@ rollout's key, the field from `generate_fn` on the run's static shape, the lane
 `field.robot_lane`, and the start `sim.reset` with `k_reset, _ = split(rollout key)`
 (`rollout.episode.episode`) and the run's start-pose noise. `resolve_run` makes the run config
 and shape of a preset with `--set` items, `episode_world` repeats exactly that; `from_run`
-finds a sweep cell's run config and its group's shape (`sweep.groups.plan`).
+finds a sweep cell's run config and its group's shape (`sweep.groups.plan`); `from_search` a
+search failure's candidate (its run config from the search's config.yaml and the candidate's
+normalised coordinates, as the search made it) and the search's field shape.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import sys
 from pathlib import Path
 
@@ -24,6 +27,8 @@ import yaml
 from mjxrow import field as mjxrow_field
 from mjxrow.rollout import build as rollout_build
 from mjxrow.rollout.config import RunConfig
+from mjxrow.search import box as search_box
+from mjxrow.search import config as search_config
 from mjxrow.sweep import config as sweep_config
 from mjxrow.sweep import grid as sweep_grid
 from mjxrow.sweep import groups as sweep_groups
@@ -130,4 +135,43 @@ def from_run(run_dir: str | Path, cell: int, episode: int) -> Episode:
         raise ValueError(f"--episode: results.csv says episode {episode} of cell {cell} drove "
                          f"lane {int(row['lane'])}, the regenerated field's lane is {lane}: the "
                          "field generator changed since this run")
+    return ep
+
+
+def from_search(run_dir: str | Path, rank: int) -> Episode:
+    """The episode in which the failure ranked `rank` (1 = worst, failures.csv) of the search
+    in `run_dir` failed first, exactly as the search ran it: the candidate's run config from
+    config.yaml and its normalised coordinates (`search.box.run_of`), the episode index
+    `first_failing`, the search's field shape. ValueError naming the offending flag
+    (--from-search, --rank) when something is missing or does not match."""
+    run_dir = Path(run_dir)
+    try:
+        raw = yaml.safe_load((run_dir / "config.yaml").read_text())
+        failures = pd.read_csv(run_dir / "failures.csv")
+        state = json.loads((run_dir / "state.json").read_text())
+    except (OSError, ValueError) as e:
+        raise ValueError(f"--from-search: cannot read the search in {run_dir} "
+                         f"({getattr(e, 'strerror', None) or e}); is it a search's output "
+                         "folder?") from None
+    try:
+        cfg = search_config.from_dict(raw, run_dir)
+    except ValueError as e:
+        raise ValueError(f"--from-search: {run_dir / 'config.yaml'}: {e}") from None
+    if state.get("shape") != repr(cfg.shape):
+        raise ValueError(f"--from-search: the field shape of {run_dir} is not the one its "
+                         "config gives today (the field generator or limits changed)")
+    hit = failures[failures["rank"] == rank] if "rank" in failures else failures.iloc[:0]
+    if hit.empty:
+        raise ValueError(f"--rank: {rank} is not a failure of this search "
+                         + (f"(1..{len(failures)})" if len(failures) else "(it found none)"))
+    row = hit.iloc[0]
+    u = row[[f"u_{j}" for j in range(len(cfg.box))]].to_numpy(float)
+    run = search_box.run_of(cfg.scenario, cfg.box, u)
+    episode = int(row["first_failing"])
+    ep = episode_world(run, cfg.shape, episode, name=f"{run.preset}_search_r{rank}")
+    lane = int(scene.field_lanes(ep.field)[ep.start.lane])
+    if "lane" in row and int(row["lane"]) != lane:
+        raise ValueError(f"--rank: failures.csv says failure {rank} drove lane "
+                         f"{int(row['lane'])}, the regenerated field's lane is {lane}: the "
+                         "field generator changed since this search")
     return ep

@@ -23,6 +23,8 @@ def main(argv: list[str] | None = None) -> int:
             check_out_file(args.picture, "--picture")
         if args.from_run:
             jobs = [lambda: replay.from_run(args.from_run, args.cell, args.episode)]
+        elif args.from_search:
+            jobs = [lambda: replay.from_search(args.from_search, args.rank)]
         else:
             presets = crops.names() if args.all else (args.preset,)
             resolved = [replay.resolve_run(p, args.seed, args.sets) for p in presets]
