@@ -21,8 +21,6 @@ higher (0.65-1.5 m) and steeper, one in ten turns to any heading.
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -70,7 +68,6 @@ def _extremes(crop: str, variety: str) -> mjxrow_field.FieldParams:
     return mjxrow_field.make_params(crop, host=True, **ext)
 
 
-@functools.lru_cache(maxsize=32)
 def dataset_shape(crop: str, variety: str = "fields") -> mjxrow_field.FieldShape:
     """Static shape that holds every field the sampler can draw for `crop` (weed_slots: the
     largest weed density over the largest rows' area)."""
