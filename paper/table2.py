@@ -105,9 +105,10 @@ def notes(table: pd.DataFrame, also_sizes: list[int]) -> str:
         "sky/lighting conditions, with our smaller network trained on the same renderer's "
         "images (train and test from one domain). Pixel accuracy also depends on the plant "
         "share of the image, which differs between their camera poses and ours.",
-        f"- **Weeds.** Weeds are not crop. Of the weed pixels, the models call {_range(weed)} "
-        "crop (the weed → crop column; pooled over the weedy test images, whose crop IoU is "
-        "the IoU-weedy column); the paper's fields have no weeds.",
+        "- **Weeds.** Weeds are not crop; the paper's fields have none. " + (
+            f"Of the weed pixels, the models call {_range(weed)} crop (the weed → crop "
+            "column, pooled over the weedy test images, whose crop IoU is the IoU-weedy column)."
+            if weed else "No test image shows weeds."),
     ]
     if 64 in also_sizes:
         lines.append(
