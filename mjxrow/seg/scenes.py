@@ -6,7 +6,8 @@ and absolute ranges, and with `variety="fields"` (the default) also
 - curved rows: a sinusoid (`row_amplitude`, `row_wavelength`) in 45 % of the fields and
   concentric arcs (`row_curvature`) in 45 %, independently (30 % straight, 20 % both),
 - gap runs (`gap_rate`, `gap_length`) in half of them,
-- weeds (`weed_density`, `weed_size`) in 40 % of them,
+- weeds (`weed_density`, `weed_size`) in half of them (a third to a half of the images
+  show some, by crop),
 each drawn inside what `mjxrow.field.checks` allows, so every field is valid, and with at most
 `dataset_shape(crop, variety).weed_slots` weeds. `variety="none"` draws the fields the dataset
 had before curved rows, gaps and weeds existed, number for number.
@@ -44,13 +45,13 @@ _ABSOLUTE = {"p_missing": (0.0, 0.08), "plant_size_var": (0.04, 0.14),
 _MORE_WITH_LESS = ("d_rr", "d_RR", "d_pp")  # counts grow as these shrink
 
 # the variety (world metres): shares of the fields with each feature and the ranges drawn
-P_SINE, P_ARC, P_GAPS, P_WEEDS = 0.45, 0.45, 0.5, 0.4
+P_SINE, P_ARC, P_GAPS, P_WEEDS = 0.45, 0.45, 0.5, 0.5
 WAVELENGTH = (10.0, 40.0)  # λ of the sinusoid [m]
 SINE_SLOPE = (0.05, 0.35)  # steepest slope 2πA/λ of the sinusoid [-] (A up to 2.2 m)
 ARC_TURN = (0.2, 1.4)  # the arcs' turn over the rows' length [rad] (radius 36-250 m at 50 m)
 GAP_RATE = (0.3, 2.0)  # gaps per 10 m of row
 GAP_PLANTS = (1.0, 4.0)  # mean gap length in plant spacings
-WEED_DENSITY = (0.2, 2.0)  # weeds per m²
+WEED_DENSITY = (0.2, 3.0)  # weeds per m²
 WEED_SIZE = (0.05, 0.30)  # nominal weed diameter [m], at most 80 % of the narrowest lane
 MARGIN = 0.9  # the curvature and gaps stay this far inside the checks' limits
 
