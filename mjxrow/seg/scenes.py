@@ -53,7 +53,7 @@ GAP_RATE = (0.3, 2.0)  # gaps per 10 m of row
 GAP_PLANTS = (1.0, 4.0)  # mean gap length in plant spacings
 WEED_DENSITY = (0.2, 3.0)  # weeds per m²
 WEED_SIZE = (0.05, 0.30)  # nominal weed diameter [m], at most 80 % of the narrowest lane
-MARGIN = 0.9  # the curvature and gaps stay this far inside the checks' limits
+MARGIN = 0.9  # the curvature stays this far inside the limits of its check
 
 
 def _extremes(crop: str, variety: str) -> mjxrow_field.FieldParams:
