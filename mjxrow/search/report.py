@@ -55,10 +55,12 @@ def rank_failures(cfg: SearchConfig, rows: pd.DataFrame) -> pd.DataFrame:
 
 def confirm_failures(cfg: SearchConfig, failures: pd.DataFrame, evaluator, n: int, top: int
                      ) -> pd.DataFrame:
-    """The top `top` failures, each run again at its values with `n` new seeds (run seed
-    seed + CONFIRM_SEED, episodes 0 … n − 1): rank, episodes, fails, rate, confirmed
-    (rate ≥ CONFIRMED), reasons (name: count)."""
-    picked = failures.head(top)
+    """The top `top` failures the search method found (alone or with the baseline), each run
+    again at its values with `n` new seeds (run seed seed + CONFIRM_SEED, episodes
+    0 … n − 1): rank, episodes, fails, rate, confirmed (rate ≥ CONFIRMED), reasons
+    (name: count)."""
+    own = failures["methods"].astype(str).str.split(";").map(lambda m: cfg.method in m)
+    picked = failures[own].head(top)
     seed = (cfg.seed + CONFIRM_SEED) % 2**32
     runs = [dataclasses.replace(search_box.run_of(cfg.scenario, cfg.box, u), seed=seed)
             for u in picked[u_columns(cfg)].to_numpy(float)]
@@ -134,7 +136,7 @@ def write_outputs(cfg: SearchConfig, out: Path, rows: pd.DataFrame, state: dict[
     failures = rank_failures(cfg, rows)
     files: dict[str, Path] = {}
     conf = None
-    if confirm and len(failures):
+    if confirm and len(failures) and failures["methods"].str.contains(cfg.method).any():
         conf = confirm_failures(cfg, failures, search.get_evaluator(), confirm, confirm_top)
         mjxrow_files.atomic_write_text(out / CONFIRM, conf.to_csv(index=False))
         files["confirm"] = out / CONFIRM

@@ -46,7 +46,7 @@ from mjxrow.search import report as search_report
 
 STATE, CANDIDATES, CONFIG = "state.json", "candidates.csv", "config.yaml"
 COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
-TABU = 1.5  # fitness added near a known failure: CMA-ES looks for new ones
+TABU = 1.5  # added to a failure near a known one (so −0.5): CMA-ES looks for new ones
 INVALID = 3.0  # fitness of an invalid candidate: below every valid one (margins ≤ 1)
 BOUNDARY = 0.1  # weight of the squared distance outside the box, times the fitness spread
 
@@ -62,6 +62,7 @@ class _Search:
         self.rows = pd.DataFrame()
         self.evaluator: search_evaluate.Evaluator | None = None
         self.ran = 0
+        self.generations_here: dict[str, int] = {}  # per stream, run by this process
         self._load()
 
     # --- files -----------------------------------------------------------------------------
@@ -112,6 +113,8 @@ class _Search:
         if name == cfg.method:
             if cfg.episodes is not None and st["episodes"] + cfg.generation > cfg.episodes:
                 return "episodes"
+            # the next generation's time: the last one's that compiled nothing (the first of
+            # a process compiles the program)
             if cfg.minutes is not None and st["generation"] and (
                     st["elapsed_s"] + st.get("last_s", 0.0) > 60.0 * cfg.minutes):
                 return "minutes"
@@ -180,7 +183,8 @@ class _Search:
         df = pd.DataFrame(rows)
         valid = df["outcome"] != "invalid"
         fit = np.where(valid, df["margin"].fillna(0.0), INVALID)
-        fit = fit + TABU * objective.near(U, known, cfg.merge_radius)
+        failing = (df["outcome"] == "fail").to_numpy()
+        fit = fit + TABU * (failing & objective.near(U, known, cfg.merge_radius))
         # outside the box: evaluated at its nearest point, told with the squared distance to
         # it, weighed by a tenth of the generation's spread of fitness (scale-free)
         fit = fit + BOUNDARY * np.ptp(fit) * np.sum((raw - U) ** 2, axis=1)
@@ -194,16 +198,19 @@ class _Search:
         st["stall"] = 0 if progress else st["stall"] + 1
         st["best"] = gen_best if st["best"] is None else min(st["best"], gen_best)
         st["distinct"] = distinct
+        df["restart"] = getattr(stream, "restarts", 0)  # the start these were sampled from
         if isinstance(stream, search_methods.CMAES) and (
                 st["stall"] >= cfg.patience or stream.spread() < 0.1 * cfg.merge_radius):
             stream.restart()
             st["stall"], st["best"] = 0, None
         st["generation"] = g + 1
         st["episodes"] += len(items)
-        st["last_s"] = time.perf_counter() - t0
-        st["elapsed_s"] += st["last_s"]
+        took = time.perf_counter() - t0
+        if self.generations_here.get(name):  # not this process's first: no compilation in it
+            st["last_s"] = took
+        self.generations_here[name] = self.generations_here.get(name, 0) + 1
+        st["elapsed_s"] += took
         st["method"] = stream.state()
-        df["restart"] = getattr(stream, "restarts", 0)
         df["episodes_spent"] = st["episodes"]
         df["elapsed_s"] = round(st["elapsed_s"], 3)
         df["seed"] = cfg.seed
@@ -247,10 +254,9 @@ def run(cfg: search_config.SearchConfig, out: str | Path, progress: bool = True,
         stack.enter_context(mjxrow_files.OutLock(out))
         stop = stack.enter_context(interrupt.HardStop()) if hard_stop else None
         lock = stop.lock if stop is not None else contextlib.nullcontext()
-        if not (out / CONFIG).exists():
-            with lock:
-                mjxrow_files.atomic_write_text(out / CONFIG, yaml.safe_dump(
-                    search_config.to_dict(cfg), sort_keys=False, allow_unicode=True))
+        with lock:  # this run's budget and `top` (the rest is the folder's search)
+            mjxrow_files.atomic_write_text(out / CONFIG, yaml.safe_dump(
+                search_config.to_dict(cfg), sort_keys=False, allow_unicode=True))
         search = _Search(cfg, out, progress, lock)
         if stop is not None:
             stop.flush = lambda: print(f"interrupted: {len(search.rows)} candidates kept in "
