@@ -14,6 +14,8 @@ import pandas as pd
 import pytest
 import yaml
 
+import mjxrow
+import mjxrow.search
 from mjxrow import control, runtime
 from mjxrow.control import oracle
 from mjxrow.search import box as search_box
@@ -86,7 +88,7 @@ def test_cma_es_finds_the_planted_failure_with_fewer_episodes_than_random(tmp_pa
     5 search seeds, CMA-ES against uniform random sampling in the same box."""
     cma, rnd = [], []
     for seed in range(5):
-        budget = {"episodes": 200, "failures": 1}  # none found: counted as 204
+        budget = {"episodes": 120, "failures": 1}  # none found: counted as 124
         cma.append(_first_failure(_cfg(seed=seed, method="cma_es", baseline="none",
                                        budget=budget), tmp_path / f"cma{seed}"))
         rnd.append(_first_failure(_cfg(seed=seed, method="random", budget=budget),
@@ -128,6 +130,17 @@ def test_resume_after_an_interrupt_gives_the_same_candidates(tmp_path, monkeypat
     assert len(a) == 24 and set(a["method"]) == {"cma_es", "random"}
     assert a[a["method"] == "cma_es"]["restart"].tolist() == [0] * 4 + [1] * 4 + [2] * 4
     pd.testing.assert_frame_equal(a, b)
+
+
+def test_a_minutes_budget_counts_generations_that_compile_nothing(tmp_path):
+    """A budget of 60 ms: the first generation (which may compile) always runs and
+    ends the search; the baseline then spends as many episodes."""
+    res = search_run.run(_cfg(budget={"minutes": 0.001}), tmp_path, progress=False,
+                         figures=False)
+    table = res["summary"].set_index("method")
+    assert table.loc["cma_es", "generations"] == 1 and table.loc["cma_es", "stopped_by"] == \
+        "minutes"
+    assert table.loc["random", "episodes"] == table.loc["cma_es", "episodes"]
 
 
 def test_command_outputs_and_replay_of_a_failure(tmp_path, capsys):
@@ -201,3 +214,6 @@ def test_config_round_trip_and_identity():
     longer = search_config.from_dict({**search_config.to_dict(cfg), "budget": {"episodes": 80}})
     assert search_config.identity(longer) == search_config.identity(cfg)
     assert cfg.shape.weed_slots == 0 and cfg.generation == 4
+    # the notebook's names (mjxrow's lazy public API and the package's)
+    assert mjxrow.run_search is search_run.run and mjxrow.load_search is search_config.load
+    assert mjxrow.search.run_search is search_run.run

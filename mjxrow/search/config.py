@@ -263,6 +263,9 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
     _flatten(raw["box"], "box", flat)
     if not flat:
         raise ConfigError("box: empty; give at least one traced key with [low, high]")
+    if smoke:  # the box wins over the smoke settings of the scenario (sweep_config.SMOKE)
+        scenario = dataclasses.replace(scenario, values=tuple(
+            (k, v) for k, v in scenario.values if k not in flat))
     keys = {k: v for s in rollout_config.ORDER for k, v in rollout_config.section_keys(
         s, (scenario.controller.name,) if s == "controller" else None).items()}
     given = dict(scenario.values)

@@ -53,26 +53,39 @@ def cluster(U: np.ndarray, fail_rate: np.ndarray, margin: np.ndarray, radius: fl
     order = np.lexsort((np.arange(len(U)), margin, -fail_rate))
     leaders: list[int] = []
     label = np.full(len(U), -1)
+    centres = np.empty((len(U), U.shape[1] if U.ndim == 2 else 0))
     for i in order:
-        for k, j in enumerate(leaders):
-            if np.linalg.norm(U[i] - U[j]) < radius:
-                label[i] = k
-                break
+        dist = np.linalg.norm(centres[:len(leaders)] - U[i], axis=1)
+        hit = np.flatnonzero(dist < radius)
+        if hit.size:
+            label[i] = hit[0]
         else:
             label[i] = len(leaders)
+            centres[len(leaders)] = U[i]
             leaders.append(int(i))
     return label, leaders
 
 
+def extend_distinct(seen: np.ndarray, U: np.ndarray, radius: float) -> np.ndarray:
+    """`seen` [K, d] (the distinct failures so far, `count_distinct`'s order) with the new
+    failures of U [N, d] (in the order found) that lie farther than `radius` from all."""
+    for u in U:
+        if not np.any(np.linalg.norm(seen - u, axis=1) < radius):
+            seen = np.concatenate([seen, u[None]])
+    return seen
+
+
 def count_distinct(U: np.ndarray, radius: float) -> np.ndarray:
     """Distinct failures found so far after each of N failing candidates in the order found
-    (int [N], greedy: a failure is new when no earlier one lies within the radius)."""
-    seen: list[np.ndarray] = []
+    (int [N], greedy: a failure is new when no earlier new one lies within the radius)."""
+    seen = np.empty((len(U), U.shape[1] if U.ndim == 2 else 0))
+    k = 0
     out = np.zeros(len(U), int)
     for i, u in enumerate(U):
-        if not any(np.linalg.norm(u - s) < radius for s in seen):
-            seen.append(u)
-        out[i] = len(seen)
+        if not np.any(np.linalg.norm(seen[:k] - u, axis=1) < radius):
+            seen[k] = u
+            k += 1
+        out[i] = k
     return out
 
 

@@ -63,6 +63,7 @@ class _Search:
         self.evaluator: search_evaluate.Evaluator | None = None
         self.ran = 0
         self.generations_here: dict[str, int] = {}  # per stream, run by this process
+        self.seen: dict[str, np.ndarray] = {}  # per stream, its distinct failures so far
         self._load()
 
     # --- files -----------------------------------------------------------------------------
@@ -189,10 +190,12 @@ class _Search:
         # it, weighed by a tenth of the generation's spread of fitness (scale-free)
         fit = fit + BOUNDARY * np.ptp(fit) * np.sum((raw - U) ** 2, axis=1)
         stream.tell(g, raw, fit)
-        all_fail = pd.concat([earlier, df])
-        all_fail = all_fail[all_fail["outcome"] == "fail"]
-        distinct = int(objective.count_distinct(self._u(all_fail), cfg.merge_radius)[-1]) \
-            if len(all_fail) else 0
+        if name not in self.seen:  # the distinct failures of the rows before this process
+            self.seen[name] = objective.extend_distinct(np.zeros((0, len(cfg.box))), known,
+                                                        cfg.merge_radius)
+        self.seen[name] = objective.extend_distinct(self.seen[name], U[failing],
+                                                    cfg.merge_radius)
+        distinct = len(self.seen[name])
         gen_best = float(np.min(fit))
         progress = distinct > st["distinct"] or st["best"] is None or gen_best < st["best"] - 1e-6
         st["stall"] = 0 if progress else st["stall"] + 1
@@ -301,7 +304,7 @@ def _device_name() -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """The work of `python -m mjxrow.search` (its parser: search.cli)."""
-    args = search_cli.parser().parse_args(argv)
+    args = search_cli.parse(argv)
     try:
         runtime.setup(args, cpu_split=True)
         cfg = search_config.load(args.config, args.set, args.smoke)
