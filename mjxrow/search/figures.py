@@ -38,16 +38,16 @@ def curves(rows: pd.DataFrame, cfg: SearchConfig, method: str) -> pd.DataFrame:
     far (objective.count_distinct over its failing candidates in the order found)."""
     df = rows[rows["method"] == method]
     if df.empty:
-        return pd.DataFrame(columns=["episodes", "best_margin", "distinct"])
+        return pd.DataFrame(columns=["episodes", "best_margin", "mean_margin", "distinct"])
     ucols = [f"u_{j}" for j in range(len(cfg.box))]
     fails = df[df["outcome"] == "fail"]
     counts = objective.count_distinct(fails[ucols].to_numpy(float), cfg.merge_radius)
     by_gen = pd.Series(counts, index=fails["generation"].to_numpy()).groupby(level=0).max()
     g = df.groupby("generation").agg(episodes=("episodes_spent", "max"),
-                                     best=("margin", "min"))
+                                     best=("margin", "min"), mean_margin=("margin", "mean"))
     g["best_margin"] = g["best"].cummin()
     g["distinct"] = by_gen.reindex(g.index).ffill().fillna(0).astype(int)
-    return g[["episodes", "best_margin", "distinct"]].reset_index()
+    return g[["episodes", "best_margin", "mean_margin", "distinct"]].reset_index()
 
 
 def convergence(rows: pd.DataFrame, cfg: SearchConfig, path: Path) -> Path:
@@ -55,11 +55,13 @@ def convergence(rows: pd.DataFrame, cfg: SearchConfig, path: Path) -> Path:
     for method in rows["method"].unique():
         c = curves(rows, cfg, method)
         style = dict(marker=METHOD_MARKER.get(method, "o"), ms=3, label=method)
-        a.plot(c["episodes"], c["best_margin"], **style)
-        b.step(c["episodes"], c["distinct"], where="post", **style)
+        line = a.plot(c["episodes"], c["best_margin"], **style)[0]
+        a.plot(c["episodes"], c["mean_margin"], ls="--", lw=0.8, color=line.get_color(),
+               label=f"{method}: generation mean")
+        b.step(np.r_[0, c["episodes"]], np.r_[0, c["distinct"]], where="post", **style)
     a.axhline(0.0, color="k", lw=0.6, ls=":")
-    a.set(xlabel="episodes spent", ylabel="best margin so far (−1: failed)",
-          title="best margin")
+    a.set(xlabel="episodes spent", ylabel="margin (−1: failed)",
+          title="best margin so far, and each generation's mean")
     b.set(xlabel="episodes spent", ylabel="distinct failures",
           title=f"distinct failures (merged within {cfg.merge_radius:g})")
     for ax in (a, b):
