@@ -67,13 +67,15 @@ def render_config(args: argparse.Namespace) -> mjxrow_render.RenderConfig:
     )
 
 
-def worlds(preset: str, b: int, seed: int = 0):
-    """B fields, camera poses (the dataset's sampler) and conditions (the four in turn)."""
-    shape = seg_synth.dataset_shape(preset)
+def worlds(preset: str, b: int, seed: int = 0, variety: str = "fields"):
+    """B fields, camera poses (the dataset's sampler) and conditions (the four in turn).
+    variety: the dataset's ("fields": curved rows, gap runs and weeds in a share of them) or
+    "none" (straight rows, no weeds: the fields the render benchmark has always timed)."""
+    shape = seg_synth.dataset_shape(preset, variety)
     keys = jax.random.split(jax.random.key(seed), 4 * b).reshape(b, 4)
 
     def one(k):
-        fld = field.generate(seg_synth.random_params(preset, k[0]), shape, k[1])
+        fld = field.generate(seg_synth.random_params(preset, k[0], variety), shape, k[1])
         pos, rot, _ = seg_synth.sample_pose(fld, k[2])
         return fld, pos, rot
 
@@ -125,7 +127,8 @@ def run(args: argparse.Namespace) -> list[dict]:
         raise SystemExit(f"bench render: {e}") from None
     rows = []
     for b in args.batch:
-        shape, fields, pos, rot, conds = worlds(args.preset, b)
+        # straight rows without weeds, as every earlier figure (comparable across rounds)
+        shape, fields, pos, rot, conds = worlds(args.preset, b, variety="none")
         inputs = (fields, pos, rot, conds)
         if args.table:
             tables = jax.jit(
