@@ -46,10 +46,6 @@ from mjxrow.rollout import metrics as rollout_metrics
 from mjxrow.rollout import step as rollout_step
 from mjxrow.rollout.config import ControllerChoice, RunConfig
 
-# the plant table's array fields, in the order of its leaves (EnvData.table)
-TABLE_FIELDS = tuple(f.name for f in dataclasses.fields(render.PlantTable)
-                     if f.metadata.get("pytree_node", True))
-
 
 @dataclasses.dataclass(frozen=True)
 class EnvConfig:
@@ -141,17 +137,17 @@ class Env:
                              f"trained policy); use oracle or segzeros")
         self.teacher = tc
         self.teacher_params = run.controller_params()
-        # the plant table's static part (numpy primitive kinds) stays here; the state holds its
-        # arrays, so states of different resets share one tree structure
-        static = {}
+        # the plant table's tree structure (with its static part: numpy primitive kinds) stays
+        # here; the state holds its leaves, so states of different resets share one structure
+        tree = []
 
         def table(k):
             t = render.plant_table(mjxrow_field.generate(self.base, self.shape, k), self.shape)
-            static.update(kind=t.kind, material=t.material)
+            tree.append(jax.tree.structure(t))
             return ()
 
         jax.eval_shape(table, jax.random.key(0))
-        self._table_static = static
+        self._table_tree = tree[0]
         h, w = run.camera.height, run.camera.width
         frame = render.Frame(rgb=jnp.zeros((h, w, 3), jnp.uint8), depth=jnp.zeros((h, w)),
                              mask=jnp.zeros((h, w), bool), classes=jnp.zeros((h, w), jnp.uint8))
@@ -185,8 +181,7 @@ class Env:
 
     def frame(self, d: EnvData, s: sim.SimState, key: jax.Array | None):
         cam_pos, cam_rot = policies_observe.camera_jitter(*sim.camera_pose(s), d.jitter)
-        table = render.PlantTable(**dict(zip(TABLE_FIELDS, d.table, strict=True)),
-                                  **self._table_static)
+        table = jax.tree.unflatten(self._table_tree, d.table)
         return render.render(d.field, self.shape, cam_pos, cam_rot, self.intr, d.cond, key,
                              self.render_cfg, table=table)
 
