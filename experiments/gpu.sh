@@ -37,6 +37,12 @@
 #   shading         ONLY="STEP ..." runs only those steps; LOOP_SETS: more flags for loop_224
 #   loop_224        BATCHES [4096 6144], SETS [--set render.deep_share=0.125], STEPS [60]
 #   suite_final     T3_LIMIT [420] s per Table 3 controller
+#   seg_variety     TRAIN_LIMIT [390] s, STEPS [2500], SIZES ["128 64"], T2_LIMIT [150] s;
+#                   the model lands in WORK/seg_variety/ckpt/all (later sets' CKPT)
+#   search_segzeros CKPT [seg_variety's model if present, else shipped], SEARCH_LIMIT [560] s
+#   search_oracle   MINUTES [2] of search, SEARCH_LIMIT [200] s
+#   variety_surfaces CKPT [as search_segzeros], LIMIT [300] s per sweep
+#   render_curved   LIMIT [240] s
 #   train_policy    TRAIN_ARGS: more train_policy.py arguments (e.g. --smoke on a CPU)
 #   policy_surfaces SWEEP_ARGS: more sweep arguments
 set -uo pipefail
@@ -47,7 +53,7 @@ cd "$root" || exit 2
 
 sets=(time_to_result determinism surfaces scaling table3 table3_kernels speed_round loop_224
       compile_flags mjwarp seg_speed shading suite_bench suite_tables suite_final train_policy
-      policy_surfaces)
+      policy_surfaces seg_variety search_segzeros search_oracle variety_surfaces render_curved)
 declare -A about=(
   [time_to_result]="sweeps.yaml cold / warm, closed loop 64 / 224 px, Table 3 block and whole"
   [determinism]="sweeps.yaml cold, warm, warm; the same with XLA's deterministic ops; diffs"
@@ -57,6 +63,11 @@ declare -A about=(
   [table3_kernels]="Table 3 blocks of one preset, Pallas kernels against the XLA renderer"
   [speed_round]="renderer 64 / 128 px and closed loop 64 / 224 px, processes side by side"
   [loop_224]="closed loop 224 px (bfloat16 segmenter) at B = BATCHES, defaults beside SETS"
+  [seg_variety]="the all-crop segmenter fine-tuned on the field variety, then Table 2"
+  [search_segzeros]="the failure search over the field variety against SegZeros (learned)"
+  [search_oracle]="the same box against the oracle: CMA-ES only, MINUTES of it"
+  [variety_surfaces]="the curvature x gaps and weeds sweeps, SegZeros and the oracle"
+  [render_curved]="render accuracy and frames/s on straight, arc and sine rows with weeds"
   [compile_flags]="the sweep's closed-loop program compiled and run under XLA flag sets"
   [mjwarp]="MuJoCo's batch renderer (MJX, Warp) beside ours (needs warp-lang)"
   [seg_speed]="segmenter implementations; where a 224-px step and frame spend their time"
@@ -497,6 +508,72 @@ set_suite_final() {  # benchmarks.jsonl, sweep.tgz, table3.md (also written to d
     --doc docs/table3.md --no-progress | tail -30
   cp docs/table3.md "$out/table3.md"
   tar czf "$out/table3_runs.tgz" runs/table3 runs/table3_*.log
+}
+
+set_seg_variety() {  # train.log, table2.md, seg_variety.tgz (the model as exported, its log)
+  # One persistent cache for both processes: Table 2's renderers (8 frames per crop, as the
+  # training's) load from it instead of compiling again.
+  fresh_work; export JAX_COMPILATION_CACHE_DIR="$work/jax_cache"
+  local t0; t0=$(date +%s); read -r -a sizes <<<"${SIZES:-128 64}"
+  timeout "${TRAIN_LIMIT:-390}" "${py[@]}" -m mjxrow.seg.train --crop all --on-the-fly --init all \
+    --size "${sizes[@]}" --steps "${STEPS:-2500}" --batch 40 --lr 4e-4 --warmup 200 \
+    --eval-every 500 --log-every 100 --val-n 200 --out "$work/run" --no-progress \
+    >"$out/train.log" 2>&1
+  echo "train: exit $? at $(( $(date +%s) - t0 )) s" | tee -a "$out/train.log"
+  "${py[@]}" -c "import sys; from mjxrow.seg.training import export; print(export(*sys.argv[1:]))" \
+    "$work/run" "$work/ckpt/all" || return
+  timeout "${T2_LIMIT:-150}" "${py[@]}" experiments/table2_segmentation.py \
+    --ckpt-root "$work/ckpt" --n 512 --batch 8 --also-sizes "${sizes[@]:1}" \
+    --out "$out/table2.md" >"$out/table2.log" 2>&1
+  echo "table2: exit $? at $(( $(date +%s) - t0 )) s" | tee -a "$out/train.log"
+  grep -E "val_iou" "$work/run/train_log.jsonl" | tail -n 5
+  tar -czf "$out/seg_variety.tgz" -C "$work" ckpt
+}
+
+variety_ckpt() {  # the segmenter of the variety sets: CKPT, else seg_variety's, else shipped
+  local c=${CKPT:-}; [ -z "$c" ] && [ -f "$WORK/seg_variety/ckpt/all/config.json" ] \
+    && c=$WORK/seg_variety/ckpt/all
+  [ -n "$c" ] && echo "--set perception.checkpoint=$c"
+}
+
+set_search_segzeros() {  # search.jsonl (bench rows), search.tgz (the run's outputs), search.log
+  local ck; ck=$(variety_ckpt); rm -f "$out/search.jsonl"
+  # shellcheck disable=SC2086  # ck: empty or one flag and its value
+  timeout "${SEARCH_LIMIT:-560}" "${py[@]}" -m mjxrow.search searches/segzeros_variety.yaml \
+    --confirm 20 --out "$work/run" $ck --no-progress --cache-dir "$work/cache" \
+    --record "$out/search.jsonl" >"$out/search.log" 2>&1
+  echo "exit $?"; tail -n 25 "$out/search.log"
+  tar -czf "$out/search.tgz" -C "$work" --exclude=cache --exclude=state run
+}
+
+set_search_oracle() {  # search.jsonl, search.tgz, search.log: the same box, the oracle, MINUTES
+  # [2] of CMA-ES and no baseline (the question is whether it finds any failure at all)
+  rm -f "$out/search.jsonl"
+  timeout "${SEARCH_LIMIT:-200}" "${py[@]}" -m mjxrow.search searches/oracle_variety.yaml \
+    --set budget.minutes="${MINUTES:-2}" --set baseline=none --confirm 20 --out "$work/run" \
+    --no-progress --cache-dir "$work/cache" --record "$out/search.jsonl" >"$out/search.log" 2>&1
+  echo "exit $?"; tail -n 15 "$out/search.log"
+  tar -czf "$out/search.tgz" -C "$work" --exclude=cache --exclude=state run
+}
+
+set_variety_surfaces() {  # NAME.log, surfaces.tgz (the four sweeps)
+  local ck; ck=$(variety_ckpt); flags=(--no-progress --cache-dir "$work/cache")
+  [ "${SMOKE:-0}" = 1 ] && flags+=(--smoke)
+  export XLA_PYTHON_CLIENT_MEM_FRACTION=${XLA_PYTHON_CLIENT_MEM_FRACTION:-0.2}
+  for y in curvature_gaps weeds; do
+    # shellcheck disable=SC2086
+    timeout "${LIMIT:-300}" "${py[@]}" -m mjxrow.sweep "sweeps/$y.yaml" $ck "${flags[@]}" \
+      --out "$work/$y" >"$out/$y.log" 2>&1 &
+  done
+  wait
+  for y in curvature_gaps weeds; do echo "== $y"; tail -n 4 "$out/$y.log"; done
+  tar -czf "$out/surfaces.tgz" -C "$work" --exclude=cache --exclude=cells curvature_gaps weeds
+}
+
+set_render_curved() {  # render_curved.log
+  timeout "${LIMIT:-240}" "${py[@]}" experiments/render_accuracy.py --fields straight arc sine \
+    --fps --res 64 --views along headland >"$out/render_curved.log" 2>&1
+  echo "exit $?" >> "$out/render_curved.log"; tail -n 30 "$out/render_curved.log"
 }
 
 set_train_policy() {  # train.log, policy.tgz, train_log.jsonl, learning_curve.png, eval.md,

@@ -30,6 +30,7 @@ import pandas as pd
 from mjxrow import crops
 from mjxrow.files import atomic_write_text, check_out_file
 from mjxrow.seg import checkpoint as seg_checkpoint
+from mjxrow.seg import data as seg_data
 from mjxrow.seg import evaluation as seg_eval
 from paper import cli
 
@@ -136,6 +137,11 @@ def main(argv: list[str] | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
                          "mjxrow.seg.train --crop CROP --on-the-fly --export-to "
                          f"{args.ckpt_root}/CROP`")
     rows, sizes, loaded, own_summary = [], {}, {}, {}
+    if not args.data_root:  # every crop's renderer at every size, compiled side by side
+        wanted = {seg_checkpoint.read_config(p)["meta"].get("image_size", 224)
+                  for p in found.values()} | set(args.also_sizes)
+        seg_data.warm(*(seg_data.onthefly(c, s, args.batch, labels=True)
+                        for c in args.crops for s in sorted(wanted)))
     for name, path in found.items():
         module, variables = loaded[name] = seg_checkpoint.load(path)
         size = seg_checkpoint.read_config(path)["meta"].get("image_size", 224)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 import math
@@ -236,6 +237,32 @@ def test_interrupted_run_resumes_to_the_same_weights(tiny, tmp_path):
     losses = [[(r["step"], r["loss"]) for r in log if "loss" in r] for log in logs]
     assert [s for s, _ in losses[0]] == [1, 2, 3, 4]  # step 3 of the first run was lost
     assert losses[0] == losses[1]
+
+
+def test_unfused_batch_function_trains_on_the_fused_steps_batches(tiny, tmp_path):
+    """The CLI's on-the-fly data runs the batch function before the step (its renderers compiled
+    once, shared with the validation set): the same keys, batches and weights as the fused step."""
+    module, variables = tiny
+
+    def batch_fn(key):  # jittable and callable as is: blobs placed by the key
+        c = jax.random.uniform(key, (4, 2), minval=8.0, maxval=W - 8.0)
+        yy, xx = jnp.mgrid[:H, :W]
+        mask = (xx - c[:, :1, None]) ** 2 + (yy - c[:, 1:, None]) ** 2 < 36.0
+        rgb = jnp.where(mask[..., None], jnp.array([40, 160, 50]), jnp.array([120, 90, 60]))
+        return rgb.astype(jnp.uint8), mask
+
+    val = D.batches(*blobs(4, seed=99), 4)
+    cfg = dataclasses.replace(CFG, flip=0.5, grey=0.2)  # the augmentation's keys too
+    runs = {fuse: T.fit(module, variables, T.Data(val=val, describe="test", batch_fn=batch_fn,
+                                                  fuse=fuse), cfg, tmp_path / str(fuse))
+            for fuse in (True, False)}
+    assert runs[True]["step"] == runs[False]["step"] == 4
+    logs = [[json.loads(line)["loss"] for line in (tmp_path / str(f) / "train_log.jsonl").open()
+             if "loss" in line] for f in (True, False)]
+    np.testing.assert_allclose(logs[0], logs[1], rtol=1e-4)
+    wa, wb = (C.load(tmp_path / str(f) / "best")[1] for f in (True, False))
+    for x, y in zip(jax.tree.leaves(wa), jax.tree.leaves(wb), strict=True):
+        np.testing.assert_allclose(x, y, rtol=1e-3, atol=1e-5)
 
 
 def test_checkpoint_roundtrip_exact(tiny, tmp_path, monkeypatch):

@@ -274,14 +274,33 @@ def onthefly(crop: str, size: int, batch: int, fovy: float | None = None,
         outs = [f(k, n) for f, k in zip(fns, jax.random.split(key, len(fns)), strict=True)]
         return tuple(jnp.concatenate(parts) for parts in zip(*outs, strict=True))
 
+    # Called as is (not under jit), each crop's renderer is its own compiled program: `warm`
+    # compiles them side by side, and a fixed set and the training batches share them.
+    fn.parts = tuple((f, n) for f in fns)
     return fn
+
+
+def warm(*batch_fns) -> None:
+    """Compile the renderers of `onthefly` functions at once, one thread per (function, crop):
+    XLA compiles separate programs in parallel where the machine has the cores (each renders one
+    batch, which is dropped). Functions without renderers of their own are skipped."""
+    parts = [p for fn in batch_fns for p in getattr(fn, "parts", ())]
+    if len(parts) < 2:
+        return
+    with ThreadPoolExecutor(len(parts)) as pool:
+        list(pool.map(lambda p: jax.block_until_ready(p[0](jax.random.key(0), p[1])), parts))
 
 
 def fixed_set(batch_fn, n_batches: int, seed: int) -> list[tuple[np.ndarray, ...]]:
     """A fixed evaluation set from a jittable batch function: `n_batches` batches made with keys
     fold_in(key(seed), i), as [(rgb, mask, weight)] on the host ([(rgb, mask, weight, *rest)]
-    when the function returns more than (rgb, mask))."""
-    fn = jax.jit(batch_fn)
+    when the function returns more than (rgb, mask)). An `onthefly` function runs as is, its
+    crops' renderers compiled side by side (`warm`); any other is jitted."""
+    if hasattr(batch_fn, "parts"):
+        warm(batch_fn)
+        fn = batch_fn
+    else:
+        fn = jax.jit(batch_fn)
     base = jax.random.key(seed)
     out = []
     for i in tqdm(range(n_batches), desc="render eval set", leave=False):

@@ -155,6 +155,9 @@ class Data:
     describe: str
     batch_fn: Callable | tuple[Callable, ...] | None = None
     batches: Callable[[int], Iterator[tuple[np.ndarray, np.ndarray]]] | None = None
+    # fuse: batch_fn runs inside the jitted step (one program per function); False: it runs as
+    # is before the step (an `onthefly` function: its renderers compiled once, shared with `val`)
+    fuse: bool = True
 
 
 @dataclasses.dataclass(frozen=True)
@@ -196,6 +199,12 @@ def _compiled(module: SegNet, lr: float, steps: int, warmup: int, weight_decay: 
     return sched, tx, steps_, jax.jit(make_eval(module, threshold))
 
 
+@jax.jit
+def _batch_key(rng: jax.Array, step: jax.Array) -> jax.Array:
+    """The key from which `make_step`'s fused step draws the batch of step `step`."""
+    return jax.random.fold_in(jax.random.fold_in(rng, step), 0)
+
+
 def _manager(out: Path) -> ocp.CheckpointManager:
     return ocp.CheckpointManager(out / "state", options=ocp.CheckpointManagerOptions(
         max_to_keep=2, create=True))
@@ -218,7 +227,7 @@ def fit(module: SegNet, variables: dict, data: Data, cfg: TrainConfig, out: str 
         (() if data.batch_fn is None else (data.batch_fn,))
     sched, tx, step_fns, eval_fn = _compiled(module, cfg.lr, cfg.steps, cfg.warmup,
                                              cfg.weight_decay, cfg.loss, cfg.flip, cfg.grey,
-                                             cfg.jitter, cfg.threshold, fns)
+                                             cfg.jitter, cfg.threshold, fns if data.fuse else ())
     state = init_state(jax.tree.map(jnp.copy, variables), tx, cfg.seed)  # donated below
     mngr = _manager(out)
     start = mngr.latest_step()
@@ -238,6 +247,7 @@ def fit(module: SegNet, variables: dict, data: Data, cfg: TrainConfig, out: str 
     # fresh and restored states alike on the default device, committed: one compiled step
     state = jax.device_put(state, jax.sharding.SingleDeviceSharding(jax.devices()[0]))
     it = None if data.batch_fn is not None else data.batches(first)
+    rng = jax.random.wrap_key_data(np.asarray(jax.device_get(state.rng)))  # constant
     bar = tqdm(total=cfg.steps, initial=first, desc="train", disable=not cfg.progress,
                dynamic_ncols=True)
     pending, t0, t_last, last_scores = [], time.perf_counter(), time.perf_counter(), {}
@@ -250,8 +260,11 @@ def fit(module: SegNet, variables: dict, data: Data, cfg: TrainConfig, out: str 
 
     try:
         for step in range(first, cfg.steps):
-            if it is None:
+            if it is None and data.fuse:
                 state, m = step_fns[step % len(step_fns)](state)
+            elif it is None:  # the fused step's batch: same key, made before the step
+                rgb, mask = fns[step % len(fns)](_batch_key(rng, step))
+                state, m = step_fns[0](state, rgb, mask)
             else:
                 rgb, mask = next(it)
                 state, m = step_fns[0](state, rgb, mask)
@@ -329,11 +342,15 @@ def build_data(args) -> Data:
                              f"{len(train_df)} train / {len(val_df)} val images, sizes {sizes}")
     fns = tuple(seg_data.onthefly(args.crop, size, args.batch, variety=args.variety)
                 for size in args.size)
+    t0 = time.perf_counter()
+    seg_data.warm(*fns)  # every size's renderers side by side, before the validation set
+    print(f"renderers of {len(fns)} size(s) compiled in {time.perf_counter() - t0:.0f} s",
+          file=sys.stderr, flush=True)
     n_val = max(1, -(-args.val_n // args.batch))
     val = [
         b for i, fn in enumerate(fns) for b in seg_data.fixed_set(fn, n_val, 10_000 + args.seed + i)
     ]
-    return Data(val=val, batch_fn=fns,
+    return Data(val=val, batch_fn=fns, fuse=False,
                 describe=f"on-the-fly renders crop {args.crop} (variety {args.variety}), "
                          f"sizes {sizes}, "
                          f"{n_val * args.batch} val images per size (seed {10_000 + args.seed})")
