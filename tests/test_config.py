@@ -3,9 +3,12 @@
 import shutil
 from pathlib import Path
 
+import jax
 import pytest
 import yaml
 
+from mjxrow.seg import checkpoint as seg_checkpoint
+from mjxrow.seg import model as seg_model
 from mjxrow.sweep import config as C
 from mjxrow.sweep import grid as G
 from mjxrow.sweep import reference as SD
@@ -110,7 +113,10 @@ def test_missing_checkpoint(tmp_path):
     assert "no 'model' mapping" in error_of({"perception": {"checkpoint": str(ck)}})
     (ck / "config.json").write_text('{"model": {}}')
     assert "weights/ holds no data" in error_of({"perception": {"checkpoint": str(ck)}})
-    (ck / "weights" / "data").write_bytes(b"w")  # verified by its files; restored when loaded
+    (ck / "weights" / "data").write_bytes(b"w")
+    assert "weights/ cannot be restored" in error_of({"perception": {"checkpoint": str(ck)}})
+    shutil.rmtree(ck)  # the config check restores the weights (no program compiled): real ones pass
+    seg_checkpoint.save(ck, *seg_model.create("tiny", 0.25, jax.random.key(0), 32))
     cfg = C.from_dict({"perception": {"checkpoint": "ck"}}, base_dir=tmp_path)  # YAML-relative
     r = G.resolved(G.expand(cfg)[0].cfg)
     assert r["perception.checkpoint"] == str(ck.resolve())

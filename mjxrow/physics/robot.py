@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 
 import jax
 import jax.numpy as jnp
@@ -48,6 +49,21 @@ NUMERIC = "mjxrow_robot"  # name of the <numeric> that carries the robot's numbe
 # order of the numbers in that <numeric>
 NUMERIC_KEYS = ("v_max", "omega_max", "wheel_radius", "track", "wheelbase", "turn_factor",
                 "length", "width", "max_accel", "max_alpha", "kv", "wheel_torque")
+
+
+# physically sane magnitudes |value| (0 aside) of the robot's numbers: far beyond any real field
+# robot, tight enough that MuJoCo never sees a degenerate body (a 1e-300 m wheel has no inertia)
+_M, _KG = (1e-3, 100.0, "m"), (1e-3, 1e5, "kg")
+SANE: dict[str, tuple[float, float, str]] = {
+    "v_max": (1e-3, 100.0, "m/s"), "omega_max": (1e-3, 100.0, "rad/s"),
+    "length": _M, "width": _M, "wheel_radius": _M, "wheelbase": _M, "track": _M,
+    "chassis_height": _M, "chassis_clearance": _M, "cam_height": _M, "cam_forward": _M,
+    "cam_lateral": _M, "mass": _KG, "wheel_mass": _KG, "turn_factor": (1e-2, 100.0, ""),
+    "kv": (1e-3, 1e6, "N·m·s/rad"), "wheel_torque": (1e-3, 1e6, "N·m"),
+    "max_accel": (1e-3, 1e4, "m/s²"), "max_alpha": (1e-3, 1e4, "rad/s²"),
+    "armature": (1e-6, 1e3, "kg·m²"), "wheel_damping": (1e-6, 1e6, "N·m·s/rad"),
+    "friction": (1e-3, 100.0, ""),  # cam_pitch_deg and cam_fovy: their own ranges below
+}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,6 +103,14 @@ class RobotConfig:
     cam_fovy: float = 42.0  # degrees, vertical field of view (horizontal follows from W/H)
 
     def __post_init__(self):
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
+                raise ValueError(f"robot.{f.name}: expected a finite number, got {v!r}")
+            low, high, unit = SANE.get(f.name, (-math.inf, math.inf, ""))
+            if v != 0 and not low <= abs(v) <= high:  # zero: the sign checks below decide
+                raise ValueError(f"robot.{f.name}: {v:g} {unit} is outside the sane range "
+                                 f"[{low:g}, {high:g}] {unit} (mjxrow/physics/robot.py SANE)")
         positive = ("v_max", "omega_max", "length", "width", "mass", "wheel_mass", "wheel_radius",
                     "wheelbase", "track", "chassis_height", "turn_factor", "kv",
                     "cam_height", "cam_fovy")

@@ -43,6 +43,7 @@ from mjxrow.search import evaluate as search_evaluate
 from mjxrow.search import methods as search_methods
 from mjxrow.search import objective
 from mjxrow.search import report as search_report
+from mjxrow.sweep.yamlfile import read_yaml
 
 STATE, CANDIDATES, CONFIG = "state.json", "candidates.csv", "config.yaml"
 COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
@@ -69,17 +70,9 @@ class _Search:
     # --- files -----------------------------------------------------------------------------
 
     def _load(self) -> None:
-        path = self.out / STATE
-        if not path.exists():
+        if not (self.out / STATE).exists():
             return
-        try:
-            state = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as e:
-            raise mjxrow_files.OutputError(f"--out {self.out}: {STATE} is unreadable ({e}); "
-                                           "remove the folder to start again") from None
-        if state.get("shape") != repr(self.cfg.shape):
-            raise mjxrow_files.OutputError(f"--out {self.out}: its search has another field "
-                                           "shape (the field generator or limits changed)")
+        state = _read_state(self.cfg, self.out)
         self.state = state
         n = int(state.get("rows", 0))
         if n:
@@ -222,13 +215,40 @@ class _Search:
         self.save()
 
 
+def _read_state(cfg: search_config.SearchConfig, out: Path) -> dict[str, Any]:
+    """`out`'s state.json once it is a mapping of this search's field shape whose row count
+    candidates.csv can hold; OutputError naming --out and the file otherwise."""
+    def bad(why: str) -> mjxrow_files.OutputError:
+        return mjxrow_files.OutputError(f"--out {out}: {STATE} {why}; remove the folder to "
+                                        "start again")
+
+    try:
+        state = json.loads((out / STATE).read_text())
+    except (OSError, ValueError) as e:  # JSONDecodeError, UnicodeDecodeError: ValueErrors
+        raise bad(f"is unreadable ({str(e).splitlines()[0] if str(e) else type(e).__name__})"
+                  ) from None
+    if not isinstance(state, dict):
+        raise bad(f"is not a mapping (a {type(state).__name__})")
+    if state.get("shape") != repr(cfg.shape):
+        raise mjxrow_files.OutputError(f"--out {out}: its search has another field shape (the "
+                                       "field generator or limits changed)")
+    rows = state.get("rows", 0)
+    if isinstance(rows, bool) or not isinstance(rows, int) or rows < 0:
+        raise bad(f"counts {rows!r} rows, not a number of candidates")
+    if rows and not (out / CANDIDATES).is_file():
+        raise bad(f"counts {rows} candidates but {CANDIDATES} is missing")
+    return state
+
+
 def _check_folder(cfg: search_config.SearchConfig, out: Path) -> None:
     """OutputError unless `out` is new, empty of a search, or holds this search (same
-    identity: the candidates it asks for are the same)."""
+    identity: the candidates it asks for are the same), its files readable; nothing is
+    written before this check."""
     if (out / STATE).exists():
-        try:
-            saved = search_config.from_dict(yaml.safe_load((out / CONFIG).read_text()), out)
-        except (OSError, ValueError, yaml.YAMLError) as e:
+        _read_state(cfg, out)
+        try:  # strictly, as a search YAML: no alias bomb
+            saved = search_config.from_dict(read_yaml(out / CONFIG), out)
+        except (OSError, ValueError) as e:
             raise mjxrow_files.OutputError(f"--out {out}: holds a search whose {CONFIG} cannot "
                                            f"be read ({str(e).splitlines()[0]})") from None
         a, b = search_config.identity(saved), search_config.identity(cfg)

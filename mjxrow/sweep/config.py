@@ -56,7 +56,8 @@ class SweepConfig:
     batch_size: int | str = _k("auto", "episodes per jitted call (padded to a multiple of the "
                                "device count), or `auto`: by device (groups.batch_size)",
                                "count", "positive", kind="batch")
-    out: str = _k("runs/sweep", "output directory (the CLI's --out wins)", kind=str)
+    out: str = _k("runs/sweep", "output directory, relative to the working directory (no '..') "
+                  "or absolute; the CLI's --out wins", kind=str)
     mix_controllers: bool = _k(False, "cells that differ only in `controller.*` and "
                                "`perception.source` run in one compiled program: one compile "
                                "instead of one per controller, but every episode pays for "
@@ -228,6 +229,11 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
         elif key == "out" and isinstance(v, str) and not v.strip():
             raise ConfigError("out: must not be empty (the folder the sweep writes, relative to "
                               "the working directory; the CLI's --out wins)")
+        elif key == "out" and isinstance(v, str) and not Path(v).expanduser().is_absolute() \
+                and ".." in Path(v).parts:
+            raise ConfigError(f"out: {v!r} climbs out of the working directory ('..'); a YAML's "
+                              "out is a folder under the working directory (or an absolute path; "
+                              "the CLI's --out wins)")
         elif key in TOP_KEYS:
             m = meta[key]
             kind = {str: "str", bool: "bool"}.get(m["kind"], "int")

@@ -172,11 +172,11 @@ def _blame(cfg: RunConfig, name: str, shape: mjxrow_field.FieldShape) -> str:
 
 @functools.lru_cache(maxsize=32)
 def _verified(path: str) -> str:
-    """`path` once seg.checkpoint.verify passes (config readable, weights present)."""
+    """`path` once its weights restore (seg.checkpoint.load: config readable, weights present
+    and whole; no program is compiled), so that damaged weights fail before any output folder."""
     if path:
-
         try:
-            seg_checkpoint.verify(path)
+            seg_checkpoint.load(path)
         except ValueError as e:
             raise ConfigError(f"perception.checkpoint: {e}") from None
     return path

@@ -214,6 +214,14 @@ def _ticking(bar, enabled: bool):
             thread.join()
 
 
+def _check_cells(out: Path) -> None:
+    """OutputError when OUT/cells is a link: its files would be read, removed and written in
+    another folder."""
+    if (out / "cells").is_symlink():
+        raise mjxrow_files.OutputError(f"--out {out}: cells/ is a link to another folder; give "
+                                       "a folder of its own")
+
+
 def run(cfg: sweep_config.SweepConfig, out: str | Path,
         evaluate: sweep_groups.Evaluator | None = None, progress: bool = True,
         command: str = "", figures: bool = True, hard_stop: bool = False,
@@ -236,9 +244,7 @@ def run(cfg: sweep_config.SweepConfig, out: str | Path,
     took."""
     evaluate = evaluate or sweep_groups.evaluate_group
     out = Path(out)
-    if (out / "cells").is_symlink():  # its files would be read, removed and written elsewhere
-        raise mjxrow_files.OutputError(f"--out {out}: cells/ is a link to another folder; give "
-                                       "a folder of its own")
+    _check_cells(out)
     if runtime.writer():  # several processes: process 0 writes, locks and decides what is finished
         (out / "cells").mkdir(parents=True, exist_ok=True)
     with contextlib.ExitStack() as stack:
@@ -384,6 +390,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.smoke and not args.out:
             out = out.with_name(out.name + "_smoke")
         mjxrow_files.check_out_dir(out, "--out")
+        _check_cells(out)  # before its files are read
         cells = out / "cells"
         est = sweep_estimate.estimate(
             sweep_groups.plan(cfg, sweep_cells.finished_cells(cells, cfg.seeds)), cfg.seeds,
