@@ -133,17 +133,26 @@ def configure(args) -> tuple:
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     t_start = time.time()
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    from mjxrow import files, interrupt
+
+    try:  # the arguments checked before OUT is made
+        out = files.check_out_dir(args.out, "--out")
+        for name in ("num_envs", "unroll", "episodes"):
+            if getattr(args, name) < 1:
+                raise ValueError(f"--{name.replace('_', '-')}: must be ≥ 1, got "
+                                 f"{getattr(args, name)}")
+        for name in ("budget_minutes", "deadline_minutes", "eval_reserve_minutes"):
+            if not 0 <= getattr(args, name) < 1e6:
+                raise ValueError(f"--{name.replace('_', '-')}: must be a number of minutes ≥ 0, "
+                                 f"got {getattr(args, name)}")
+    except ValueError as e:
+        print(f"error: {str(e).splitlines()[0]}", file=sys.stderr)
+        return 2
     import jax
 
     if args.cache_dir != "none":
         jax.config.update("jax_compilation_cache_dir", args.cache_dir or str(out / "jax_cache"))
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 2.0)
-    from mjxrow.policies import checkpoint as CK
-    from mjxrow.train import evaluate as EV
-    from mjxrow.train import loop as L
-
     if args.smoke:
         args.ship = False  # a tiny smoke policy never replaces the shipped one
         args.episodes = min(args.episodes, 2)
@@ -152,6 +161,26 @@ def main(argv: list[str] | None = None) -> int:
             "segzeros_gt" if c == "segzeros" else c for c in args.controllers))
     try:
         cfg, values = configure(args)
+    except ValueError as e:
+        print(f"error: {str(e).splitlines()[0]}", file=sys.stderr)
+        return 2
+    # SIGTERM (a batch system's kill) and Ctrl-C: exit 130 saying how to resume
+    with interrupt.HardStop(lambda: print(
+            f"interrupted: the last saved training state in {out / 'state'} is kept; run the "
+            "same command again to resume", file=sys.stderr)):
+        return _work(args, cfg, values, out, t_start)
+
+
+def _work(args, cfg, values, out: Path, t_start: float) -> int:
+    """Train, evaluate and report into `out` (made here, its arguments checked)."""
+    import jax
+
+    from mjxrow.policies import checkpoint as CK
+    from mjxrow.train import evaluate as EV
+    from mjxrow.train import loop as L
+
+    out.mkdir(parents=True, exist_ok=True)
+    try:
         evaluation = None
         if not args.no_eval:
             overlap = args.overlap == "on" or (args.overlap == "auto"

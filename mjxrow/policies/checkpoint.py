@@ -89,14 +89,70 @@ def save(path: str | Path, variables: Any, spec: ObsSpec, net: networks.NetConfi
     return path
 
 
+MAX_SPEED = 100.0  # bound of action.v_max [m/s] and action.omega_max [rad/s] in policy.json
+
+
+def _check_doc(doc: Any) -> None:
+    """ValueError naming the first field of a parsed policy.json of the wrong type or range (its
+    values are trusted nowhere after this: a NaN speed or an unknown dtype fails here)."""
+    def is_int(v):
+        return isinstance(v, int) and not isinstance(v, bool)
+
+    def number(name, v):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+            raise ValueError(f"{name}: expected a finite number, got {v!r}")
+
+    if not isinstance(doc, dict):
+        raise ValueError(f"expected a mapping, got {type(doc).__name__}")
+    for name in ("observation", "network", "action", "meta"):
+        if not isinstance(doc.get(name, {}), dict):
+            raise ValueError(f"{name}: expected a mapping, got {type(doc[name]).__name__}")
+    for name in ("observation", "network"):
+        if name not in doc:
+            raise ValueError(f"{name}: missing")
+    obs = doc["observation"]
+    for name in ("height", "width"):
+        if name in obs and not (is_int(obs[name]) and 1 <= obs[name] <= 2048):
+            raise ValueError(f"observation.{name}: expected an integer in [1, 2048] px, got "
+                             f"{obs[name]!r}")
+    if not isinstance(obs.get("proprio", True), bool):
+        raise ValueError(f"observation.proprio: expected true or false, got {obs['proprio']!r}")
+    net = doc["network"]
+    for name in ("channels", "kernels", "strides"):
+        v = net.get(name, [1])
+        if not (isinstance(v, list) and v and all(is_int(x) and 1 <= x <= 4096 for x in v)):
+            raise ValueError(f"network.{name}: expected a list of integers in [1, 4096], got "
+                             f"{v!r}")
+    if not (is_int(net.get("hidden", 1)) and 1 <= net.get("hidden", 1) <= 65536):
+        raise ValueError(f"network.hidden: expected an integer in [1, 65536], got "
+                         f"{net['hidden']!r}")
+    number("network.init_log_std", net.get("init_log_std", 0.0))
+    for name, v in doc.get("action", {}).items():
+        if name not in ("v_max", "omega_max"):
+            raise ValueError(f"action.{name}: unknown key (v_max, omega_max)")
+        number(f"action.{name}", v)
+        if not 0 < v <= MAX_SPEED:
+            raise ValueError(f"action.{name}: expected a value in (0, {MAX_SPEED:g}], got {v!r}")
+    if doc.get("weights_dtype", "float32") not in WEIGHT_DTYPES:
+        raise ValueError(f"weights_dtype: one of {', '.join(WEIGHT_DTYPES)}, got "
+                         f"{doc['weights_dtype']!r}")
+    shape = doc.get("meta", {}).get("image_shape")
+    if shape is not None and not (isinstance(shape, list) and len(shape) == 3 and all(
+            is_int(x) and 1 <= x <= 4096 for x in shape)):
+        raise ValueError(f"meta.image_shape: expected 3 positive integers, got {shape!r}")
+
+
 def read_spec(path: Path, key: str = "controller.checkpoint") -> tuple[ObsSpec, networks.NetConfig,
                                                                        dict]:
-    """(observation, network, the whole policy.json) of a checkpoint folder."""
+    """(observation, network, the whole policy.json) of a checkpoint folder, each field checked
+    (`_check_doc`): a one-line ValueError naming `key`, the file and the field."""
     try:
         doc = json.loads((path / SPEC_FILE).read_text())
+        _check_doc(doc)
         return ObsSpec(**doc["observation"]), networks.NetConfig.from_dict(doc["network"]), doc
-    except (KeyError, TypeError, ValueError, json.JSONDecodeError) as e:
-        raise ValueError(f"{key}: {path / SPEC_FILE} is not a policy spec ({e})") from None
+    except (KeyError, TypeError, ValueError, OSError) as e:  # JSONDecodeError: a ValueError
+        raise ValueError(f"{key}: {path / SPEC_FILE} is not a policy spec "
+                         f"({str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
 
 
 def check_spec(saved: ObsSpec, expect: dict[str, Any], where: str,

@@ -22,7 +22,7 @@ from mjxrow.rollout import build as rollout_build
 from mjxrow.rollout import metrics as rollout_metrics
 from mjxrow.rollout.config import RunConfig, build_run
 
-SCENARIO = Path(__file__).resolve().parents[2] / "sweeps" / "presets.yaml"
+SCENARIO = Path(__file__).resolve().parents[1] / "sweep" / "presets.yaml"  # the Table 3 scenario
 SECTIONS = ("sim", "robot", "camera", "render", "episode", "perception")
 CONTROLLERS: dict[str, tuple[str, dict[str, Any]]] = {
     "policy": ("learned policy", {"controller.name": "policy"}),

@@ -36,7 +36,14 @@ def restore_state(folder: str | Path, target: Any, about: dict,
     folder = Path(folder)
     if not (folder / "train.json").is_file():
         return None
-    saved = json.loads((folder / "train.json").read_text())
+    try:
+        saved = json.loads((folder / "train.json").read_text())
+    except (OSError, ValueError) as e:  # JSONDecodeError, UnicodeDecodeError: ValueErrors
+        raise ValueError(f"{key}: {folder / 'train.json'} is damaged ({e}); use another --out "
+                         "or remove the folder") from None
+    if not isinstance(saved, dict):
+        raise ValueError(f"{key}: {folder / 'train.json'} is damaged (not a mapping); use "
+                         "another --out or remove the folder")
     for k, v in about.items():
         if saved.get(k) != json.loads(json.dumps(v)):
             raise ValueError(f"{key}: {folder} holds a run with another {k} "
@@ -45,5 +52,12 @@ def restore_state(folder: str | Path, target: Any, about: dict,
         step = mgr.latest_step()
         if step is None:
             return None
-        tree = mgr.restore(step, args=ocp.args.StandardRestore(target))
+        try:
+            tree = mgr.restore(step, args=ocp.args.StandardRestore(target))
+        except Exception as e:  # noqa: BLE001 (orbax raises many kinds; all mean "damaged")
+            first = next((ln for ln in str(e).splitlines() if ln.strip()), type(e).__name__)
+            raise ValueError(f"{key}: the training state {folder / str(step)} cannot be "
+                             f"restored ({type(e).__name__}: {first[:200]}); remove that step "
+                             "folder to resume from the one before, or use another --out"
+                             ) from None
     return int(step), tree

@@ -22,7 +22,6 @@ from pathlib import Path
 import jax
 import numpy as np
 import pandas as pd
-import yaml
 
 from mjxrow import field as mjxrow_field
 from mjxrow.rollout import build as rollout_build
@@ -32,6 +31,7 @@ from mjxrow.search import config as search_config
 from mjxrow.sweep import config as sweep_config
 from mjxrow.sweep import grid as sweep_grid
 from mjxrow.sweep import groups as sweep_groups
+from mjxrow.sweep.yamlfile import read_yaml
 from mjxrow.worlds import scene
 
 
@@ -100,21 +100,21 @@ def from_run(run_dir: str | Path, cell: int, episode: int) -> Episode:
     (--from-run, --cell, --episode) when something is missing or does not match."""
 
     run_dir = Path(run_dir)
-    try:
-        raw = yaml.safe_load((run_dir / "config.yaml").read_text())
-    except OSError as e:
-        raise ValueError(f"--from-run: cannot read {run_dir / 'config.yaml'} ({e.strerror}); "
-                         "is it a sweep's output folder?") from None
-    try:
-        cfg = sweep_config.from_dict(raw, run_dir)
-    except ValueError as e:
-        raise ValueError(f"--from-run: {run_dir / 'config.yaml'}: {e}") from None
+    if not (run_dir / "config.yaml").is_file():
+        raise ValueError(f"--from-run: no config.yaml in {run_dir}; is it a sweep's output "
+                         "folder?")
+    try:  # strictly, as a sweep YAML: an emptied file is no run (not the default sweep)
+        cfg = sweep_config.from_dict(read_yaml(run_dir / "config.yaml"), run_dir)
+    except ValueError as e:  # read_yaml's messages start with the file, from_dict's with a key
+        where = "" if str(e).startswith(str(run_dir / "config.yaml")) else \
+            f"{run_dir / 'config.yaml'}: "
+        raise ValueError(f"--from-run: {where}{e}") from None
     if not 0 <= episode < cfg.seeds:
         raise ValueError(f"--episode: {episode} is not an episode of this run "
                          f"(0..{cfg.seeds - 1})")
     row = None
     if (run_dir / "results.csv").exists():
-        res = pd.read_csv(run_dir / "results.csv")
+        res = _results(run_dir / "results.csv")
         hit = res[(res["cell"] == cell) & (res["episode"] == episode)]
         row = hit.iloc[0] if len(hit) else None
     groups = sweep_groups.plan(cfg)
@@ -131,11 +131,33 @@ def from_run(run_dir: str | Path, cell: int, episode: int) -> Episode:
     group, c = found[0]
     ep = episode_world(c.cfg, group.shape, episode, name=f"{c.cfg.preset}_c{cell}_e{episode}")
     lane = int(scene.field_lanes(ep.field)[ep.start.lane])
-    if row is not None and "lane" in row and int(row["lane"]) != lane:
+    if row is not None and "lane" in row and row["lane"] != lane:
         raise ValueError(f"--episode: results.csv says episode {episode} of cell {cell} drove "
                          f"lane {int(row['lane'])}, the regenerated field's lane is {lane}: the "
                          "field generator changed since this run")
     return ep
+
+
+RESULTS_COLUMNS = ("cell", "episode", "cell_hash")  # what from_run reads of results.csv
+
+
+def _results(path: Path) -> pd.DataFrame:
+    """A sweep's results.csv with the columns `from_run` reads, each of its type (cell, episode
+    and lane integers, lane optional); ValueError naming --from-run, the file and the column."""
+    try:
+        res = pd.read_csv(path)
+    except (OSError, ValueError, UnicodeDecodeError) as e:  # pandas' parse errors: ValueErrors
+        raise ValueError(f"--from-run: {path} cannot be read ("
+                         f"{str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
+    for col in RESULTS_COLUMNS + (("lane",) if "lane" in res else ()):
+        if col not in res:
+            raise ValueError(f"--from-run: {path} has no column {col!r}; is it a sweep's "
+                             "results.csv?")
+        if col != "cell_hash" and not (pd.api.types.is_integer_dtype(res[col])
+                                       and (res[col] >= 0).all()):
+            raise ValueError(f"--from-run: {path}: column {col!r} holds values that are not "
+                             "non-negative integers (empty, NaN or text)")
+    return res
 
 
 def from_search(run_dir: str | Path, rank: int) -> Episode:
@@ -146,9 +168,11 @@ def from_search(run_dir: str | Path, rank: int) -> Episode:
     (--from-search, --rank) when something is missing or does not match."""
     run_dir = Path(run_dir)
     try:
-        raw = yaml.safe_load((run_dir / "config.yaml").read_text())
+        raw = read_yaml(run_dir / "config.yaml")  # strictly: no alias bomb, no empty file
         failures = pd.read_csv(run_dir / "failures.csv")
         state = json.loads((run_dir / "state.json").read_text())
+        if not isinstance(state, dict):
+            raise ValueError("state.json is not a mapping")
     except (OSError, ValueError) as e:
         raise ValueError(f"--from-search: cannot read the search in {run_dir} "
                          f"({getattr(e, 'strerror', None) or e}); is it a search's output "
