@@ -14,6 +14,7 @@ lock so that two runs never write one folder.
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 import tempfile
@@ -32,15 +33,20 @@ def check_out_dir(path: str | Path, option: str = "--out") -> Path:
     Creates nothing that outlives the check: a probe file (or folder) in the folder (or in its
     nearest existing parent) is made and removed. OutputError naming `option` and the reason."""
     p = Path(path).expanduser().absolute()
-    probe_in = p
-    while not probe_in.exists():
-        if probe_in.parent == probe_in:
-            break
-        probe_in = probe_in.parent
-    if p.exists() and not p.is_dir():
-        raise OutputError(f"{option} {path}: exists and is not a folder")
-    if not probe_in.is_dir():
-        raise OutputError(f"{option} {path}: cannot write there ({probe_in} is not a folder)")
+    try:  # a name too long (ENAMETOOLONG) or a folder we may not look into (EACCES)
+        probe_in = p
+        while not probe_in.exists():
+            if probe_in.parent == probe_in:
+                break
+            probe_in = probe_in.parent
+        if p.exists() and not p.is_dir():
+            raise OutputError(f"{option} {path}: exists and is not a folder")
+        if not probe_in.is_dir():
+            raise OutputError(f"{option} {path}: cannot write there ({probe_in} is not a "
+                              "folder)")
+    except OSError as e:
+        raise OutputError(f"{option} {_short(path)}: not a usable path "
+                          f"({e.strerror or e})") from None
     try:
         if probe_in == p:
             fd, name = tempfile.mkstemp(prefix=".probe-", dir=p)
@@ -54,10 +60,21 @@ def check_out_dir(path: str | Path, option: str = "--out") -> Path:
     return p
 
 
+def _short(path: str | Path, n: int = 80) -> str:
+    """`path` for a message: at most `n` characters (a 300-character name, elided)."""
+    s = str(path)
+    return s if len(s) <= n else f"{s[:n // 2]}…{s[-n // 2:]}"
+
+
 def check_out_file(path: str | Path, option: str = "--out") -> Path:
     """`check_out_dir` for the folder of a file to write; the file itself must not be a folder."""
     p = Path(path).expanduser().absolute()
-    if p.is_dir():
+    try:
+        is_dir = p.is_dir()
+    except OSError as e:
+        raise OutputError(f"{option} {_short(path)}: not a usable path "
+                          f"({e.strerror or e})") from None
+    if is_dir:
         raise OutputError(f"{option} {path}: is a folder, expected a file name")
     check_out_dir(p.parent, option)
     return p
@@ -80,13 +97,28 @@ def _tmp(path: Path) -> Path:
     return path.with_name(f".{path.name}.{os.getpid()}.tmp")
 
 
+FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)  # the disk (or quota) is full
+
+
+def _full(path: Path, e: OSError) -> OutputError:
+    """OutputError (one line, naming the file) for a write that found the disk full."""
+    return OutputError(f"{path}: cannot be written ({e.strerror or e}); nothing half-written is "
+                       "left: free some space and run the same command again")
+
+
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
-    """Write `data` to `path` atomically (temp file in the same folder, then os.replace)."""
+    """Write `data` to `path` atomically (temp file in the same folder, then os.replace). A
+    full disk is an OutputError naming the file, and leaves the old file (if any) and no
+    temp file."""
     path = Path(path)
     tmp = _tmp(path)
     try:
         tmp.write_bytes(data)
         os.replace(tmp, path)
+    except OSError as e:
+        if e.errno in FULL:
+            raise _full(path, e) from None
+        raise
     finally:
         tmp.unlink(missing_ok=True)
     return path
@@ -106,6 +138,10 @@ def atomic_save(path: str | Path, save) -> Path:
     try:
         save(tmp)
         os.replace(tmp, path)
+    except OSError as e:
+        if e.errno in FULL:
+            raise _full(path, e) from None
+        raise
     finally:
         tmp.unlink(missing_ok=True)
     return path

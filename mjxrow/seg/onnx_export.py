@@ -183,6 +183,9 @@ def require_onnx() -> None:
                          "pip install -e '.[export]' (or pip install onnx onnxruntime)")
 
 
+MAX_SIZE = 2048  # px, the largest input side (limits.VALUES["camera.width"])
+
+
 def cli(argv: list[str] | None = None) -> int:
     """`main` as a command: 0, or 2 with a one-line error (onnx missing, a missing or damaged
     checkpoint, an output file that cannot be written)."""
@@ -197,6 +200,10 @@ def cli(argv: list[str] | None = None) -> int:
 def main(argv: list[str] | None = None) -> None:
     """`python -m mjxrow.seg.export ARGS` as a function (raises ValueError or OSError)."""
     args = command.parser().parse_args(argv)
+    if not 16 <= args.size <= MAX_SIZE:  # 16: the model's output stride
+        raise ValueError(f"--size: {args.size} px is not an image side in [16, {MAX_SIZE}] px")
+    if not 0 <= args.check <= 1000:
+        raise ValueError(f"--check: {args.check} images; give 0 (no check) to 1000")
     require_onnx()
     files.check_out_file(args.out, "--out")
     module, variables = checkpoint.load(args.crop or args.ckpt)
