@@ -310,6 +310,71 @@ def test_seg_train_restart_deletes_nothing_it_did_not_write(tmp_path, capsys, mo
     assert (out / "thesis.tex").read_text() == "years of work"
 
 
+def test_seg_train_restart_keeps_the_users_files(tmp_path):
+    """`--restart` in a folder that holds a seg.train run beside the user's own files deletes
+    the run's entries (state/, best/, train_log.jsonl) and nothing else."""
+    from mjxrow.seg import training
+
+    out = tmp_path / "run"
+    for d in ("state/1", "best"):
+        (out / d).mkdir(parents=True)
+    (out / "state/1/x").write_text("0")
+    (out / "train_log.jsonl").write_text('{"step": 1}\n')
+    (out / "thesis.tex").write_text("years of work")
+    (out / "notes").mkdir()
+    training.restart(out)
+    assert sorted(p.name for p in out.iterdir()) == ["notes", "thesis.tex"]
+
+
+def test_seg_train_log_with_a_cut_short_line_resumes(tmp_path):
+    from mjxrow.seg import training
+
+    log = tmp_path / "train_log.jsonl"
+    log.write_text('{"step": 50, "loss": 0.5}\n{"step": 100, "loss": 0.4}\n{"step": 150, "lo')
+    training._truncate_log(log, 100)
+    assert log.read_text() == '{"step": 50, "loss": 0.5}\n{"step": 100, "loss": 0.4}\n'
+
+
+def _dataset(root, rgb="a.png", png=b""):
+    root.mkdir()
+    (root / "index.csv").write_text("rgb,mask,crop,condition,split\n"
+                                    + "".join(f"{rgb},m.png,zucchini,sunny,{s}\n"
+                                              for s in ("train", "train", "test")))
+    from PIL import Image
+    Image.new("L", (16, 16)).save(root / "m.png")
+    if png is not None:
+        (root / "a.png").write_bytes(png)
+
+
+@pytest.mark.parametrize("case,needle", [
+    ("outside", "lies outside the dataset folder"),
+    ("absolute", "lies outside the dataset folder"),
+    ("truncated", "a.png: unreadable image"),
+    ("not_png", "a.png: unreadable image"),
+])
+def test_seg_train_rejects_a_hostile_dataset(tmp_path, capsys, case, needle):
+    """An index.csv path that leaves the folder is never opened; a truncated or foreign image is
+    one line naming it; --out is not made."""
+    import io
+
+    from PIL import Image
+
+    from mjxrow.seg import train
+
+    buf = io.BytesIO()
+    Image.new("RGB", (16, 16), (40, 160, 50)).save(buf, "PNG")
+    rgb = {"outside": "../../../etc/hostname", "absolute": "/etc/hostname"}.get(case, "a.png")
+    png = {"truncated": buf.getvalue()[:40], "not_png": b"#!/bin/sh\necho hi\n"}.get(
+        case, buf.getvalue())
+    _dataset(tmp_path / "d", rgb, png)
+    out = tmp_path / "out"
+    assert train.cli(["--crop", "zucchini", "--data", str(tmp_path / "d"), "--size", "16",
+                      "--steps", "1", "--batch", "1", "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and needle in err, err
+    assert not out.exists()
+
+
 def _nan_speed(d):
     d["action"]["v_max"] = float("nan")
 

@@ -41,7 +41,28 @@ def read_index(root: str | Path) -> pd.DataFrame:
     missing = [c for c in REQUIRED if c not in df.columns]
     if missing:
         raise ValueError(f"dataset {str(root)!r}: index.csv lacks columns {missing}")
+    inside = Path(root).resolve()
+    for col in ("rgb", "mask", "classes"):
+        for i, rel in enumerate(df[col] if col in df.columns else ()):
+            if isinstance(rel, float) and col == "classes":
+                continue  # a folder written before class images: NaN
+            target = (inside / str(rel)).resolve()
+            if Path(str(rel)).is_absolute() or not target.is_relative_to(inside):
+                raise ValueError(f"dataset {str(root)!r}: index.csv row {i + 2}, column {col}: "
+                                 f"{rel!r} lies outside the dataset folder")
     return df
+
+
+def _image(root: Path, rel: str, mode: str) -> Image.Image:
+    """The image `rel` of dataset `root`, decoded and converted to `mode`; ValueError naming
+    the file when it is missing, truncated or not an image."""
+    try:
+        with Image.open(root / rel) as im:
+            return im.convert(mode)
+    except OSError as e:  # PIL's UnidentifiedImageError and truncated files are OSErrors
+        raise ValueError(f"dataset {str(root)!r}: {rel}: unreadable image "
+                         f"({type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''})"
+                         ) from None
 
 
 def select(df: pd.DataFrame, crop: str | Sequence[str] | None = None,
@@ -83,26 +104,21 @@ def load_sample(root: str | Path, rgb_path: str, mask_path: str,
     """One sample: (rgb uint8 [S, S, 3], mask bool [S, S]); resized to `size` if given
     (bilinear for RGB, nearest for the mask)."""
     root = Path(root)
-    with Image.open(root / rgb_path) as im:
-        rgb = im.convert("RGB")
-        if size is not None and rgb.size != (size, size):
-            rgb = rgb.resize((size, size), Image.BILINEAR)
-        rgb = np.asarray(rgb, np.uint8)
-    with Image.open(root / mask_path) as im:
-        mask = im.convert("L")
-        if size is not None and mask.size != (size, size):
-            mask = mask.resize((size, size), Image.NEAREST)
-        mask = np.asarray(mask) > 127
-    return rgb, mask
+    rgb = _image(root, rgb_path, "RGB")
+    if size is not None and rgb.size != (size, size):
+        rgb = rgb.resize((size, size), Image.BILINEAR)
+    mask = _image(root, mask_path, "L")
+    if size is not None and mask.size != (size, size):
+        mask = mask.resize((size, size), Image.NEAREST)
+    return np.asarray(rgb, np.uint8), np.asarray(mask) > 127
 
 
 def load_weed(root: str | Path, classes_path: str, size: int | None = None) -> np.ndarray:
     """bool [S, S]: the weed pixels of a sample's class image (resized, nearest, to `size`)."""
-    with Image.open(Path(root) / classes_path) as im:
-        cls = im.convert("L")
-        if size is not None and cls.size != (size, size):
-            cls = cls.resize((size, size), Image.NEAREST)
-        return np.asarray(cls) == render.WEED
+    cls = _image(Path(root), classes_path, "L")
+    if size is not None and cls.size != (size, size):
+        cls = cls.resize((size, size), Image.NEAREST)
+    return np.asarray(cls) == render.WEED
 
 
 def load_weeds(root: str | Path, df: pd.DataFrame, size: int | None = None,

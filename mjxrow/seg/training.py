@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import math
 import shutil
 import sys
 import time
@@ -178,12 +179,34 @@ class TrainConfig:
     progress: bool = True
 
 
+RUN_FILES = ("state", "best", "train_log.jsonl")  # a run folder's own entries (--restart)
+
+
+def restart(out: Path) -> None:
+    """Delete run folder `out`'s own entries (`RUN_FILES`), nothing else in it."""
+    for name in RUN_FILES:
+        p = out / name
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        elif p.exists() or p.is_symlink():
+            p.unlink()
+
+
 def _truncate_log(path: Path, step: int) -> None:
     """Drop log lines of steps after `step` (work lost by an interruption)."""
     if path.is_file():
-        lines = [ln for ln in path.read_text().splitlines()
-                 if ln.strip() and json.loads(ln).get("step", 0) <= step]
-        path.write_text("".join(ln + "\n" for ln in lines))
+        path.write_text("".join(ln + "\n" for ln in path.read_text().splitlines()
+                                if _logged_step(ln) <= step))
+
+
+def _logged_step(line: str) -> float:
+    """The step of a log line; a blank, cut-short or foreign line counts as after every step
+    (it is dropped)."""
+    try:
+        rec = json.loads(line)
+        return float(rec.get("step", 0)) if isinstance(rec, dict) else math.inf
+    except (ValueError, TypeError):
+        return math.inf
 
 
 @functools.lru_cache(maxsize=8)
@@ -335,7 +358,8 @@ def build_data(args) -> Data:
         val = []
         for size in args.size:
             val += seg_data.batches(
-                *seg_data.load_arrays(args.data, val_df, size, args.workers), args.batch
+                *seg_data.load_arrays(args.data, val_df, size, args.workers,
+                                      progress=not args.no_progress), args.batch
             )
         return Data(val=val, batches=loader,
                     describe=f"folder {Path(args.data).resolve()} crop {args.crop}: "
@@ -386,7 +410,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         if not (out / "train_log.jsonl").is_file():  # no run of ours: the user's folder
             raise ValueError(f"--restart: {out} holds no seg.train run (no train_log.jsonl); "
                              "it is not deleted: give an --out of its own")
-        shutil.rmtree(out)
+        restart(out)
     command = "python -m mjxrow.seg.train " + " ".join(sys.argv[1:] if argv is None else argv)
     meta = {"command": command, "crop": args.crop, "image_size": args.size[0],
             "image_sizes": args.size,
