@@ -1,5 +1,6 @@
 """The ray caster against MuJoCo's own renderer and against brute force: plant masks, depth,
-sky, shadows, determinism. Tiny fields and images; one compile per function and preset."""
+sky, shadows, determinism, on straight fields and on curved, weedy ones (weeds their own class,
+never crop). Tiny fields and images; one compile per function, preset and shape."""
 
 import dataclasses
 import functools
@@ -18,9 +19,11 @@ from mjxrow import crops
 from mjxrow import field as F
 from mjxrow import render as RD
 from mjxrow.crops import prims as PL
+from mjxrow.field import lanes as LN
 from mjxrow.render import geom as G
 from mjxrow.render import shade as S
 from mjxrow.render import terrain as T
+from mjxrow.render import weeds as RW
 from mjxrow.worlds import export as WD
 
 H, W = 48, 64
@@ -44,27 +47,49 @@ def geometry_fn(shape):
 # generator compiles once; rendering takes the shape with the crop's name
 COMMON = F.FieldShape(crop="zucchini", max_rows=16, max_plants_per_row=40,
                       terrain_cells=(96, 88), obstacle_slots=8)
+# weeds need slots: one shape for the curved, weedy fields
+CURVED = dataclasses.replace(COMMON, weed_slots=256)
+ROWS = {"arc": dict(row_curvature=0.03), "sine": dict(row_amplitude=0.5, row_wavelength=10.0)}
+WEEDY = dict(weed_density=0.6, weed_size=0.16, gap_rate=1.0)
 
 
-def tiny_field(crop, seed=1, **kw):
+def tiny_field(crop, seed=1, shape=COMMON, **kw):
     params = F.make_params(crop, **{**SIZES.get(crop, SMALL), **kw})
-    F.validate(params, COMMON)
-    fld = jax.tree.map(np.asarray, generate(params, COMMON, jax.random.key(seed)))
+    F.validate(params, shape)
+    fld = jax.tree.map(np.asarray, generate(params, shape, jax.random.key(seed)))
     assert bool(fld.valid)
-    return fld, dataclasses.replace(COMMON, crop=crop)
+    return fld, dataclasses.replace(shape, crop=crop)
 
 
-def lane_poses(fld):
-    """Four cameras: at the lane start, mid-lane looking back, high and steep, past the end."""
+def curved_field(crop, rows, seed=1, **kw):
+    """A tiny field of curved rows (`ROWS[rows]`) with weeds and gap runs."""
+    fld, shape = tiny_field(crop, seed, CURVED, **ROWS[rows], **{**WEEDY, **kw})
+    assert fld.weed_active.sum() > 20
+    assert np.ptp(fld.plant_heading[fld.plant_active]) > 0.1  # the rows do turn
+    return fld, shape
+
+
+def lane_poses(fld, headland=False):
+    """Four cameras on the robot's lane, placed in field coordinates (s along the rows, u
+    across) and turned by the lane's heading (`mjxrow.field.lanes`; x = s, y = u on straight
+    rows): at the lane start, mid-lane looking back, high and steep, past the end. With
+    `headland`: two more beyond the row ends, looking back into the rows at an angle."""
     lane = int(F.robot_lane(fld))
-    y = float(fld.lane_y[lane])
+    u = float(fld.lane_y[lane])
     x0, x1 = (float(v) for v in fld.row_x)
+    bend = LN.field_bend(fld)
     out = []
-    for x, dy, h, yaw, pitch in [(x0 - 1.0, 0.0, 0.45, 0.0, -10.0), (0.0, 0.15, 0.4, np.pi, -8.0),
-                                 (x0 + 2.0, -0.2, 1.2, 0.25, -25.0),
-                                 (x1 + 0.5, 0.0, 0.7, np.pi - 0.2, -15.0)]:
-        z = float(F.terrain_height(fld.terrain, fld.terrain_size, x, y + dy)) + h
-        out.append((np.array([x, y + dy, z], np.float32),
+    views = [(x0 - 1.0, 0.0, 0.45, 0.0, -10.0), (0.0, 0.15, 0.4, np.pi, -8.0),
+             (x0 + 2.0, -0.2, 1.2, 0.25, -25.0), (x1 + 0.5, 0.0, 0.7, np.pi - 0.2, -15.0)]
+    if headland:
+        views += [(x1 + 1.2, 0.0, 0.45, np.pi - 0.7, -10.0), (x0 - 1.2, 0.0, 0.45, 0.9, -12.0)]
+    for s, du, h, turn, pitch in views:
+        s_, u_ = jnp.float32(s), jnp.float32(u + du)
+        x, y = (float(v) for v in LN.to_world(bend, s_, u_))
+        yaw = float(LN.heading(bend, s_, u_)) + turn
+        assert abs(x) < 0.5 * fld.terrain_size[0] - 0.2  # over the terrain: no side walls
+        z = float(F.terrain_height(fld.terrain, fld.terrain_size, x, y)) + h
+        out.append((np.array([x, y, z], np.float32),
                     np.asarray(RD.camera_rot(yaw, np.deg2rad(pitch)))))
     pos, rot = zip(*out, strict=True)
     return np.stack(pos), np.stack(rot)
@@ -87,6 +112,7 @@ _MJ_SCRIPT = textwrap.dedent("""
         cam = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, "eye")
         names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, i) or "" for i in range(m.ngeom)]
         plant = np.array([n.startswith("plant_") for n in names] + [False])
+        weed = np.array([n.startswith("weed_") for n in names] + [False])
         obst = np.array([n.startswith(("stone_", "branch_")) for n in names] + [False])
         r = mujoco.Renderer(m, item["h"], item["w"])
         for j, (pos, rot) in enumerate(zip(item["pos"], item["rot"])):
@@ -104,6 +130,7 @@ _MJ_SCRIPT = textwrap.dedent("""
             r.disable_depth_rendering()
             gid = np.where(seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM), seg[..., 0], -1)
             out[f"{crop}_{j}_plant"] = plant[gid]
+            out[f"{crop}_{j}_weed"] = weed[gid]
             out[f"{crop}_{j}_obst"] = obst[gid]
             out[f"{crop}_{j}_sky"] = seg[..., 0] < 0
             out[f"{crop}_{j}_depth"] = depth
@@ -112,19 +139,25 @@ _MJ_SCRIPT = textwrap.dedent("""
 """)
 
 
+# every preset on straight rows; one curved field with weeds and gap runs (their weeds drawn
+# by MuJoCo as `weed_*` geoms), from the lane and the headland
+MJ_CASES = [(crop, "straight") for crop in crops.names()] + [("zucchini", "sine")]
+
+
 @pytest.fixture(scope="module")
 def mujoco_scenes(tmp_path_factory):
-    """Per preset: tiny field, shape, camera poses, and MuJoCo's plant/obstacle/sky masks and
-    depth for every pose."""
+    """Per case of MJ_CASES: tiny field, shape, camera poses (curved rows: also two in the
+    headland), and MuJoCo's plant/weed/obstacle/sky masks and depth for every pose."""
     tmp = tmp_path_factory.mktemp("mj")
     scenes, job = {}, {}
-    for crop in crops.names():
-        fld, shape = tiny_field(crop)
-        pos, rot = lane_poses(fld)
+    for crop, rows in MJ_CASES:
+        fld, shape = tiny_field(crop) if rows == "straight" else curved_field(crop, rows)
+        pos, rot = lane_poses(fld, headland=rows != "straight")
         xml, assets = WD.to_mjcf(fld, shape, crop)
-        scenes[crop] = (fld, shape, pos, rot)
-        job[crop] = dict(xml=xml, assets={k: v.hex() for k, v in assets.items()},
-                         pos=pos.tolist(), rot=rot.tolist(), h=H, w=W, fovy=INTR.fovy)
+        scenes[crop, rows] = (fld, shape, pos, rot)
+        job[f"{crop}_{rows}"] = dict(xml=xml, assets={k: v.hex() for k, v in assets.items()},
+                                     pos=pos.tolist(), rot=rot.tolist(), h=H, w=W,
+                                     fovy=INTR.fovy)
     (tmp / "job.json").write_text(json.dumps(job))
     env = {**os.environ, "MUJOCO_GL": "osmesa"}
     res = subprocess.run([sys.executable, "-c", _MJ_SCRIPT, str(tmp / "job.json"),
@@ -137,26 +170,39 @@ def mujoco_scenes(tmp_path_factory):
     return scenes, ref
 
 
-@pytest.mark.parametrize("crop", crops.names())
-def test_agrees_with_mujoco(mujoco_scenes, crop):
+@pytest.mark.parametrize("crop,rows", MJ_CASES, ids=[f"{c}-{r}" for c, r in MJ_CASES])
+def test_agrees_with_mujoco(mujoco_scenes, crop, rows):
     scenes, ref = mujoco_scenes
-    fld, shape, pos, rot = scenes[crop]
+    fld, shape, pos, rot = scenes[crop, rows]
     depth, cls = (np.asarray(x) for x in geometry_fn(shape)(fld, pos, rot))
+    weed_inter, weed_union = 0, 0
     for j in range(len(pos)):
-        mj_plant, mj_sky = ref[f"{crop}_{j}_plant"], ref[f"{crop}_{j}_sky"]
+        key = f"{crop}_{rows}_{j}"
+        mj_plant, mj_sky, mj_weed = ref[f"{key}_plant"], ref[f"{key}_sky"], ref[f"{key}_weed"]
         mask = cls[j] == RD.PLANT
         assert mj_plant.sum() > 40, "the pose should see plants"
         iou = (mask & mj_plant).sum() / (mask | mj_plant).sum()
-        assert iou >= 0.9, f"{crop} pose {j}: plant-mask IoU {iou:.3f}"
+        assert iou >= 0.9, f"{crop} {rows} pose {j}: plant-mask IoU {iou:.3f}"
+        # weeds are never crop: what MuJoCo draws of a weed is not in our crop mask (a pixel
+        # on a weed's edge in front of a plant aside)
+        in_crop = (mask & mj_weed).sum()
+        assert in_crop <= 2 + 0.05 * mj_weed.sum(), f"{crop} {rows} pose {j}: weeds as crop"
+        weed = cls[j] == RD.WEED
+        weed_inter += (weed & mj_weed).sum()
+        weed_union += (weed | mj_weed).sum()
         # depth over terrain and plant pixels (both renderers agree it is one of them)
-        ours = (cls[j] == RD.SOIL) | (cls[j] == RD.PLANT)
-        theirs = ~mj_sky & ~ref[f"{crop}_{j}_obst"]
+        ours = (cls[j] == RD.SOIL) | mask
+        theirs = ~mj_sky & ~ref[f"{key}_obst"] & ~mj_weed
         both = ours & theirs
         assert both.mean() > 0.4
-        err = np.median(np.abs(depth[j] - ref[f"{crop}_{j}_depth"])[both])
-        assert err <= 0.05, f"{crop} pose {j}: median |depth error| {err:.3f} m"
+        err = np.median(np.abs(depth[j] - ref[f"{key}_depth"])[both])
+        assert err <= 0.05, f"{crop} {rows} pose {j}: median |depth error| {err:.3f} m"
         # sky where MuJoCo draws none of the world, within a few edge pixels
         assert np.sum((cls[j] == RD.SKY) != mj_sky) <= 0.01 * H * W
+    if rows != "straight":  # the weeds' pixels, pooled over the poses (a weed is small)
+        assert weed_union > 30, "the poses should see weeds"
+        iou = weed_inter / weed_union
+        assert iou >= 0.75, f"{crop} {rows}: weed IoU {iou:.3f}"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -173,8 +219,9 @@ def scene():
 
 @functools.partial(jax.jit, static_argnums=1)
 def brute_force(fld, shape, pos, rot, sun):
-    """Every plant, obstacle and a dense terrain march: (t [N], class [N]) of each pixel of the
-    camera, and whether each pixel's surface point sees the sun `sun` [3] past every plant."""
+    """Every plant, weed, obstacle and a dense terrain march: (t [N], class [N]) of each pixel
+    of the camera, and whether each pixel's surface point sees the sun `sun` [3] past every
+    plant and weed."""
     dc = RD.pixel_rays(INTR)
     d = jnp.asarray(dc / np.linalg.norm(dc, axis=-1, keepdims=True) @ rot.T)
     o = jnp.broadcast_to(jnp.asarray(pos), d.shape)
@@ -186,23 +233,31 @@ def brute_force(fld, shape, pos, rot, sun):
     ok = tab.box_t[0][flat] <= tab.box_t[1][flat]  # active plants
     tmin, far = jnp.full((n,), 0.01), jnp.full((n,), 150.0)
 
-    def plants(o, d, tmax):
+    def plants(o, d, tmax, tab=tab, flat=flat, ok=ok):
         xyz = lambda v: tuple(v[:, i:i + 1] for i in range(3))  # noqa: E731
         t, _ = G.nearest_prim(tab, flat, xyz(o), xyz(d), tmin[:, None] * 0, tmax[:, None])
         return jnp.min(jnp.where(ok, t, jnp.inf), axis=1)
+
+    def weeds(o, d, tmax):
+        if not shape.weed_slots:
+            return jnp.full((n,), jnp.inf)
+        wt = RW.all_weeds(fld)
+        wf = jnp.broadcast_to(jnp.arange(shape.weed_slots), (n, shape.weed_slots))
+        return plants(o, d, tmax, wt, wf, wt.box_t[0][wf] <= wt.box_t[1][wf])
 
     t_ter, _ = T.trace_terrain(fld.terrain, fld.terrain_size, o, d, tmin, far, 400, 12)
     obst = G.obstacle_table(fld, jnp.asarray(pos), -jnp.asarray(rot[:, 2]),
                             shape.obstacle_slots)
     t_obs, _, _ = G.trace_obstacles(obst, o, d, tmin)
-    t_pl = plants(o, d, jnp.minimum(jnp.minimum(t_ter, t_obs), far))
-    t = jnp.minimum(jnp.minimum(t_pl, t_obs), t_ter)
-    cls = jnp.where(~jnp.isfinite(t), RD.SKY, jnp.where(t == t_pl, RD.PLANT,
-                                                      jnp.where(t == t_obs, RD.OBSTACLE,
-                                                                RD.SOIL)))
+    t_wd = weeds(o, d, jnp.minimum(jnp.minimum(t_ter, t_obs), far))
+    t_pl = plants(o, d, jnp.minimum(jnp.minimum(jnp.minimum(t_ter, t_obs), t_wd), far))
+    t = jnp.minimum(jnp.minimum(jnp.minimum(t_pl, t_obs), t_ter), t_wd)
+    cls = jnp.where(~jnp.isfinite(t), RD.SKY, jnp.where(
+        t == t_pl, RD.PLANT, jnp.where(t == t_wd, RD.WEED, jnp.where(t == t_obs, RD.OBSTACLE,
+                                                                    RD.SOIL))))
     p = o + jnp.where(jnp.isfinite(t), t, 0.0)[:, None] * d
-    lit = ~jnp.isfinite(plants(p + 1e-3 * sun, jnp.broadcast_to(sun, p.shape),
-                               jnp.full((n,), 60.0)))
+    ps, ds, reach = p + 1e-3 * sun, jnp.broadcast_to(sun, p.shape), jnp.full((n,), 60.0)
+    lit = ~jnp.isfinite(plants(ps, ds, reach)) & ~jnp.isfinite(weeds(ps, ds, reach))
     return t, cls, lit
 
 
@@ -220,6 +275,47 @@ def test_mask_is_the_nearest_surface(scene):
         norm = np.linalg.norm(RD.pixel_rays(INTR), axis=-1).reshape(H, W)
         depth_ref = t_ref.reshape(H, W) / norm
         assert np.allclose(np.asarray(fr.depth)[plant], depth_ref[plant], atol=1e-3)
+
+
+def test_curved_weedy_fields_agree_with_every_plant():
+    # arcs and a sinusoid, with weeds and gaps: the tiles' culling through the row segments
+    # (render.rows) and the weeds' culling keep what every plant and every weed tested by every
+    # ray gives, along the lane and from the headland (the shape of the MuJoCo case: no
+    # compile of its own beyond the brute force)
+    for rows in ROWS:
+        fld, shape = curved_field("zucchini", rows, seed=4)
+        pos, rot = lane_poses(fld, headland=True)
+        depth, cls = (np.asarray(x) for x in geometry_fn(shape)(fld, pos, rot))
+        weeds_seen = 0
+        for j in range(len(pos)):
+            _, ref, _ = brute_force(fld, shape, pos[j], rot[j], _sun(0.0))
+            ref = np.asarray(ref).reshape(H, W)
+            mask, mask_ref = cls[j] == RD.PLANT, ref == RD.PLANT
+            assert mask_ref.sum() > 40, f"{rows} pose {j} should see plants"
+            iou = (mask & mask_ref).sum() / (mask | mask_ref).sum()
+            assert iou >= 0.98, f"{rows} pose {j}: plant-mask IoU {iou:.4f}"
+            assert np.mean(cls[j] == ref) >= 0.995, f"{rows} pose {j}"
+            weeds_seen += (ref == RD.WEED).sum()
+            assert np.sum((cls[j] == RD.WEED) != (ref == RD.WEED)) <= 3
+        assert weeds_seen > 20
+
+
+def test_fields_without_weed_slots_do_no_weed_work(scene, monkeypatch):
+    # W = 0 (the static default): the renderer never builds a weed table; with weed slots it
+    # does (traced only, nothing compiled)
+    fld, shape, _ = scene
+    pos, rot = lane_poses(fld)
+    cond = RD.conditions("long_shadows")
+    slots = dataclasses.replace(shape, weed_slots=4)
+    empty = fld.replace(weed_pos=np.zeros((4, 3), np.float32),
+                        weed_size=np.full((4, 2), 0.1, np.float32),
+                        weed_yaw=np.zeros(4, np.float32), weed_phase=np.zeros(4, np.float32),
+                        weed_active=np.zeros(4, bool))
+    built, table = [], RW.table
+    monkeypatch.setattr(RW, "table", lambda *a, **k: built.append(1) or table(*a, **k))
+    for s, f in ((shape, fld), (slots, empty)):
+        jax.eval_shape(lambda f, p, r, s=s: RD.render(f, s, p, r, INTR, cond), f, pos[0], rot[0])
+        assert len(built) == (s.weed_slots > 0)
 
 
 def test_sky_camera_sees_no_plant(scene):

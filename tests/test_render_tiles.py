@@ -1,6 +1,7 @@
 """Tile culling (render_tiles): the static tile layout, the conservative cone and shadow box
-tests against brute force, the tiled exact tests against the per-plant reference, padded
-images, deep tiles on grazing views, and a precomputed plant table."""
+tests against brute force, the row windows on curved rows against every plant a tile's rays
+meet, the tiled exact tests against the per-plant reference, padded images, deep tiles on
+grazing views, a precomputed plant table, every kernel alike, and the weeds' radius."""
 
 import dataclasses
 import functools
@@ -13,9 +14,12 @@ import pytest
 from mjxrow import field as F
 from mjxrow import render as RD
 from mjxrow.bench import render as BR
+from mjxrow.crops import prims as PL
+from mjxrow.field import lanes as LN
 from mjxrow.render import geom as G
 from mjxrow.render import pallas as RP
 from mjxrow.render import tiles as RT
+from mjxrow.render import weeds as RW
 
 COMMON = F.FieldShape(crop="zucchini", max_rows=16, max_plants_per_row=40,
                       terrain_cells=(96, 88), obstacle_slots=8)
@@ -103,6 +107,106 @@ def lane_scene():
     x0 = float(fld.row_x[0])
     z = float(F.terrain_height(fld.terrain, fld.terrain_size, x0 - 0.5, y)) + 0.35
     return fld, COMMON, np.array([x0 - 0.5, y, z], np.float32)
+
+
+# curved rows, stronger than the fields' usual ones: arcs turning 0.6 rad over the 10 m rows,
+# a sinusoid of 0.5 m with a 6 m wavelength (COMMON: the lane scene's generator compile)
+CURVES = {"arc": dict(row_curvature=0.06), "sine": dict(row_amplitude=0.5, row_wavelength=6.0)}
+
+
+def curved_scene(rows):
+    params = F.make_params("zucchini", terrain_length=14.0, row_length=10.0, terrain_width=14.0,
+                           p_missing=0.0, **CURVES[rows])
+    F.validate(params, COMMON)
+    return jax.tree.map(np.asarray, generate(params, COMMON, jax.random.key(6))), COMMON
+
+
+def _field_pose(fld, s, du, h, turn, pitch_deg):
+    """(cam_pos, cam_rot) at (s, u = robot lane + du) in field coordinates, h over the
+    ground, turned by `turn` from the lane's heading."""
+    bend = LN.field_bend(fld)
+    u = float(fld.lane_y[int(F.robot_lane(fld))]) + du
+    x, y = (float(v) for v in LN.to_world(bend, jnp.float32(s), jnp.float32(u)))
+    yaw = float(LN.heading(bend, jnp.float32(s), jnp.float32(u))) + turn
+    z = float(F.terrain_height(fld.terrain, fld.terrain_size, x, y)) + h
+    return np.array([x, y, z], np.float32), np.asarray(RD.camera_rot(yaw, np.deg2rad(pitch_deg)))
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _met(fld, shape, o, d, t_max):
+    """Which plants each ray o + t·d ([N, 3]; t in (0.01, t_max [N])) meets: bool [N, R·P]."""
+    tab = G.plant_table(fld, shape)
+    n, RPn = o.shape[0], tab.box_t.shape[1]
+    flat = jnp.broadcast_to(jnp.arange(RPn), (n, RPn))
+    col = lambda v: tuple(v[:, i:i + 1] for i in range(3))  # noqa: E731
+    t, _ = G.nearest_prim(tab, flat, col(o), col(d), jnp.full((n, 1), 0.01), t_max[:, None])
+    return jnp.isfinite(t) & (tab.box_t[0] <= tab.box_t[1])
+
+
+@functools.partial(jax.jit, static_argnums=(1, 2))
+def _windows(fld, shape, row_blocks, o, c, g, tau, t_max):
+    tab = G.plant_table(fld, shape)
+    return RT._window(tab, shape.max_plants_per_row, o, c, g, tau, t_max, row_blocks)
+
+
+def _blocks_of(met, shape):
+    """[T, R·P] plants met → set of (tile, block id) they lie in."""
+    nb = -(-shape.max_plants_per_row // G.BLOCK)
+    t, plant = np.nonzero(met)
+    r, i = divmod(plant, shape.max_plants_per_row)
+    return set(zip(t.tolist(), (r * nb + i // G.BLOCK).tolist(), strict=True))
+
+
+def test_row_windows_hold_every_plant_a_tile_meets():
+    # on arcs and a sinusoid, every plant any ray of a tile meets (camera tiles: along the
+    # lane, across the rows from the headland, high and steep; shadow tiles: boxes of ground
+    # points, swept to the sun) lies in a block of the tile's row windows, when the windows are
+    # long enough to hold a row's blocks met (a window counted from the entry segment's end
+    # instead of the row's slots met missed plants of an arc seen from above)
+    nb = -(-COMMON.max_plants_per_row // G.BLOCK)
+    dirs, _, centre, tan_a, _ = RT.tile_layout(32, 24, 45.0, 4)
+    for rows in CURVES:
+        fld, shape = curved_scene(rows)
+        x0, x1 = (float(v) for v in fld.row_x)
+        checked = 0
+        for s, du, h, turn, pitch in [(x0 - 1.0, 0.0, 0.4, 0.0, -8.0),
+                                      (x1 - 2.0, 0.3, 0.4, np.pi, -4.0),
+                                      (x1 + 1.5, 0.0, 0.5, np.pi / 2, -10.0),
+                                      (x0 - 1.5, 0.0, 0.5, -1.0, -12.0),
+                                      (0.5 * (x0 + x1), 0.0, 2.0, 0.6, -50.0)]:
+            pos, rot = _field_pose(fld, s, du, h, turn, pitch)
+            d = dirs @ rot.T  # [T, P, 3]
+            T_, P_ = d.shape[:2]
+            met = np.asarray(_met(fld, shape, jnp.broadcast_to(jnp.asarray(pos), (T_ * P_, 3)),
+                                  jnp.asarray(d.reshape(-1, 3)), jnp.full((T_ * P_,), 60.0)))
+            met = met.reshape(T_, P_, -1).any(1)
+            c = jnp.asarray(centre @ rot.T)
+            bid, ok = (np.asarray(x) for x in _windows(
+                fld, shape, nb, *RT.camera_sweep(jnp.asarray(pos), c, jnp.asarray(tan_a)),
+                jnp.full((T_,), 60.0)))
+            kept = {(t, b) for t in range(T_) for b in bid[t][ok[t]].tolist()}
+            need = _blocks_of(met, shape)
+            assert need <= kept, f"{rows}: {sorted(need - kept)[:5]} missing"
+            checked += len(need)
+        # shadow rays from boxes of points near the ground around the lane
+        rng = np.random.default_rng(0)
+        sun = np.array([0.4, -0.5, 0.35], np.float32)
+        sun /= np.linalg.norm(sun)
+        centres = np.stack([_field_pose(fld, s_, du, 0.05, 0.0, 0.0)[0] for s_, du in
+                            zip(rng.uniform(x0, x1, 24), rng.uniform(-2.5, 2.5, 24),
+                                strict=True)])
+        lo = centres - rng.uniform(0.05, 0.6, (24, 3)).astype(np.float32)
+        hi = centres + rng.uniform(0.05, 0.6, (24, 3)).astype(np.float32)
+        pts = lo[:, None] + rng.uniform(size=(24, 64, 3)).astype(np.float32) * (hi - lo)[:, None]
+        met = np.asarray(_met(fld, shape, jnp.asarray(pts.reshape(-1, 3)),
+                              jnp.broadcast_to(jnp.asarray(sun), (24 * 64, 3)),
+                              jnp.full((24 * 64,), 60.0))).reshape(24, 64, -1).any(1)
+        sweep, _ = RT.shadow_sweep(jnp.asarray(lo), jnp.asarray(hi), jnp.asarray(sun))
+        bid, ok = (np.asarray(x) for x in _windows(fld, shape, nb, *sweep,
+                                                    jnp.full((24,), 60.0)))
+        need = _blocks_of(met, shape)
+        assert need <= {(t, b) for t in range(24) for b in bid[t][ok[t]].tolist()}, rows
+        assert checked > 40 and len(need) > 10
 
 
 @functools.cache
@@ -223,6 +327,23 @@ def test_every_kernel_renders_the_same_frame(lane_scene):
         assert np.array_equal(np.asarray(a.classes), np.asarray(b.classes))
         assert np.allclose(np.asarray(a.depth), np.asarray(b.depth), rtol=1e-4, atol=1e-5)
         assert np.max(np.abs(np.asarray(a.rgb, int) - np.asarray(b.rgb, int))) <= 1
+
+
+def test_weed_primitives_lie_within_their_radius(lane_scene):
+    # the weed table's selection grows each weed by `weeds.radius`: every primitive of every
+    # weed (sizes, yaws and phases spread out) lies within it of the weed's base point
+    rng = np.random.default_rng(3)
+    n = 64
+    d = rng.uniform(0.02, 0.5, n)
+    fld = lane_scene[0].replace(
+        weed_pos=rng.uniform(-3, 3, (n, 3)).astype(np.float32),
+        weed_size=np.stack([d, d * rng.uniform(0.2, 0.8, n)], -1).astype(np.float32),
+        weed_yaw=rng.uniform(0, 2 * np.pi, n).astype(np.float32),
+        weed_phase=rng.uniform(0, 1, n).astype(np.float32), weed_active=np.ones(n, bool))
+    pr = jax.tree.map(np.asarray, PL.weed_prims(fld))
+    far = np.linalg.norm(pr.centre - fld.weed_pos[:, None], axis=-1) + pr.size.max(-1)
+    assert np.all(far.max(-1) <= np.asarray(RW.radius(fld)))
+    assert np.all(pr.material == PL.WEED)
 
 
 def test_every_kernel_draws_obstacles_and_their_shadows_alike(lane_scene):

@@ -127,11 +127,11 @@ def _window(tab: geom.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks
     """Blocks a tile's sweep can meet, through the row structure: per row segment
     (`render.rows`), the stretch of the centre ray where the sweep reaches the segment's strip
     (across and along its chord, its height band) gives the range along the chord and so the
-    plant slots it can meet; per row, `row_blocks` blocks are kept from the segment the sweep
-    enters first, onward in the direction the ray runs along that segment's chord, within the
-    row's slots met. The sweep's growth: g per world axis, turned onto the chord as a box, and
-    s·τ (Euclidean: the same along any direction). Returns (block id int32 [T, R·row_blocks],
-    ok bool)."""
+    plant slots it can meet; per row, the first `row_blocks` blocks of the slots met are kept,
+    counted from the end where the ray comes in (the way it runs along the chord of the
+    segment it enters first). The sweep's growth: g per world axis, turned onto the chord as a
+    box, and s·τ (Euclidean: the same along any direction). Returns (block id int32
+    [T, R·row_blocks], ok bool)."""
     R = tab.row_y.shape[0]
     nb = tab.block_t.shape[1] // R
     sg = tab.seg_t
@@ -165,21 +165,16 @@ def _window(tab: geom.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks
     T = o.shape[0]
     per_row = lambda v: v.reshape(T, R, ns)  # noqa: E731
     hit, s0, ce, i_lo, i_hi = map(per_row, (hit, s0, ce, i_lo, i_hi))
-    # the segment entered first (ties: all of them), and the way the ray runs along it
+    # the row's slots met, kept from the end where the ray comes in: the way it runs along
+    # the chord of the segment it enters first
     s_in = jnp.where(hit, s0, INF)
-    s_first = jnp.min(s_in, -1, keepdims=True)
     fwd = jnp.take_along_axis(ce, jnp.argmin(s_in, -1)[..., None], -1)[..., 0] >= 0  # [T, R]
-    tie = hit & (s_in <= s_first)
-    start = jnp.where(fwd, jnp.min(jnp.where(tie, i_lo, INF), -1),
-                      jnp.max(jnp.where(tie, i_hi, -INF), -1))
-    lo = jnp.min(jnp.where(hit, i_lo, INF), -1)
-    hi = jnp.max(jnp.where(hit, i_hi, -INF), -1)
     ok = jnp.any(hit, -1)
-    start, lo, hi = (jnp.where(ok, v, 0.0) for v in (start, lo, hi))
-    b_st = jnp.floor(start / geom.BLOCK)
+    lo = jnp.where(ok, jnp.min(jnp.where(hit, i_lo, INF), -1), 0.0)
+    hi = jnp.where(ok, jnp.max(jnp.where(hit, i_hi, -INF), -1), 0.0)
     b_lo, b_hi = jnp.floor(lo / geom.BLOCK), jnp.floor(hi / geom.BLOCK)
     j = jnp.arange(row_blocks, dtype=jnp.float32)
-    b = jnp.where(fwd[..., None], b_st[..., None] + j, b_st[..., None] - j)  # [T, R, row_blocks]
+    b = jnp.where(fwd[..., None], b_lo[..., None] + j, b_hi[..., None] - j)  # [T, R, row_blocks]
     ok = ok[..., None] & (b >= b_lo[..., None]) & (b <= b_hi[..., None])
     bid = jnp.arange(R, dtype=jnp.int32)[:, None] * nb + jnp.clip(b, 0, nb - 1).astype(jnp.int32)
     return bid.reshape(T, -1), ok.reshape(T, -1)
