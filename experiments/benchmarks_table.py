@@ -129,7 +129,12 @@ HEADLINES = [
            r"^zucchini 224x224, tile 16, pallas kernels, settle none, interleaved "
            r"\(render_variants\.py\)$", GPU, batch=1024),
     Figure("render accuracy 64 × 64: minimum per-frame plant-mask IoU, five presets",
-           "render_accuracy", r"64x64", fmt="{:.4f}", goal=(">=", 0.98)),
+           "render_accuracy", r"^5 presets, 64x64", fmt="{:.4f}", goal=(">=", 0.98)),
+    Figure("render accuracy 64 × 64 on arc and sine rows with weeds: minimum per-frame IoU",
+           "render_accuracy", r"^curved rows: 5 presets, 64x64", fmt="{:.4f}",
+           goal=(">=", 0.98)),
+    Figure("renderer 64 × 64 on arc and sine rows: frames/s against straight rows, worst preset",
+           "render_fps_curved", r"^curved rows", fmt="{:+.1f}", goal=(">=", -15)),
     Figure("render accuracy 224 × 224: minimum per-frame plant-mask IoU", "render_accuracy",
            r"224x224", fmt="{:.4f}", goal=(">=", 0.98)),
     Figure("our renderer ÷ MuJoCo's batch renderer (MJX, Warp), 64 × 64, same poses",
