@@ -62,7 +62,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=4, help="image decoding threads (--data)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", help="run folder (default runs/seg_<crop>_<arch>)")
-    p.add_argument("--restart", action="store_true", help="start over: delete the run's state, best model and log in --out first (nothing else there)")
+    p.add_argument("--restart", action="store_true",
+                   help="start over: delete the run's state, best model and log in --out first "
+                        "(nothing else there)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (logs)")
     p.add_argument("--init", help="start from this checkpoint's weights (a crop name for a "
                                   "shipped model, or a checkpoint folder) instead of random "

@@ -105,13 +105,19 @@ def init_state(variables: dict, tx: optax.GradientTransformation, seed: int = 0)
                       jnp.array(-1.0, jnp.float32))
 
 
+@jax.jit
+def batch_key(rng: jax.Array, step: jax.Array) -> jax.Array:
+    """The key of step `step`'s batch: fused into the step or made before it, the same data."""
+    return jax.random.fold_in(jax.random.fold_in(rng, step), 0)
+
+
 def make_step(module: SegNet, tx: optax.GradientTransformation, loss: str = "iou",
               flip: float = 0.5, grey: float = 0.2, jitter: float = 0.0,
               batch_fn: Callable[[jax.Array], tuple[jax.Array, jax.Array]] | None = None):
     """One optimisation step (pure; jit it). Without `batch_fn`:
     `step(state, rgb uint8 [B,H,W,3], mask bool [B,H,W]) -> (state, {"loss"})`; with a jittable
     `batch_fn(key) -> (rgb, mask)` the batch is made inside: `step(state) -> (state, metrics)`,
-    its key being fold_in(rng, step), so a resumed run sees the same data."""
+    its key being batch_key(rng, step), so a resumed run sees the same data."""
     if loss not in LOSSES:
         raise ValueError(f"loss: unknown loss {loss!r}; expected one of {tuple(LOSSES)}")
     loss_fn = LOSSES[loss]
@@ -138,8 +144,7 @@ def make_step(module: SegNet, tx: optax.GradientTransformation, loss: str = "iou
         return step
 
     def fused(state: TrainState):
-        key = jax.random.fold_in(jax.random.wrap_key_data(state.rng), state.step)
-        rgb, mask = batch_fn(jax.random.fold_in(key, 0))
+        rgb, mask = batch_fn(batch_key(jax.random.wrap_key_data(state.rng), state.step))
         return step(state, rgb, mask)
 
     return fused
@@ -184,11 +189,14 @@ RUN_FILES = ("state", "best", "train_log.jsonl")  # a run folder's own entries (
 
 def restart(out: Path) -> None:
     """Delete run folder `out`'s own entries (`RUN_FILES`), nothing else in it."""
-    for name in RUN_FILES:
-        p = out / name
-        if p.is_dir() and not p.is_symlink():
+    paths = [out / name for name in RUN_FILES]
+    for p in paths:  # a link is not what seg.train writes: refuse before deleting anything
+        if p.is_symlink():
+            raise ValueError(f"--restart: {p} is a link, not this run's; it is not deleted")
+    for p in paths:
+        if p.is_dir():
             shutil.rmtree(p)
-        elif p.exists() or p.is_symlink():
+        elif p.is_file():
             p.unlink()
 
 
@@ -220,12 +228,6 @@ def _compiled(module: SegNet, lr: float, steps: int, warmup: int, weight_decay: 
     steps_ = tuple(jax.jit(make_step(module, tx, loss, flip, grey, jitter, fn), donate_argnums=0)
                    for fn in batch_fns or (None,))
     return sched, tx, steps_, jax.jit(make_eval(module, threshold))
-
-
-@jax.jit
-def _batch_key(rng: jax.Array, step: jax.Array) -> jax.Array:
-    """The key from which `make_step`'s fused step draws the batch of step `step`."""
-    return jax.random.fold_in(jax.random.fold_in(rng, step), 0)
 
 
 def _manager(out: Path) -> ocp.CheckpointManager:
@@ -286,7 +288,7 @@ def fit(module: SegNet, variables: dict, data: Data, cfg: TrainConfig, out: str 
             if it is None and data.fuse:
                 state, m = step_fns[step % len(step_fns)](state)
             elif it is None:  # the fused step's batch: same key, made before the step
-                rgb, mask = fns[step % len(fns)](_batch_key(rng, step))
+                rgb, mask = fns[step % len(fns)](batch_key(rng, step))
                 state, m = step_fns[0](state, rgb, mask)
             else:
                 rgb, mask = next(it)
