@@ -43,6 +43,8 @@
 #   search_oracle   MINUTES [2] of search, SEARCH_LIMIT [200] s
 #   variety_surfaces CKPT [as search_segzeros], LIMIT [300] s per sweep
 #   render_curved   LIMIT [240] s
+#   scale_out       GPUS ["1 2 4"], PER_GPU ["8208"] episodes per GPU and batch (multiples of
+#                   36: whole seeds of sweeps.yaml's 36 cells), LIMIT [280] s per sweep
 #   train_policy    TRAIN_ARGS: more train_policy.py arguments (e.g. --smoke on a CPU)
 #   policy_surfaces SWEEP_ARGS: more sweep arguments
 set -uo pipefail
@@ -53,12 +55,14 @@ cd "$root" || exit 2
 
 sets=(time_to_result determinism surfaces scaling table3 table3_kernels speed_round loop_224
       compile_flags mjwarp seg_speed shading suite_bench suite_tables suite_final train_policy
-      policy_surfaces seg_variety search_segzeros search_oracle variety_surfaces render_curved)
+      policy_surfaces seg_variety search_segzeros search_oracle variety_surfaces render_curved
+      scale_out)
 declare -A about=(
   [time_to_result]="sweeps.yaml cold / warm, closed loop 64 / 224 px, Table 3 block and whole"
   [determinism]="sweeps.yaml cold, warm, warm; the same with XLA's deterministic ops; diffs"
   [surfaces]="both sweep surfaces with SegZeros, the shipped policy and the oracle"
   [scaling]="sweeps.yaml (114 seeds) and the closed loop on one GPU and on two"
+  [scale_out]="sweeps.yaml at PER_GPU episodes per GPU on 1, 2, 4 GPUs: episodes/s ratios"
   [table3]="the whole Table 3 from an empty cache, a process per preset, then the page"
   [table3_kernels]="Table 3 blocks of one preset, Pallas kernels against the XLA renderer"
   [speed_round]="renderer 64 / 128 px and closed loop 64 / 224 px, processes side by side"
@@ -285,6 +289,31 @@ set_scaling() {  # scaling.jsonl (the sweeps), closed_loop.jsonl (bench rows), s
   tar czf "$out/sweeps.tgz" -C "$work" --ignore-failed-read sweep_1/summary.csv \
     sweep_1/results.csv sweep_2/summary.csv sweep_2/results.csv 2>/dev/null
   summary scaling "$out" "$work" "$OUT/device.txt"
+}
+
+set_scale_out() {  # scale_out.jsonl (one line per sweep), rows.jsonl (benchmarks rows)
+  # every run is ONE batch of PER_GPU episodes per GPU (seeds = n·PER_GPU / 36), so its run
+  # time is that of one call on n GPUs; the ratio of episodes per second of run time against
+  # one GPU is the scale-out at that batch per GPU. Each run compiles into its own empty cache.
+  fresh_work; rm -f "$out/scale_out.jsonl"
+  local per n seeds
+  for per in ${PER_GPU:-8208}; do
+    if (( per % 36 )); then echo "!! PER_GPU=$per: not a multiple of 36"; continue; fi
+    for n in ${GPUS:-1 2 4}; do
+      if (( n > $(nvidia-smi -L 2>/dev/null | wc -l) )); then
+        echo "!! $n GPUs asked for, $(nvidia-smi -L | wc -l) present"; continue
+      fi
+      seeds=$((n * per / 36)); devs=$(seq -s, 0 $((n - 1)))
+      echo "== sweep: $n GPU(s), $((n * per)) episodes in one batch ($(date +%T))"
+      CUDA_VISIBLE_DEVICES=$devs timed --with "gpus=$n" --with "per_gpu=$per" \
+        --with "episodes=$((n * per))" "$out/scale_out.jsonl" "sweep_${n}_$per" \
+        "${LIMIT:-280}" "${py[@]}" -m mjxrow.sweep sweeps.yaml --set "seeds=$seeds" \
+        --set "batch_size=$((n * per))" --force --no-progress \
+        --cache-dir "$work/cache_${n}_$per" --out "$work/sweep_${n}_$per"
+      tail -n 2 "$out/sweep_${n}_$per.log"
+    done
+  done
+  summary scale_out "$out" "$OUT/device.txt"
 }
 
 set_table3() {  # table3.md (the page), table3.tgz (every block's results and logs)

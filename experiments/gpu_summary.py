@@ -113,6 +113,38 @@ def scaling(out: Path, work: Path, device: Path) -> None:
         print(f"closed-loop speed-up on 2 GPUs: {bd[2]['value'] / bd[1]['value']:.2f}x")
 
 
+def scale_out(out: Path, device: Path) -> None:
+    """The scale-out table (gpu.sh scale_out) and its benchmarks rows (OUT/rows.jsonl): per
+    batch per GPU, episodes per second of run time on n GPUs against one."""
+    lines = device.read_text().strip().splitlines() if device.exists() else []
+    name = lines[0].split(",")[0].strip() if lines else "?"
+    runs = [r for r in rows(out / "scale_out.jsonl") if r.get("rc") == 0 and "run_s" in r]
+    print(device.read_text().strip() if device.exists() else "")
+    print("\n| episodes per GPU | GPUs | episodes | compile [s] | run [s] | episodes/s | "
+          "vs 1 GPU |\n" + "|---" * 7 + "|")
+    recs = []
+    for r in sorted(runs, key=lambda r: (r["per_gpu"], r["gpus"])):
+        base = next((b for b in runs if b["per_gpu"] == r["per_gpu"] and b["gpus"] == 1), None)
+        rate = r["episodes"] / r["run_s"]
+        ratio = rate / (base["episodes"] / base["run_s"]) if base else float("nan")
+        print(f"| {r['per_gpu']} | {r['gpus']} | {r['episodes']} | {r['compile_s']:.1f} | "
+              f"{r['run_s']:.1f} | {rate:.1f} | {ratio:.2f}x |")
+        n = r["gpus"]
+        recs.append({"date": datetime.date.today().isoformat(),
+                     "device": name if n == 1 else f"{n} x {name}", "stage": "sweep_scaling",
+                     "batch": r["episodes"], "per_gpu": r["per_gpu"], "gpus": n,
+                     "unit": "episodes/s (run)", "value": round(rate, 2),
+                     "speedup_vs_1gpu": None if base is None else round(ratio, 3),
+                     "command": f"python -m mjxrow.sweep sweeps.yaml --set seeds="
+                                f"{r['episodes'] // 36} --set batch_size={r['episodes']} --force "
+                                "(CUDA_VISIBLE_DEVICES: n GPUs; bash experiments/gpu.sh "
+                                "scale_out)",
+                     "config": f"sweeps.yaml, one batch of {r['per_gpu']} episodes per GPU on "
+                               f"{n} GPU(s), empty cache",
+                     "compile_s": r["compile_s"], "run_s": r["run_s"], "wall_s": r["wall_s"]})
+    (out / "rows.jsonl").write_text("".join(json.dumps(x) + "\n" for x in recs))
+
+
 def surfaces(work: Path, out: Path) -> None:
     import pandas as pd
 
@@ -183,6 +215,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("out", type=Path)
     p.add_argument("work", type=Path)
     p.add_argument("device", type=Path)
+    p = sub.add_parser("scale_out")
+    p.add_argument("out", type=Path)
+    p.add_argument("device", type=Path)
     p = sub.add_parser("surfaces")
     p.add_argument("work", type=Path)
     p.add_argument("out", type=Path)
@@ -199,6 +234,8 @@ def main(argv: list[str] | None = None) -> None:
         time_to_result(a.out, a.device)
     elif a.kind == "scaling":
         scaling(a.out, a.work, a.device)
+    elif a.kind == "scale_out":
+        scale_out(a.out, a.device)
     elif a.kind == "surfaces":
         surfaces(a.work, a.out)
     elif a.kind == "loop_224":
