@@ -119,10 +119,10 @@ summary() { "${py[@]}" experiments/gpu_summary.py "$@"; }
 fresh_work() { rm -rf "$work"; mkdir -p "$work" "$@"; }
 mark_rows() { lines0=$(wc -l < benchmarks.jsonl); }  # the bench appends to benchmarks.jsonl:
 new_rows() { tail -n +$((lines0 + 1)) benchmarks.jsonl > "$out/benchmarks.jsonl"; }  # its new lines
-# timed [--with KEY=INT] JSONL NAME LIMIT CMD...: CMD for at most LIMIT s (log OUT/NAME.log);
+# timed [--with KEY=INT ...] JSONL NAME LIMIT CMD...: CMD for at most LIMIT s (log OUT/NAME.log);
 # one JSON line to JSONL (exit status, wall time, the command's printed split)
 timed() {
-  local extra=(); [ "$1" = --with ] && { extra=(--with "$2"); shift 2; }
+  local extra=(); while [ "$1" = --with ]; do extra+=(--with "$2"); shift 2; done
   local jsonl=$1 name=$2 limit=$3 t0 t1 rc; shift 3
   t0=$(date +%s.%N); timeout "$limit" "$@" >"$out/$name.log" 2>&1; rc=$?; t1=$(date +%s.%N)
   summary step "$name" "$rc" "$t0" "$t1" "$out/$name.log" "${extra[@]}" >>"$jsonl"
