@@ -483,3 +483,31 @@ def test_deep_sub_tiles_keep_what_whole_deep_tiles_drop(lane_scene):
     assert miss[1] < miss[0] and miss[2] <= miss[1], miss
     with pytest.raises(ValueError, match="render.deep_split"):
         RD.RenderConfig(deep_split=3)
+
+
+def test_reach_bounds_every_plant_a_cull_leaves_out(lane_scene):
+    # `cull`'s reach (where the deep pass's second list starts): every plant a tile's list
+    # leaves out enters each of the tile's rays at or beyond it (short lists, so that most
+    # grazing tiles leave plants out; windows holding every block of a row)
+    fld, shape, pos = lane_scene
+    P = shape.max_plants_per_row
+    nb = -(-P // G.BLOCK)
+    tab = G.plant_table(fld, shape)
+    dirs, _, centre, tan_a, _ = RT.tile_layout(48, 32, 45.0, 8)
+    rot = np.asarray(RD.camera_rot(0.08, np.deg2rad(-6.0)))
+    d = dirs @ rot.T
+    sweep = RT.camera_sweep(jnp.asarray(pos), jnp.asarray(centre @ rot.T), jnp.asarray(tan_a))
+    t_max = jnp.full((len(centre),), 40.0)
+    ids, _, rest, reach = (np.asarray(x) for x in RT.cull(tab, P, *sweep, t_max, nb, 3, 4,
+                                                          with_reach=True))
+    box = np.asarray(tab.box_t)
+    lo, hi = box[0::2].T, box[1::2].T  # [R·P, 3]
+    e = _ray_box_entry(pos, d[:, :, None], lo, hi, 40.0).min(1)  # [T, R·P]
+    left = 0
+    for t in range(len(centre)):
+        out = np.ones(lo.shape[0], bool)
+        out[ids[t]] = False
+        out &= np.isfinite(e[t]) & np.all(lo <= hi, 1)  # met; an inactive plant's box is empty
+        assert np.all(e[t][out] >= reach[t] - 1e-4), (t, e[t][out].min(), reach[t])
+        left += out.sum()
+    assert left > 20 and np.sum(reach < 40.0) > 5  # the lists are short: the bound bites

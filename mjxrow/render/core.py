@@ -196,8 +196,9 @@ def _trace_plants(shape, tab, sweep, oc, d, t_far, cfg):
     P = shape.max_plants_per_row
     o, cc, g, tau = sweep
     with jax.named_scope("rd_cull"):
-        ids, entry, rest = render_tiles.cull(tab, P, o, cc, g, tau, jnp.max(t_far, axis=1),
-                                             cfg.row_blocks, cfg.block_keep, cfg.keep)
+        ids, entry, rest, reach = render_tiles.cull(tab, P, o, cc, g, tau,
+                                                    jnp.max(t_far, axis=1), cfg.row_blocks,
+                                                    cfg.block_keep, cfg.keep, with_reach=True)
     t_min = jnp.full(t_far.shape, cfg.near, jnp.float32)
     with jax.named_scope("rd_exact"):
         t, plant, k = render_tiles.exact(tab, ids, entry, oc, geom.xyz(d), t_min, t_far,
@@ -212,7 +213,7 @@ def _trace_plants(shape, tab, sweep, oc, d, t_far, cfg):
             score = jnp.where(rest > 0, rest + jnp.sum(entry < cut[:, None], 1), 0)
             score, sel = jax.lax.top_k(score.astype(jnp.float32), n_deep)
             t2, plant2, k2 = _deep_pass(tab, P, (o[sel], cc[sel], g[sel], tau[sel]), d[sel],
-                                        t_min[sel], u[sel], score > 0, oc, cfg)
+                                        t_min[sel], u[sel], score > 0, reach[sel], oc, cfg)
             better = t2 < t[sel]
             t = t.at[sel].set(jnp.where(better, t2, t[sel]))
             plant = plant.at[sel].set(jnp.where(better, plant2, plant[sel]))
@@ -220,13 +221,16 @@ def _trace_plants(shape, tab, sweep, oc, d, t_far, cfg):
     return t.reshape(-1), plant.reshape(-1), k.reshape(-1)
 
 
-def _deep_pass(tab, P, sweep, d, t_min, u, live, oc, cfg):
+def _deep_pass(tab, P, sweep, d, t_min, u, live, reach, oc, cfg):
     """The deep tiles' second cull and exact test (sweep: their `camera_sweep`, d [D, Q, 3]
     their rays, t_min and u [D, Q] the rays' near limit and current hits, live [D] tiles with
-    plants left to test): each tile, or each of its `deep_split`² sub-tiles (its own cone and
-    cut, so a sub-tile over near hits keeps few plants and one over the far field keeps far
-    ones), keeps the `deep_keep` plants its sweep enters first within a window of
-    `deep_row_blocks`. Returns (t, plant, k) [D, Q]."""
+    plants left to test, reach [D] how far along their rays the first pass held every plant,
+    `cull`'s): each tile, or each of its `deep_split`² sub-tiles (its own cone and cut, so a
+    sub-tile over near hits keeps few plants and one over the far field keeps far ones),
+    keeps the `deep_keep` plants its sweep enters first beyond the first pass's reach (the
+    next layer: on a view over many rows of small plants the plants a far ray meets lie
+    behind hundreds that its tile's cone grazes), within a window of `deep_row_blocks`.
+    Returns (t, plant, k) [D, Q]."""
     D, Q = u.shape
     n = cfg.deep_split
     ts = int(round(np.sqrt(Q)))
@@ -237,9 +241,11 @@ def _deep_pass(tab, P, sweep, d, t_min, u, live, oc, cfg):
         order = (r[:, None, :, None] * ts + r[None, :, None, :]).reshape(-1)
         d, t_min, u = (x[:, order].reshape(D * m, Q // m, *x.shape[2:]) for x in (d, t_min, u))
         sweep = render_tiles.camera_sweep(sweep[0][:1], *render_tiles.cone(d))
-        live = jnp.repeat(live, m)
+        live, reach = jnp.repeat(live, m), jnp.repeat(reach, m)
+    # a ray point at distance t ≥ reach projects on the centre ray at s ≥ reach · cos α
+    s_min = reach / jnp.sqrt(1.0 + sweep[3] ** 2)
     ids, entry, _ = render_tiles.cull(tab, P, *sweep, jnp.max(u, axis=1), cfg.deep_row_blocks,
-                                      cfg.deep_block_keep, cfg.deep_keep)
+                                      cfg.deep_block_keep, cfg.deep_keep, s_min=s_min)
     entry = jnp.where(live[:, None], entry, INF)
     out = render_tiles.exact(tab, ids, entry, oc, geom.xyz(d), t_min, u, kernel=cfg.kernel)
     if split:

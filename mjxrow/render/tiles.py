@@ -87,18 +87,20 @@ def untile(x: jax.Array, tiles: tuple[int, int], height: int, width: int) -> jax
     return img[:height, :width]
 
 
-def _sweep_entry(o, c, g, tau, box, t_max):
+def _sweep_entry(o, c, g, tau, box, t_max, s_min=None):
     """Entry s along centre rays o + s·c ([T, 3]) of the swept set of a tile (the points
     within g + s·tan α of the centre ray, per axis: g [T, 3], tau [T]) into boxes (6 arrays
-    [T, M] or [M]), cut at t_max [T]: [T, M] (+inf: missed, empty box, or behind). The growth
-    is taken at the box's farthest projection on the centre ray, so the entry is a lower bound
-    of every swept ray's entry."""
+    [T, M] or [M]), cut at t_max [T] and (s_min [T], or None: 0) below: [T, M] (+inf: missed,
+    empty box, or behind). The growth is taken at the box's farthest projection on the centre
+    ray, so the entry is a lower bound of every swept ray's entry."""
     ctr = [0.5 * (box[2 * a] + box[2 * a + 1]) for a in range(3)]
     half = [0.5 * (box[2 * a + 1] - box[2 * a]) for a in range(3)]
     s_max = sum((ctr[a] - o[:, a:a + 1]) * c[:, a:a + 1] + half[a] * jnp.abs(c[:, a:a + 1])
                 for a in range(3))
     cone = jnp.maximum(s_max, 0.0) * tau[:, None] + 1e-4
     t_in = jnp.zeros(cone.shape, jnp.float32)
+    if s_min is not None:
+        t_in = jnp.maximum(t_in, s_min[:, None])
     t_out = jnp.broadcast_to(t_max[:, None], cone.shape)
     for a in range(3):
         grow = cone + g[:, a:a + 1]
@@ -123,15 +125,16 @@ def _interval(oa, ca, ga, tau, t_max, lo, hi):
     return s0, s1
 
 
-def _window(tab: geom.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks: int):
+def _window(tab: geom.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks: int,
+            s_min=None):
     """Blocks a tile's sweep can meet, through the row structure: per row segment
     (`render.rows`), the stretch of the centre ray where the sweep reaches the segment's strip
     (across and along its chord, its height band) gives the range along the chord and so the
     plant slots it can meet; per row, the first `row_blocks` blocks of the slots met are kept,
     counted from the end where the ray comes in (the way it runs along the chord of the
     segment it enters first). The sweep's growth: g per world axis, turned onto the chord as a
-    box, and s·τ (Euclidean: the same along any direction). Returns (block id int32
-    [T, R·row_blocks], ok bool)."""
+    box, and s·τ (Euclidean: the same along any direction); the centre ray's stretch starts at
+    s_min [T] (None: 0). Returns (block id int32 [T, R·row_blocks], ok bool)."""
     R = tab.row_y.shape[0]
     nb = tab.block_t.shape[1] // R
     sg = tab.seg_t
@@ -150,6 +153,8 @@ def _window(tab: geom.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks
     sz0, sz1 = _interval(o[:, 2:3], c[:, 2:3], g[:, 2:3], tau, t_max, sg[render_rows.SEG_Z_LO],
                          sg[render_rows.SEG_Z_HI])
     s0 = jnp.maximum(jnp.maximum(sn0, se0), sz0)
+    if s_min is not None:
+        s0 = jnp.maximum(s0, s_min[:, None])
     s1 = jnp.minimum(jnp.minimum(sn1, se1), sz1)
     # slots m of the segment whose boxes lie within reach of the centre ray's stretch
     aa, ab = oe + s0 * ce, oe + s1 * ce
@@ -187,16 +192,20 @@ def _first(key, ids, n: int):
 
 
 def cull(tab: geom.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks: int,
-         block_keep: int, n: int):
-    """The n plants a tile's sweep enters first (see the module docstring).
+         block_keep: int, n: int, s_min=None, with_reach: bool = False):
+    """The n plants a tile's sweep enters first (see the module docstring), from s_min [T]
+    along the centre ray on (None: 0; a later layer of plants, `reach`).
     o, c [T, 3] (|c| = 1), g [T, 3], tau [T], t_max [T] (nothing beyond matters) [m].
     Returns (ids int32 [T, n], entry lower bound [T, n] (+inf: none), both sorted by entry,
     and `rest` int32 [T]: plants (counted by whole blocks past the kept ones) whose entry
-    lies before t_max but who are not among the n)."""
+    lies before t_max but who are not among the n); with_reach, also `reach` [T]: how far the
+    kept plants hold every plant the tile's rays can meet, in distance along any of its rays
+    (the entry of the last kept plant or block when its list is full, else t_max; the row
+    windows aside), so a later cull of the same rays can start there."""
     T = o.shape[0]
-    bid, ok = _window(tab, n_plants, o, c, g, tau, t_max, row_blocks)
+    bid, ok = _window(tab, n_plants, o, c, g, tau, t_max, row_blocks, s_min)
     bkey = jnp.where(ok, _sweep_entry(o, c, g, tau, [tab.block_t[j][bid] for j in range(6)],
-                                      t_max), INF)
+                                      t_max, s_min), INF)
     bsel, bent = _first(bkey, bid, block_keep)
     R = tab.row_y.shape[0]
     nb = tab.block_t.shape[1] // R
@@ -205,12 +214,19 @@ def cull(tab: geom.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks: i
     pok = jnp.isfinite(bent)[..., None] & (i < n_plants)
     flat = (r[..., None] * n_plants + jnp.minimum(i, n_plants - 1)).reshape(T, -1)
     key = jnp.where(pok.reshape(T, -1),
-                    _sweep_entry(o, c, g, tau, [tab.box_t[j][flat] for j in range(6)], t_max),
-                    INF)
+                    _sweep_entry(o, c, g, tau, [tab.box_t[j][flat] for j in range(6)], t_max,
+                                 s_min), INF)
     ids, ent = _first(key, flat, n)
     dropped = jnp.sum(jnp.isfinite(bkey), 1) - jnp.sum(jnp.isfinite(bent), 1)
     rest = jnp.sum(jnp.isfinite(key), 1) - jnp.sum(jnp.isfinite(ent), 1) + geom.BLOCK * dropped
-    return ids, ent, rest
+    if not with_reach:
+        return ids, ent, rest
+    # a plant left out enters after the last kept plant (of the kept blocks) or after the
+    # last kept block (of the others): lower bounds of its distance along every tile ray
+    left = jnp.sum(jnp.isfinite(key), 1) - jnp.sum(jnp.isfinite(ent), 1)
+    reach = jnp.minimum(jnp.where(left > 0, ent[:, -1], INF),
+                        jnp.where(dropped > 0, bent[:, -1], INF))
+    return ids, ent, rest, jnp.minimum(reach, t_max)
 
 
 def _cull_boxes(box, o, c, g, tau, t_max, n: int):
