@@ -1,6 +1,7 @@
 """rollout.build, the one assembly: the same seed and config give the same episodes from every
 command (the sweep, the episode CLI, the builder called directly), whatever the batching."""
 
+import jax
 import numpy as np
 import pandas as pd
 import pytest
@@ -142,3 +143,22 @@ def test_batch_keys_are_fold_in_of_the_seed_then_split(seed):
     mixed = B.batch_keys([seed, seed, seed, 3], eps)
     other = jax.random.split(jax.random.fold_in(jax.random.key(3), 99))
     assert np.array_equal(kd(mixed[0][3]), kd(other[0]))
+
+
+def test_a_batch_shown_as_it_goes_gives_the_same_log(monkeypatch):
+    """Built.rollout(progress=...) runs the batch as three programs, calling back between
+    chunks of control steps: the same Log, bit for bit, as the one program."""
+    monkeypatch.setattr(B, "STAGE_CHUNKS", 1)
+    cfg = C.from_dict({**TINY, "episode": {"max_time": 8.0, "start_offset_std": 0.1}})
+    run = G.expand(cfg)[0].cfg
+    built = B.build(run)
+    batch = built.batch([(run, e) for e in range(3)])
+    one = built.rollout(batch)
+    calls = []
+    staged = built.rollout(batch, progress=lambda steps, ended: calls.append((steps, ended)))
+    for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(staged), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    steps = [s for s, _ in calls]
+    assert len(calls) >= 2 and steps == sorted(steps) and steps[0] > 0
+    assert all(0 <= e <= 3 for _, e in calls)
+    assert calls[-1][1] == 3 or steps[-1] >= built.episode.n_steps

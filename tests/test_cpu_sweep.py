@@ -98,3 +98,32 @@ def test_the_eta_after_the_first_batch_is_within_30_percent(tmp_path):
     (t1, eta), (t_end, _) = marks[0], marks[-1]
     print(f"eta {eta:.2f} s, took {t_end - t1:.2f} s")
     assert eta is not None and abs(eta - (t_end - t1)) <= 0.3 * (t_end - t1), (eta, t_end - t1)
+
+
+class _Bar:
+    def __init__(self):
+        self.n, self.postfix = 0, ""
+
+    def update(self, k):
+        self.n += k
+
+    def set_postfix_str(self, s, refresh=True):
+        self.postfix = s
+
+
+def test_the_bar_moves_inside_a_batch(tmp_path):
+    """On a CPU a shown bar counts the episodes of a running batch as they end (between its
+    chunks of control steps, `groups.evaluate_episodes`' in_batch) and says the control step;
+    the batch's rows then add only the rest."""
+    cfg = sweep_config.from_dict(TINY)
+    group = sweep_groups.plan(cfg)[0]
+    bar = _Bar()
+    quiet = sweep_run._CellWriter(group, 100, tmp_path, bar)
+    assert quiet.in_batch is None  # no bar, or a GPU: one program per batch
+    w = sweep_run._CellWriter(group, 100, tmp_path, bar, in_batch=True)
+    w.in_batch(50, 0, 6)
+    assert bar.n == 0 and "control step 50" in bar.postfix and "0 of 6" in bar.postfix
+    w.in_batch(100, 4, 6)
+    assert bar.n == 4 and "4 of 6 episodes ended" in bar.postfix
+    w(pd.DataFrame({"cell": [group.cells[0].index] * 6, "episode": range(6)}))
+    assert bar.n == 6 and w.episodes == 6

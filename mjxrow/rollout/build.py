@@ -22,7 +22,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import hashlib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import jax
@@ -250,9 +250,22 @@ class Built:
         prog = self.program(args)
         return prog.lower(*args).compile()
 
-    def rollout(self, batch: Batch) -> Log:
+    def rollout(self, batch: Batch, progress: Callable[[int, int], None] | None = None) -> Log:
+        """The batch's Log. With `progress`, the batch runs as `episode.staged`'s three
+        programs (the same numbers; its programs are traced every run, never kept), and
+        `progress(control steps run, episodes ended)` is called after every STAGE_CHUNKS
+        chunks of control steps: a long batch shows it moving."""
         args = batch.args(self.mx)
-        return self.program(args)(*args)
+        if progress is None:
+            return self.program(args)(*args)
+        st = rollout_episode.staged(self.policy, self.episode, self.axes, STAGE_CHUNKS)
+        _PROGRAMS.add((("staged", self.key or id(st)), str(jax.tree.map(
+            lambda x: (np.shape(x), str(getattr(x, "dtype", ""))), args))))
+        state = st.start(*args)
+        while not st.done(state):
+            state = st.advance(self.mx, state, batch.params)
+            progress(st.chunks_run(state) * st.chunk, st.ended(state))
+        return st.finish(state)
 
     def summarise(self, log: Log, n: int | None = None) -> dict[str, np.ndarray]:
         """Per-episode metrics on the host (the first `n` episodes)."""
@@ -264,6 +277,7 @@ class Built:
 LOG_TREE = jax.tree.structure(Log(**{
     **{f.name: 0 for f in dataclasses.fields(Log)},
     "lane": field_lanes.Lane(u=0, s_end=0, bend=field_lanes.Bend(0, 0, 0, 0))}))
+STAGE_CHUNKS = 2  # chunks of control steps per program call of a batch shown as it goes
 _PROGRAMS: set = set()  # (program key, argument shapes) of every closed-loop program asked for
 
 

@@ -24,7 +24,7 @@ The assembly of model, fields, policy and keys from a config is `rollout.build`;
 from __future__ import annotations
 
 import functools
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -106,6 +106,26 @@ def episode(mx, field: mjxrow_field.Field, lane: jax.Array, key: jax.Array, nois
     return _log(out, p0, ctx["lane"])
 
 
+def _start(mx, fields, lanes, keys, noise, policy, policy_params, cfg, params_axes):
+    """A batch's set-up: (ctx, its vmap axes, carry, start poses p0 [B, 3]) (`episodes`)."""
+    p_axes = jax.tree.unflatten(*canonical_axes(params_axes))
+    ctx_axes = dict(m=sim.model_axes(mx), field=0, lane=0, aux=0, k_policy=0, half=0)
+    ctx, carry, p0 = jax.vmap(
+        lambda f, ln, k, nz, pp: _world(mx, f, ln, k, nz, policy, pp, cfg),
+        in_axes=(0, 0, 0, 0, p_axes), out_axes=(ctx_axes, 0, 0))(
+            fields, lanes, keys, noise, policy_params)
+    return ctx, ctx_axes, carry, p0
+
+
+def _batch_body(mx, ctx, policy_params, policy, cfg, params_axes):
+    """The vmapped control step of a batch, as `lax.scan`'s body over t."""
+    p_axes = jax.tree.unflatten(*canonical_axes(params_axes))
+    ctx_axes = dict(m=sim.model_axes(mx), field=0, lane=0, aux=0, k_policy=0, half=0)
+    step = jax.vmap(functools.partial(_step, policy=policy, cfg=cfg),
+                    in_axes=(ctx_axes, p_axes, 0, None))
+    return functools.partial(step, ctx, policy_params)
+
+
 def episodes(
     mx,
     fields: mjxrow_field.Field,
@@ -123,15 +143,9 @@ def episodes(
     fields, lanes, keys, noise: [B]; params_axes: as `compiled`. Returns the Log [B]."""
     global TRACES
     TRACES += 1
-    p_axes = jax.tree.unflatten(*canonical_axes(params_axes))
-    ctx_axes = dict(m=sim.model_axes(mx), field=0, lane=0, aux=0, k_policy=0, half=0)
-    ctx, carry, p0 = jax.vmap(
-        lambda f, ln, k, nz, pp: _world(mx, f, ln, k, nz, policy, pp, cfg),
-        in_axes=(0, 0, 0, 0, p_axes), out_axes=(ctx_axes, 0, 0))(
-            fields, lanes, keys, noise, policy_params)
-    step = jax.vmap(functools.partial(_step, policy=policy, cfg=cfg),
-                    in_axes=(ctx_axes, p_axes, 0, None))
-    body = functools.partial(step, ctx, policy_params)
+    ctx, _, carry, p0 = _start(mx, fields, lanes, keys, noise, policy, policy_params, cfg,
+                               params_axes)
+    body = _batch_body(mx, ctx, policy_params, policy, cfg, params_axes)
     s0 = jax.tree.map(lambda x: x[0], carry[0].sim)
     out = _run_until_done(body, carry, cfg.n_steps, _out_shapes(s0))
     return jax.vmap(_log)(out, p0, ctx["lane"])
@@ -144,6 +158,53 @@ def steps_run(n_steps: int) -> int:
     return -(-n_steps // chunk) * chunk
 
 
+_FILL = dict(pose=jnp.nan, vel=jnp.nan, cmd=0, alive=False, event=metrics.RUNNING)
+
+
+def _loop_start(carry, n_steps: int, shapes: dict) -> tuple:
+    """The chunk loop's state before its first chunk: (chunks done int32 [], carry, the
+    output buffers [n_chunks·chunk, (B,) ...], filled as steps that did not run)."""
+    lead = jnp.shape(carry[0].done)  # () or (B,)
+    buf0 = {k: jnp.full((steps_run(n_steps),) + lead + v.shape, _FILL[k], v.dtype)
+            for k, v in shapes.items()}
+    return jnp.int32(0), carry, buf0
+
+
+def _loop_run(body, state: tuple, n_steps: int, max_chunks: int | None = None) -> tuple:
+    """Chunks of CHUNK steps (a scan each) from `state` (`_loop_start`'s) in a while loop that
+    ends after the chunk in which the last episode became done, after the last chunk, or
+    after `max_chunks` chunks (None: no limit); returns the state after them."""
+    chunk = min(n_steps, CHUNK)
+    n_chunks = steps_run(n_steps) // chunk
+    lead = jnp.shape(state[1][0].done)
+    c_start = state[0]
+
+    def more(st):
+        c, carry, _ = st
+        go = (c < n_chunks) & ~jnp.all(carry[0].done)
+        return go if max_chunks is None else go & (c < c_start + max_chunks)
+
+    def per_world(on, a, b):  # a where `on` [B] (broadcast over the trailing axes) else b
+        return jnp.where(on.reshape(on.shape + (1,) * (a.ndim - on.ndim)), a, b)
+
+    def run_chunk(st):
+        c, carry, buf = st
+        new, out = jax.lax.scan(body, carry, c * chunk + jnp.arange(chunk))
+        if lead:  # the episodes done before this chunk keep their carry and record nothing
+            on = ~carry[0].done
+            new = jax.tree.map(functools.partial(per_world, on), new, carry)
+            out = {k: per_world(on[None], v, jnp.full_like(v, _FILL[k]))
+                   for k, v in out.items()}
+        buf = {k: jax.lax.dynamic_update_slice_in_dim(buf[k], out[k], c * chunk, 0) for k in buf}
+        return c + 1, new, buf
+
+    return jax.lax.while_loop(more, run_chunk, state)
+
+
+def _loop_outputs(buf: dict, n_steps: int, lead: tuple) -> dict:
+    return {k: jnp.moveaxis(v[:n_steps], 0, len(lead)) for k, v in buf.items()}
+
+
 def _run_until_done(body, carry, n_steps: int, shapes: dict) -> dict:
     """`lax.scan(body, carry, arange(n_steps))[1]`, stopped early once the episode is done,
     for one world or a batch (`carry[0].done` [] or [B]; outputs [T, ...] or [B, T, ...]).
@@ -154,32 +215,68 @@ def _run_until_done(body, carry, n_steps: int, shapes: dict) -> dict:
     records nothing in it (what `vmap` of a one-world loop does). Steps that did not run read
     as steps after the end: pose and vel NaN, cmd 0, alive False, event RUNNING.
     shapes: one world's per-step outputs (`_out_shapes`)."""
-    chunk = min(n_steps, CHUNK)
-    n_chunks = steps_run(n_steps) // chunk
-    lead = jnp.shape(carry[0].done)  # () or (B,)
-    fill = dict(pose=jnp.nan, vel=jnp.nan, cmd=0, alive=False, event=metrics.RUNNING)
-    buf0 = {k: jnp.full((n_chunks * chunk,) + lead + v.shape, fill[k], v.dtype)
-            for k, v in shapes.items()}
+    _, _, buf = _loop_run(body, _loop_start(carry, n_steps, shapes), n_steps)
+    return _loop_outputs(buf, n_steps, jnp.shape(carry[0].done))
 
-    def more(state):
-        c, carry, _ = state
-        return (c < n_chunks) & ~jnp.all(carry[0].done)
 
-    def per_world(on, a, b):  # a where `on` [B] (broadcast over the trailing axes) else b
-        return jnp.where(on.reshape(on.shape + (1,) * (a.ndim - on.ndim)), a, b)
+class Staged(NamedTuple):
+    """`episodes` cut into three jitted programs, so that the host sees a batch advance:
+    `start(mx, fields, lanes, keys, noise, params) -> state`, `advance(mx, state, params) ->
+    state` (at most `chunks` chunks of `chunk` control steps) and `finish(state) -> Log`;
+    `chunks_run(state)`, `ended(state)` and `done(state)` read the state on the host. The same step and
+    loop as `compiled`'s one program, so the same numbers (tests/test_rollout.py)."""
+    start: Any
+    advance: Any
+    finish: Any
+    n_chunks: int
 
-    def run_chunk(state):
-        c, carry, buf = state
-        new, out = jax.lax.scan(body, carry, c * chunk + jnp.arange(chunk))
-        if lead:  # the episodes done before this chunk keep their carry and record nothing
-            on = ~carry[0].done
-            new = jax.tree.map(functools.partial(per_world, on), new, carry)
-            out = {k: per_world(on[None], v, jnp.full_like(v, fill[k])) for k, v in out.items()}
-        buf = {k: jax.lax.dynamic_update_slice_in_dim(buf[k], out[k], c * chunk, 0) for k in buf}
-        return c + 1, new, buf
+    chunk: int
 
-    _, _, buf = jax.lax.while_loop(more, run_chunk, (jnp.int32(0), carry, buf0))
-    return {k: jnp.moveaxis(v[:n_steps], 0, len(lead)) for k, v in buf.items()}
+    @staticmethod
+    def ended(state) -> int:
+        """Episodes of the batch that have ended (host)."""
+        return int(np.sum(np.asarray(state[1][1][0].done)))
+
+    @staticmethod
+    def chunks_run(state) -> int:
+        return int(state[1][0])
+
+    def done(self, state) -> bool:
+        c, carry, _ = state[1]
+        return int(c) >= self.n_chunks or bool(np.all(np.asarray(carry[0].done)))
+
+
+def staged(policy, cfg: rollout_step.EpisodeConfig, params_axes: Any = None,
+           chunks: int = 4) -> Staged:
+    """`compiled`'s batch as a `Staged` triple (cached like `compiled`)."""
+    return _staged(policy, cfg, canonical_axes(params_axes), int(chunks))
+
+
+@functools.lru_cache(maxsize=16)
+def _staged(policy, cfg: rollout_step.EpisodeConfig, axes: tuple, chunks: int) -> Staged:
+    params_axes = jax.tree.unflatten(*axes)
+
+    def start(mx, fields, lanes, keys, noise, params):
+        global TRACES
+        TRACES += 1
+        ctx, _, carry, p0 = _start(mx, fields, lanes, keys, noise, policy, params, cfg,
+                                   params_axes)
+        s0 = jax.tree.map(lambda x: x[0], carry[0].sim)
+        return ctx, _loop_start(carry, cfg.n_steps, _out_shapes(s0)), p0
+
+    def advance(mx, state, params):
+        ctx, loop, p0 = state
+        body = _batch_body(mx, ctx, params, policy, cfg, params_axes)
+        return ctx, _loop_run(body, loop, cfg.n_steps, chunks), p0
+
+    def finish(state):
+        ctx, (_, carry, buf), p0 = state
+        out = _loop_outputs(buf, cfg.n_steps, jnp.shape(carry[0].done))
+        return jax.vmap(_log)(out, p0, ctx["lane"])
+
+    chunk = min(cfg.n_steps, CHUNK)
+    return Staged(jax.jit(start), jax.jit(advance), jax.jit(finish),
+                  steps_run(cfg.n_steps) // chunk, chunk)
 
 
 def canonical_axes(params_axes: Any) -> tuple:

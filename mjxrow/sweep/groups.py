@@ -12,6 +12,7 @@ inject a fake one):
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from pathlib import Path
 
@@ -118,7 +119,7 @@ def evaluate_group(group: Group, cfg: sweep_config.SweepConfig,
     size = built.padded(batch_size(cfg.batch_size, cfg.seeds, len(group.episodes),
                                    jax.default_backend(), built.devices))
     return evaluate_episodes(built, [(by_cell[c], c, e) for c, e in group.episodes], size,
-                             on_batch_done)
+                             on_batch_done, getattr(on_batch_done, "in_batch", None))
 
 
 def evaluate_episodes(
@@ -126,16 +127,21 @@ def evaluate_episodes(
     items: list[tuple[RunConfig, int, int]],
     size: int,
     on_batch_done: Callable[[pd.DataFrame], None] | None = None,
+    in_batch: Callable[[int, int, int], None] | None = None,
 ) -> pd.DataFrame:
     """Run `items` ((run, cell index, episode index) triples of runs `built` was built for)
     in batches of `size` (the last one padded), calling `on_batch_done(rows)` after each.
     Rows in the order of `items`: cell, episode, lane and every metric of
-    `metrics.summarise` (reason as its name)."""
+    `metrics.summarise` (reason as its name). With `in_batch`, each batch runs as it goes
+    (`Built.rollout`'s progress): `in_batch(control steps run, episodes ended, episodes)`
+    between its chunks of control steps (the same numbers)."""
     out = []
     for start in range(0, len(items), size):
         real = list(items[start:start + size])
         batch = built.batch([(r, e) for r, _, e in real], size)
-        log = jax.block_until_ready(built.rollout(batch))  # (no compile overlaps the run:
+        shown = None if in_batch is None else functools.partial(
+            lambda n, steps, ended: in_batch(steps, min(ended, n), n), len(real))
+        log = jax.block_until_ready(built.rollout(batch, shown))  # (no compile overlaps the run:
         met = built.summarise(log, len(real))                # the ETA leaves compiles out)
         rows = pd.DataFrame({"cell": [c for _, c, _ in real], "episode": [e for *_, e in real],
                              "lane": runtime.to_host(batch.lanes)[:len(real)],

@@ -131,8 +131,11 @@ class _CellWriter:
     (atomically) as soon as all its episodes are in; advances the progress bar."""
 
     def __init__(self, group: sweep_groups.Group, seeds: int, cells_dir: Path, bar,
-                 watch: stopwatch.Stopwatch | None = None, lock=None):
+                 watch: stopwatch.Stopwatch | None = None, lock=None, in_batch: bool = False):
         self.group, self.seeds, self.dir, self.bar = group, seeds, cells_dir, bar
+        # a shown bar on a CPU moves inside a batch (its batches take minutes there)
+        self.in_batch = self._in_batch if in_batch else None
+        self.shown = 0  # episodes of the running batch already counted on the bar
         self.watch = watch or stopwatch.Stopwatch()
         self.lock = lock or contextlib.nullcontext()
         self.pending: dict[int, list[pd.DataFrame]] = {}
@@ -166,8 +169,18 @@ class _CellWriter:
                     with self.lock, self.watch.writing():
                         atomic_write_csv(self.dir / f"{df['cell_hash'].iloc[0]}.csv", df)
         self.episodes += len(rows)
-        self.bar.update(len(rows))
+        self.bar.update(len(rows) - self.shown)
+        self.shown = 0
         self.bar.set_postfix_str(f"group {self.group.index}: {self.eta()}")
+
+    def _in_batch(self, steps: int, ended: int, n: int) -> None:
+        """Between chunks of a running batch: its episodes ended so far go on the bar, with
+        the control steps run (`groups.evaluate_episodes`' in_batch)."""
+        if ended > self.shown:
+            self.bar.update(ended - self.shown)
+            self.shown = ended
+        self.bar.set_postfix_str(f"group {self.group.index}: batch at control step {steps}, "
+                                 f"{ended} of {n} episodes ended; {self.eta()}", refresh=False)
 
     def eta_seconds(self) -> float | None:
         """Seconds left in this group at the rate of the batches so far (tracing, lowering and
@@ -308,7 +321,8 @@ def _run(
                 if not g.episodes:
                     continue
                 bar.set_postfix_str(f"group {g.index}: compiling")
-                writer = _CellWriter(g, cfg.seeds, out / "cells", bar, watch, lock)
+                writer = _CellWriter(g, cfg.seeds, out / "cells", bar, watch, lock,
+                                     in_batch=progress and jax.default_backend() == "cpu")
                 jax.monitoring.register_event_duration_secs_listener(writer.on_compile)
                 try:
                     evaluate(g, cfg, writer)
