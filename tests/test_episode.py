@@ -16,6 +16,7 @@ from mjxrow import field as F
 from mjxrow.physics import sim
 from mjxrow.rollout import build as RB
 from mjxrow.rollout import episode as E
+from mjxrow.rollout import loop as L
 from mjxrow.rollout import metrics as M
 from mjxrow.rollout import step as rollout_step
 
@@ -95,7 +96,7 @@ def test_oracle_drives_the_lane(setup):
 def test_early_stop_matches_stepping_every_step(setup, monkeypatch):
     mx, fields, log, _ = setup
     assert (log.steps < CFG.n_steps - E.CHUNK).all()  # every episode ends chunks early
-    monkeypatch.setattr(E, "CHUNK", CFG.n_steps)  # one chunk: a plain scan over every step
+    monkeypatch.setattr(L, "CHUNK", CFG.n_steps)  # one chunk: a plain scan over every step
     args = E.rollout_args(mx, fields, None, jax.random.split(jax.random.key(1), B),
                           policy_params(0), AXES)
     one = lambda *a: E.episode(*a[:5], POLICY, a[5], CFG)  # noqa: E731

@@ -14,8 +14,10 @@ An episode starts at rest `sim_cfg.path_length` before the end of its lane (sim.
 is the lane's end point (row end x, lane centre y). Each step: observation → policy →
 `rollout.step.step` (physics, end events, log row; its docstring lists the events and their
 precedence). Once ended, the state stays frozen and the remaining steps are masked; a batch
-stops stepping once every one of its episodes has ended (checked every `CHUNK` steps), so the
-timeout costs only batches in which some episode runs that long.
+stops stepping once every one of its episodes has ended (checked every `CHUNK` steps,
+`rollout.loop`), so the timeout costs only batches in which some episode runs that long.
+`staged(...)` cuts the same batch into three programs that the host advances a few chunks at a
+time (a progress bar inside a long batch).
 
 The assembly of model, fields, policy and keys from a config is `rollout.build`; the CLI is
 `python -m mjxrow.episode`.
@@ -36,10 +38,14 @@ from mjxrow.field import lanes as field_lanes
 from mjxrow.physics import sim
 from mjxrow.rollout import metrics
 from mjxrow.rollout import step as rollout_step
+from mjxrow.rollout.loop import CHUNK, steps_run  # noqa: F401  (the episode loop's, re-exported)
+from mjxrow.rollout.loop import loop_outputs as _loop_outputs
+from mjxrow.rollout.loop import loop_run as _loop_run
+from mjxrow.rollout.loop import loop_start as _loop_start
+from mjxrow.rollout.loop import run_until_done as _run_until_done
 from mjxrow.rollout.metrics import Log
 
 TRACES = 0  # times the episode function was traced (each one is a compile)
-CHUNK = 25  # control steps per scan between checks for the end of every episode of a batch
 
 
 def _world(mx, field: mjxrow_field.Field, lane: jax.Array, key: jax.Array, noise: sim.PoseNoise,
@@ -151,80 +157,12 @@ def episodes(
     return jax.vmap(_log)(out, p0, ctx["lane"])
 
 
-def steps_run(n_steps: int) -> int:
-    """Control steps that a batch whose episodes all run `n_steps` steps computes: whole
-    chunks of CHUNK (one chunk of n_steps below that), e.g. 75 for 60."""
-    chunk = min(n_steps, CHUNK)
-    return -(-n_steps // chunk) * chunk
-
-
-_FILL = dict(pose=jnp.nan, vel=jnp.nan, cmd=0, alive=False, event=metrics.RUNNING)
-
-
-def _loop_start(carry, n_steps: int, shapes: dict) -> tuple:
-    """The chunk loop's state before its first chunk: (chunks done int32 [], carry, the
-    output buffers [n_chunks·chunk, (B,) ...], filled as steps that did not run)."""
-    lead = jnp.shape(carry[0].done)  # () or (B,)
-    buf0 = {k: jnp.full((steps_run(n_steps),) + lead + v.shape, _FILL[k], v.dtype)
-            for k, v in shapes.items()}
-    return jnp.int32(0), carry, buf0
-
-
-def _loop_run(body, state: tuple, n_steps: int, max_chunks: int | None = None) -> tuple:
-    """Chunks of CHUNK steps (a scan each) from `state` (`_loop_start`'s) in a while loop that
-    ends after the chunk in which the last episode became done, after the last chunk, or
-    after `max_chunks` chunks (None: no limit); returns the state after them."""
-    chunk = min(n_steps, CHUNK)
-    n_chunks = steps_run(n_steps) // chunk
-    lead = jnp.shape(state[1][0].done)
-    c_start = state[0]
-
-    def more(st):
-        c, carry, _ = st
-        go = (c < n_chunks) & ~jnp.all(carry[0].done)
-        return go if max_chunks is None else go & (c < c_start + max_chunks)
-
-    def per_world(on, a, b):  # a where `on` [B] (broadcast over the trailing axes) else b
-        return jnp.where(on.reshape(on.shape + (1,) * (a.ndim - on.ndim)), a, b)
-
-    def run_chunk(st):
-        c, carry, buf = st
-        new, out = jax.lax.scan(body, carry, c * chunk + jnp.arange(chunk))
-        if lead:  # the episodes done before this chunk keep their carry and record nothing
-            on = ~carry[0].done
-            new = jax.tree.map(functools.partial(per_world, on), new, carry)
-            out = {k: per_world(on[None], v, jnp.full_like(v, _FILL[k]))
-                   for k, v in out.items()}
-        buf = {k: jax.lax.dynamic_update_slice_in_dim(buf[k], out[k], c * chunk, 0) for k in buf}
-        return c + 1, new, buf
-
-    return jax.lax.while_loop(more, run_chunk, state)
-
-
-def _loop_outputs(buf: dict, n_steps: int, lead: tuple) -> dict:
-    return {k: jnp.moveaxis(v[:n_steps], 0, len(lead)) for k, v in buf.items()}
-
-
-def _run_until_done(body, carry, n_steps: int, shapes: dict) -> dict:
-    """`lax.scan(body, carry, arange(n_steps))[1]`, stopped early once the episode is done,
-    for one world or a batch (`carry[0].done` [] or [B]; outputs [T, ...] or [B, T, ...]).
-
-    Steps run in chunks of CHUNK (a scan each) inside a while loop that ends after the chunk
-    in which the last episode became done, so a batch whose episodes all end early skips the
-    rest of the timeout. An episode done before a chunk keeps its carry through the chunk and
-    records nothing in it (what `vmap` of a one-world loop does). Steps that did not run read
-    as steps after the end: pose and vel NaN, cmd 0, alive False, event RUNNING.
-    shapes: one world's per-step outputs (`_out_shapes`)."""
-    _, _, buf = _loop_run(body, _loop_start(carry, n_steps, shapes), n_steps)
-    return _loop_outputs(buf, n_steps, jnp.shape(carry[0].done))
-
-
 class Staged(NamedTuple):
     """`episodes` cut into three jitted programs, so that the host sees a batch advance:
     `start(mx, fields, lanes, keys, noise, params) -> state`, `advance(mx, state, params) ->
     state` (at most `chunks` chunks of `chunk` control steps) and `finish(state) -> Log`;
-    `chunks_run(state)`, `ended(state)` and `done(state)` read the state on the host. The same step and
-    loop as `compiled`'s one program, so the same numbers (tests/test_rollout.py)."""
+    `chunks_run(state)`, `ended(state)` and `done(state)` read the state on the host. The
+    same step and loop as `compiled`'s one program, so the same numbers (tests/test_build.py)."""
     start: Any
     advance: Any
     finish: Any
