@@ -248,7 +248,9 @@ def test_deep_tiles_complete_grazing_views(lane_scene):
     assert np.sum(cls != ref) <= 2
 
 
-@pytest.mark.parametrize("kernel", ["scan", "fused", "pallas"])
+# the Pallas kernels run in their interpreter on a CPU: minutes; -m slow (.ci/slow)
+@pytest.mark.parametrize("kernel", ["scan", "fused",
+                                    pytest.param("pallas", marks=pytest.mark.slow)])
 def test_tiled_exact_matches_per_plant_reference(lane_scene, kernel):
     fld, shape, _ = lane_scene
     tab = G.plant_table(fld, shape)
@@ -314,13 +316,15 @@ def test_precomputed_table_gives_the_same_frame(lane_scene):
     assert np.asarray(a.mask).any()
 
 
-def test_every_kernel_renders_the_same_frame(lane_scene):
+# the Pallas kernels run in their interpreter on a CPU: minutes; -m slow (.ci/slow)
+@pytest.mark.parametrize("kernel", ["fused", pytest.param("pallas", marks=pytest.mark.slow)])
+def test_every_kernel_renders_the_same_frame(lane_scene, kernel):
     fld, shape, pos = lane_scene
     intr = RD.Intrinsics(24, 16, 45.0)
     rot = np.asarray(RD.camera_rot(0.3, np.deg2rad(-12.0)))
     cond = RD.conditions("long_shadows")
     frames = [jax.jit(lambda f, p, r, c=c: RD.render(f, shape, p, r, intr, cond, cfg=c))(
-        fld, pos, rot) for c in (RD.RenderConfig(kernel=k) for k in RD.KERNELS)]
+        fld, pos, rot) for c in (RD.RenderConfig(kernel=k) for k in ("scan", kernel))]
     a = frames[0]
     assert np.asarray(a.mask).any()
     for b in frames[1:]:
@@ -346,6 +350,7 @@ def test_weed_primitives_lie_within_their_radius(lane_scene):
     assert np.all(pr.material == PL.WEED)
 
 
+@pytest.mark.slow  # the Pallas kernels run in their interpreter on a CPU: minutes (.ci/slow)
 def test_every_kernel_draws_obstacles_and_their_shadows_alike(lane_scene):
     fld, shape, pos = lane_scene
     x, y = float(pos[0]), float(pos[1])
@@ -437,6 +442,7 @@ def test_deep_share_by_crop_and_tiles_across():
     assert RD.resolve(RD.DEFAULT_CONFIG, "zucchini").deep_share == 0.25  # no intrinsics
 
 
+@pytest.mark.slow  # a compile per settle mode (a GPU-side choice; the CPU's is "loop"): -m slow
 def test_settle_modes_draw_the_same_image():
     shape, fields, pos, rot, conds = BR.worlds("zucchini", 2, 1)
     intr = RD.Intrinsics(16, 16)
