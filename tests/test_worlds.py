@@ -298,6 +298,35 @@ def test_sdf(tiny, paths, flavour):
     np.testing.assert_allclose(pose[:2], spawn[["spawn_x", "spawn_y"]], atol=1e-3)
 
 
+@pytest.mark.parametrize("flavour", ["sim", "classic"])
+def test_sdf_robot_drive_is_mujocos(tiny, paths, flavour):
+    """The Gazebo robot's wheels carry the MuJoCo robot's drive: axle inertia = a 0.5 kg,
+    0.098 m solid sphere's 0.4·m·r² (1.92e-3 kg·m²) + the motor armature 0.05 kg·m² (half of
+    it about the other two axes, as a disc's); effort
+    limit 5 N·m; and Classic's ODE solver runs without over-relaxation, with the friction
+    cone (docs/gazebo.md: with Gazebo's defaults the robot veered off its lane)."""
+    field, _ = tiny
+    world, root, models = _models(paths, flavour)
+    cfg = S.robot_for(field).robot
+    assert (cfg.wheel_mass, cfg.wheel_radius, cfg.armature, cfg.wheel_torque) == (
+        0.5, 0.098, 0.05, 5.0)
+    links = {ln.get("name"): ln for ln in models["robot"].iter("link")}
+    for name in ("left_front", "right_front", "left_rear", "right_rear"):
+        inertia = links[f"wheel_{name}"].find("inertial/inertia")
+        moments = [float(inertia.findtext(k)) for k in ("ixx", "iyy", "izz")]
+        np.testing.assert_allclose(moments, [1.9208e-3 + 0.025, 1.9208e-3 + 0.05,
+                                             1.9208e-3 + 0.025], rtol=1e-5)
+        joint = models["robot"].find(f"model/joint[@name='{name}']")
+        assert joint.findtext("axis/xyz").split() == ["0", "1", "0"]
+        assert float(joint.findtext("axis/limit/effort")) == 5.0
+        assert float(joint.findtext("axis/dynamics/damping")) == 0.0
+    if flavour == "classic":
+        solver = root.find("world/physics/ode/solver")
+        assert solver.findtext("type") == "quick"
+        assert float(solver.findtext("sor")) == 1.0
+        assert solver.findtext("friction_model") == "cone_model"
+
+
 def _sdformat() -> str | None:
     """`ign` when it has the sdformat `sdf` command, else None (the test fails when
     MJXROW_REQUIRE_SDFORMAT is set, as .ci/run does; else it skips, saying why)."""

@@ -7,13 +7,24 @@ mass; it collides in Gazebo, where plants are solid), four SPHERE wheels (radius
 friction, position) on revolute joints about the chassis y axis, and the camera `front`
 (pose, vertical fov → horizontal fov for the image's aspect, image size, 15 Hz).
 
+The wheel drive is MuJoCo's (`wheel_dynamics`): the wheel joints' motor armature
+(`RobotConfig.armature`, 0.05 kg·m², 26× a 0.5 kg sphere wheel's own inertia) is added to the
+wheel link's inertia about its axle (SDF has no armature; half of it about the two other axes,
+as a disc's), the joints' effort limit is the
+motor torque limit `wheel_torque` and their damping `wheel_damping`. With the armature, a
+joint velocity controller with MuJoCo's gain kv = 30 N·m·s/rad is stable in Gazebo's explicit
+PID at 1 ms (kv · dt / inertia = 0.58 < 2; without it, 15.6). docs/gazebo.md: what drives the
+exported robot off its lane in Gazebo Classic (ODE's over-relaxation, `sdf.PHYSICS`) and how
+its straight and turning runs compare with MuJoCo's.
+
 Joints are named `left_front`, `right_front`, `left_rear`, `right_rear` (the names Gazebo
 Classic's `libSkidSteerDrivePlugin.so` looks for). Driving:
 - Classic: the skid-steer plugin listens on `~/<model>/vel_cmd` (gazebo.msgs.Pose: position.x
   = v, yaw of the orientation = turn); without a publisher, each wheel can be given a velocity
   target through the model's joint controller, e.g.
   `gz joint -m robot -j left_front --vel-t 5.1 --vel-p 30` (the closed loop's actuator: torque
-  = kv · (target − speed), kv = `RobotConfig.kv`).
+  = kv · (target − speed), kv = `RobotConfig.kv`, limited to the joint's effort limit), or by
+  `libJointControlPlugin.so` (experiments/gazebo_check.sh).
 - Sim: `gz-sim-diff-drive-system` on `/model/<model>/cmd_vel` (gz.msgs.Twist), with the
   closed loop's effective track (track · turn_factor) as wheel separation.
 """
@@ -25,6 +36,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 
 from mjxrow import field
+from mjxrow.physics import robot as physics_robot
 from mjxrow.physics import sim
 from mjxrow.worlds import scene
 
@@ -68,6 +80,21 @@ def camera_sensor(robot: scene.Robot, flavour: str, cam: ET.Element) -> str:
             "</camera></sensor>")
 
 
+def wheel_dynamics(cfg: physics_robot.RobotConfig) -> dict[str, float]:
+    """The wheels' drive numbers in Gazebo, from the MuJoCo robot `cfg` (module doc):
+    `iyy` [kg·m²] the wheel link's inertia about its axle (a solid sphere's 0.4·m·r² plus the
+    joint armature), `ixx` = `izz` [kg·m²] the sphere's plus half the armature (the armature as
+    a disc on the axle: a link's moments must obey ixx + izz ≥ iyy), `effort` [N·m] the joints'
+    torque limit (`wheel_torque`; absent when that is 0: unlimited) and `damping` [N·m·s/rad]."""
+    own = 0.4 * cfg.wheel_mass * cfg.wheel_radius ** 2
+    rotor = cfg.armature / 2  # a disc's moments about its diameters: valid for sdformat
+    out = {"ixx": own + rotor, "iyy": own + cfg.armature, "izz": own + rotor,
+           "damping": cfg.wheel_damping}
+    if cfg.wheel_torque > 0:
+        out["effort"] = cfg.wheel_torque
+    return out
+
+
 def _drive_plugin(flavour: str, robot: scene.Robot, radius: float) -> str:
     if flavour == "classic":
         return '<plugin name="skid_steer" filename="libSkidSteerDrivePlugin.so"/>'
@@ -102,6 +129,8 @@ def robot_sdf(shape: field.FieldShape, robot: scene.Robot, flavour: str, name: s
              f'</collision><visual name="chassis"><pose>{scene.nums(pos, 4)} 0 0 0</pose>{geom}'
              f"{_material(rgba)}</visual>{camera_sensor(robot, flavour, cam)}</link>"]
     joints, radius = [], 0.0
+    dyn = wheel_dynamics(robot.robot)
+    effort = f"<effort>{dyn['effort']:.6g}</effort>" if "effort" in dyn else ""
     for wb in wheels:
         g, j = wb.find("geom"), wb.find("joint")
         at = _floats(wb, "pos", "0 0 0")
@@ -112,15 +141,16 @@ def robot_sdf(shape: field.FieldShape, robot: scene.Robot, flavour: str, name: s
         sphere = f"<geometry><sphere><radius>{radius:.6g}</radius></sphere></geometry>"
         links.append(
             f'<link name="wheel_{jname}"><pose>{scene.nums(at, 4)} 0 0 0</pose>'
-            f"{_inertia(m, np.full(3, 0.4 * m * radius ** 2))}"
+            f"{_inertia(m, np.array([dyn['ixx'], dyn['iyy'], dyn['izz']]))}"
             f'<collision name="collision">{sphere}<surface><friction><ode><mu>{mu:g}</mu>'
             f"<mu2>{mu:g}</mu2></ode></friction></surface></collision>"
             f'<visual name="visual">{sphere}{_material(_floats(g, "rgba", "0.1 0.1 0.1 1"))}'
             "</visual></link>")
         joints.append(f'<joint name="{jname}" type="revolute"><parent>chassis</parent>'
                       f"<child>wheel_{jname}</child><axis><xyz>"
-                      f'{scene.nums(_floats(j, "axis", "0 0 1"))}</xyz><limit><lower>-1e16</lower>'
-                      "<upper>1e16</upper></limit></axis></joint>")
+                      f'{scene.nums(_floats(j, "axis", "0 0 1"))}</xyz><dynamics><damping>'
+                      f"{dyn['damping']:.6g}</damping></dynamics><limit><lower>-1e16</lower>"
+                      f"<upper>1e16</upper>{effort}</limit></axis></joint>")
     version = "1.6" if flavour == "classic" else "1.9"
     return "\n".join([f'<?xml version="1.0"?>\n<sdf version="{version}">',
                       f'<model name="{name}">', *links, *joints,
