@@ -529,6 +529,22 @@ def test_a_truncated_training_state_is_one_line_naming_the_step(tmp_path):
         TS.restore_state(tmp_path / "state", tree, {"network": "tiny"}, key="--out")
 
 
+def test_the_last_save_on_a_save_every_iteration_is_no_error(tmp_path):
+    """The loop saves every `save_every` iterations and once more at its end: when the end
+    falls on a saved iteration (75 of 75 with save_every 25, on an H100), the second save of
+    that step is skipped, not orbax's "Checkpoint for step 75 already exists" (exit 2, no
+    policy written)."""
+    import numpy as np
+
+    from mjxrow.train import state as TS
+
+    tree = {"w": np.arange(8, dtype=np.float32)}
+    TS.save_state(tmp_path / "state", 75, tree, {"network": "tiny"})
+    TS.save_state(tmp_path / "state", 75, tree, {"network": "tiny"})
+    step, got = TS.restore_state(tmp_path / "state", tree, {"network": "tiny"})
+    assert step == 75 and np.array_equal(got["w"], tree["w"])
+
+
 def test_train_policy_sigterm_says_how_to_resume(tmp_path):
     """SIGTERM (a batch system's kill) while the run starts: exit 130 and one line saying
     that the saved state is kept and the same command resumes."""

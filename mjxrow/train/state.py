@@ -18,12 +18,16 @@ def _manager(folder: Path) -> ocp.CheckpointManager:
 
 
 def save_state(folder: str | Path, step: int, tree: Any, about: dict) -> None:
-    """Save a training state `tree` (params, opt_state, counters) as step `step`; `about`
-    (JSON: observation, network, ...) is written beside it for `restore_state`'s check."""
+    """Save a training state `tree` (params, opt_state, counters) as step `step`, unless that
+    step is saved already (the loop's periodic save and its final one can fall on the same
+    iteration); `about` (JSON: observation, network, ...) is written beside it for
+    `restore_state`'s check."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "train.json").write_text(json.dumps(about, indent=2, sort_keys=True) + "\n")
     with _manager(folder) as mgr:
+        if step in mgr.all_steps():  # saved at this iteration already (its last save_every)
+            return
         mgr.save(step, args=ocp.args.StandardSave(jax.device_get(tree)), force=True)
         mgr.wait_until_finished()
 
