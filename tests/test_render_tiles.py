@@ -504,8 +504,7 @@ def test_reach_bounds_every_plant_a_cull_leaves_out(lane_scene):
     d = dirs @ rot.T
     sweep = RT.camera_sweep(jnp.asarray(pos), jnp.asarray(centre @ rot.T), jnp.asarray(tan_a))
     t_max = jnp.full((len(centre),), 40.0)
-    ids, _, rest, reach = (np.asarray(x) for x in RT.cull(tab, P, *sweep, t_max, nb, 3, 4,
-                                                          with_reach=True))
+    ids, _, rest, reach = (np.asarray(x) for x in RT.cull(tab, P, *sweep, t_max, nb, 3, 4))
     box = np.asarray(tab.box_t)
     lo, hi = box[0::2].T, box[1::2].T  # [R·P, 3]
     e = _ray_box_entry(pos, d[:, :, None], lo, hi, 40.0).min(1)  # [T, R·P]

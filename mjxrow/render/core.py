@@ -198,7 +198,7 @@ def _trace_plants(shape, tab, sweep, oc, d, t_far, cfg):
     with jax.named_scope("rd_cull"):
         ids, entry, rest, reach = render_tiles.cull(tab, P, o, cc, g, tau,
                                                     jnp.max(t_far, axis=1), cfg.row_blocks,
-                                                    cfg.block_keep, cfg.keep, with_reach=True)
+                                                    cfg.block_keep, cfg.keep)
     t_min = jnp.full(t_far.shape, cfg.near, jnp.float32)
     with jax.named_scope("rd_exact"):
         t, plant, k = render_tiles.exact(tab, ids, entry, oc, geom.xyz(d), t_min, t_far,
@@ -244,8 +244,9 @@ def _deep_pass(tab, P, sweep, d, t_min, u, live, reach, oc, cfg):
         live, reach = jnp.repeat(live, m), jnp.repeat(reach, m)
     # a ray point at distance t ≥ reach projects on the centre ray at s ≥ reach · cos α
     s_min = reach / jnp.sqrt(1.0 + sweep[3] ** 2)
-    ids, entry, _ = render_tiles.cull(tab, P, *sweep, jnp.max(u, axis=1), cfg.deep_row_blocks,
-                                      cfg.deep_block_keep, cfg.deep_keep, s_min=s_min)
+    ids, entry, *_ = render_tiles.cull(tab, P, *sweep, jnp.max(u, axis=1),
+                                       cfg.deep_row_blocks, cfg.deep_block_keep, cfg.deep_keep,
+                                       s_min=s_min)
     entry = jnp.where(live[:, None], entry, INF)
     out = render_tiles.exact(tab, ids, entry, oc, geom.xyz(d), t_min, u, kernel=cfg.kernel)
     if split:
@@ -267,7 +268,7 @@ def _shadow(field, shape, tab, obst, wtab, p, normal, cls, cond, cfg, nt):
     sweep, live = render_tiles.shadow_sweep(lo, hi, l)
     t_max = jnp.where(live, SHADOW_REACH, -1.0)
     with jax.named_scope("rd_shadow_cull"):
-        ids, entry, _ = render_tiles.cull(
+        ids, entry, *_ = render_tiles.cull(
             tab,
             shape.max_plants_per_row,
             *sweep,

@@ -192,13 +192,13 @@ def _first(key, ids, n: int):
 
 
 def cull(tab: geom.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks: int,
-         block_keep: int, n: int, s_min=None, with_reach: bool = False):
+         block_keep: int, n: int, s_min=None):
     """The n plants a tile's sweep enters first (see the module docstring), from s_min [T]
     along the centre ray on (None: 0; a later layer of plants, `reach`).
     o, c [T, 3] (|c| = 1), g [T, 3], tau [T], t_max [T] (nothing beyond matters) [m].
     Returns (ids int32 [T, n], entry lower bound [T, n] (+inf: none), both sorted by entry,
     and `rest` int32 [T]: plants (counted by whole blocks past the kept ones) whose entry
-    lies before t_max but who are not among the n); with_reach, also `reach` [T]: how far the
+    lies before t_max but who are not among the n), and `reach` [T]: how far the
     kept plants hold every plant the tile's rays can meet, in distance along any of its rays
     (the entry of the last kept plant or block when its list is full, else t_max; the row
     windows aside), so a later cull of the same rays can start there."""
@@ -219,8 +219,6 @@ def cull(tab: geom.PlantTable, n_plants: int, o, c, g, tau, t_max, row_blocks: i
     ids, ent = _first(key, flat, n)
     dropped = jnp.sum(jnp.isfinite(bkey), 1) - jnp.sum(jnp.isfinite(bent), 1)
     rest = jnp.sum(jnp.isfinite(key), 1) - jnp.sum(jnp.isfinite(ent), 1) + geom.BLOCK * dropped
-    if not with_reach:
-        return ids, ent, rest
     # a plant left out enters after the last kept plant (of the kept blocks) or after the
     # last kept block (of the others): lower bounds of its distance along every tile ray
     left = jnp.sum(jnp.isfinite(key), 1) - jnp.sum(jnp.isfinite(ent), 1)

@@ -239,8 +239,7 @@ class Built:
         earlier process and kept beside the compilation cache (`runtime.exported`): equal
         results, no tracing."""
         fn = self.compiled()
-        _PROGRAMS.add((self.key or id(fn), str(jax.tree.map(
-            lambda x: (np.shape(x), str(getattr(x, "dtype", ""))), args))))
+        _PROGRAMS.add((self.key or id(fn), _arg_shapes(args)))
         if not self.key:
             return fn
         return runtime.exported(fn, args, self.key, LOG_TREE) or fn
@@ -259,12 +258,12 @@ class Built:
         if progress is None:
             return self.program(args)(*args)
         st = rollout_episode.staged(self.policy, self.episode, self.axes, STAGE_CHUNKS)
-        _PROGRAMS.add((("staged", self.key or id(st)), str(jax.tree.map(
-            lambda x: (np.shape(x), str(getattr(x, "dtype", ""))), args))))
-        state = st.start(*args)
-        while not st.done(state):
+        _PROGRAMS.add((("staged", self.key or id(st)), _arg_shapes(args)))
+        state, finished = st.start(*args), False
+        while not finished:
             state = st.advance(self.mx, state, batch.params)
-            progress(st.chunks_run(state) * st.chunk, st.ended(state))
+            steps, ended, finished = st.status(state)
+            progress(steps, ended)
         return st.finish(state)
 
     def summarise(self, log: Log, n: int | None = None) -> dict[str, np.ndarray]:
@@ -277,6 +276,11 @@ class Built:
 LOG_TREE = jax.tree.structure(Log(**{
     **{f.name: 0 for f in dataclasses.fields(Log)},
     "lane": field_lanes.Lane(u=0, s_end=0, bend=field_lanes.Bend(0, 0, 0, 0))}))
+def _arg_shapes(args: tuple) -> str:
+    """The shapes and dtypes of a program's arguments, as one string (a `_PROGRAMS` key)."""
+    return str(jax.tree.map(lambda x: (np.shape(x), str(getattr(x, "dtype", ""))), args))
+
+
 STAGE_CHUNKS = 2  # chunks of control steps per program call of a batch shown as it goes
 _PROGRAMS: set = set()  # (program key, argument shapes) of every closed-loop program asked for
 

@@ -112,21 +112,25 @@ def episode(mx, field: mjxrow_field.Field, lane: jax.Array, key: jax.Array, nois
     return _log(out, p0, ctx["lane"])
 
 
-def _start(mx, fields, lanes, keys, noise, policy, policy_params, cfg, params_axes):
-    """A batch's set-up: (ctx, its vmap axes, carry, start poses p0 [B, 3]) (`episodes`)."""
+def _axes(mx, params_axes) -> tuple:
+    """vmap axes of a batch's policy params and of its per-world context."""
     p_axes = jax.tree.unflatten(*canonical_axes(params_axes))
     ctx_axes = dict(m=sim.model_axes(mx), field=0, lane=0, aux=0, k_policy=0, half=0)
-    ctx, carry, p0 = jax.vmap(
+    return p_axes, ctx_axes
+
+
+def _start(mx, fields, lanes, keys, noise, policy, policy_params, cfg, params_axes):
+    """A batch's set-up: (ctx, carry, start poses p0 [B, 3]) (`episodes`)."""
+    p_axes, ctx_axes = _axes(mx, params_axes)
+    return jax.vmap(
         lambda f, ln, k, nz, pp: _world(mx, f, ln, k, nz, policy, pp, cfg),
         in_axes=(0, 0, 0, 0, p_axes), out_axes=(ctx_axes, 0, 0))(
             fields, lanes, keys, noise, policy_params)
-    return ctx, ctx_axes, carry, p0
 
 
 def _batch_body(mx, ctx, policy_params, policy, cfg, params_axes):
     """The vmapped control step of a batch, as `lax.scan`'s body over t."""
-    p_axes = jax.tree.unflatten(*canonical_axes(params_axes))
-    ctx_axes = dict(m=sim.model_axes(mx), field=0, lane=0, aux=0, k_policy=0, half=0)
+    p_axes, ctx_axes = _axes(mx, params_axes)
     step = jax.vmap(functools.partial(_step, policy=policy, cfg=cfg),
                     in_axes=(ctx_axes, p_axes, 0, None))
     return functools.partial(step, ctx, policy_params)
@@ -149,8 +153,8 @@ def episodes(
     fields, lanes, keys, noise: [B]; params_axes: as `compiled`. Returns the Log [B]."""
     global TRACES
     TRACES += 1
-    ctx, _, carry, p0 = _start(mx, fields, lanes, keys, noise, policy, policy_params, cfg,
-                               params_axes)
+    ctx, carry, p0 = _start(mx, fields, lanes, keys, noise, policy, policy_params, cfg,
+                            params_axes)
     body = _batch_body(mx, ctx, policy_params, policy, cfg, params_axes)
     s0 = jax.tree.map(lambda x: x[0], carry[0].sim)
     out = _run_until_done(body, carry, cfg.n_steps, _out_shapes(s0))
@@ -161,27 +165,20 @@ class Staged(NamedTuple):
     """`episodes` cut into three jitted programs, so that the host sees a batch advance:
     `start(mx, fields, lanes, keys, noise, params) -> state`, `advance(mx, state, params) ->
     state` (at most `chunks` chunks of `chunk` control steps) and `finish(state) -> Log`;
-    `chunks_run(state)`, `ended(state)` and `done(state)` read the state on the host. The
-    same step and loop as `compiled`'s one program, so the same numbers (tests/test_build.py)."""
+    `status(state)` reads the state on the host. The same step and loop as `compiled`'s one
+    program, so the same numbers (tests/test_build.py)."""
     start: Any
     advance: Any
     finish: Any
     n_chunks: int
-
     chunk: int
 
-    @staticmethod
-    def ended(state) -> int:
-        """Episodes of the batch that have ended (host)."""
-        return int(np.sum(np.asarray(state[1][1][0].done)))
-
-    @staticmethod
-    def chunks_run(state) -> int:
-        return int(state[1][0])
-
-    def done(self, state) -> bool:
-        c, carry, _ = state[1]
-        return int(c) >= self.n_chunks or bool(np.all(np.asarray(carry[0].done)))
+    def status(self, state) -> tuple[int, int, bool]:
+        """(control steps run, episodes ended, whether the batch is finished), in one
+        transfer from the device."""
+        c, done = jax.device_get((state[1][0], state[1][1][0].done))
+        ended = int(np.sum(done))
+        return int(c) * self.chunk, ended, int(c) >= self.n_chunks or ended == done.size
 
 
 def staged(policy, cfg: rollout_step.EpisodeConfig, params_axes: Any = None,
@@ -197,8 +194,8 @@ def _staged(policy, cfg: rollout_step.EpisodeConfig, axes: tuple, chunks: int) -
     def start(mx, fields, lanes, keys, noise, params):
         global TRACES
         TRACES += 1
-        ctx, _, carry, p0 = _start(mx, fields, lanes, keys, noise, policy, params, cfg,
-                                   params_axes)
+        ctx, carry, p0 = _start(mx, fields, lanes, keys, noise, policy, params, cfg,
+                                params_axes)
         s0 = jax.tree.map(lambda x: x[0], carry[0].sim)
         return ctx, _loop_start(carry, cfg.n_steps, _out_shapes(s0)), p0
 

@@ -12,7 +12,6 @@ inject a fake one):
 from __future__ import annotations
 
 import dataclasses
-import functools
 from collections.abc import Callable
 from pathlib import Path
 
@@ -139,10 +138,13 @@ def evaluate_episodes(
     for start in range(0, len(items), size):
         real = list(items[start:start + size])
         batch = built.batch([(r, e) for r, _, e in real], size)
-        shown = None if in_batch is None else functools.partial(
-            lambda n, steps, ended: in_batch(steps, min(ended, n), n), len(real))
-        log = jax.block_until_ready(built.rollout(batch, shown))  # (no compile overlaps the run:
-        met = built.summarise(log, len(real))                # the ETA leaves compiles out)
+
+        def shown(steps: int, ended: int, n: int = len(real)) -> None:
+            in_batch(steps, min(ended, n), n)  # the padding's copies left out
+
+        # no compile overlaps the run: the ETA leaves compiles out
+        log = jax.block_until_ready(built.rollout(batch, shown if in_batch else None))
+        met = built.summarise(log, len(real))
         rows = pd.DataFrame({"cell": [c for _, c, _ in real], "episode": [e for *_, e in real],
                              "lane": runtime.to_host(batch.lanes)[:len(real)],
                              **{k: (np.asarray(rollout_metrics.REASONS)[v] if k == "reason" else v)
