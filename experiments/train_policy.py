@@ -83,6 +83,15 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--controllers", nargs="+", default=["policy", "segzeros", "oracle"],
                    choices=("policy", "segzeros", "segzeros_gt", "oracle"))
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--iterations", type=int, default=None,
+                   help="stop after this many iterations in all (default: the budget only)")
+    p.add_argument("--init", default="", metavar="CHECKPOINT",
+                   help="start from this policy checkpoint ('shipped' or a folder; same "
+                        "observation and network), e.g. a BC / DAgger policy before PPO")
+    p.add_argument("--curriculum", default="", metavar="SEARCH.yaml",
+                   help="the adversarial curriculum: run this search against the policy every "
+                        "train.curriculum.every iterations and mix its failing fields into "
+                        "the resets (e.g. searches/policy_variety.yaml)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     p.add_argument("--no-eval", action="store_true", help="train only")
     p.add_argument("--eval-only", action="store_true", help="evaluate OUT/policy only")
@@ -110,9 +119,13 @@ def configure(args) -> tuple:
     run["controller.name"] = args.teacher
     if args.teacher == "segzeros":
         run["controller.variant"] = "paper"
+    from mjxrow.train.curriculum import CurriculumConfig
+
     cfg = TrainConfig(presets=tuple(args.presets), num_envs=args.num_envs, unroll=args.unroll,
                       budget_minutes=args.budget_minutes, bc_fraction=args.bc_fraction,
-                      seed=args.seed, env=E.EnvConfig(observation=args.observation))
+                      seed=args.seed, env=E.EnvConfig(observation=args.observation),
+                      iterations=args.iterations, init=args.init,
+                      curriculum=CurriculumConfig(search=args.curriculum))
     if args.smoke:
         run.update(SMOKE_RUN)
         values.update(SMOKE_RUN)
@@ -245,7 +258,14 @@ def report(args, cfg, result, blocks, out: Path, wall: float) -> None:
                          sys.argv[1:]), "wall_s": wall}
     if result is not None:
         summary["training"] = {k: v for k, v in result.items() if k != "last"}
-        lines += [f"training: {result['elapsed_s'] / 60:.2f} min of {cfg.budget_minutes:g} "
+        method = ("BC/DAgger" if cfg.bc_fraction >= 1 else "PPO" if cfg.bc_fraction <= 0
+                  else "BC/DAgger then PPO") + (f" from {cfg.init}" if cfg.init else "") + (
+            f", adversarial curriculum ({cfg.curriculum.search}, every "
+            f"{cfg.curriculum.every} iterations, share {cfg.curriculum.share:g})"
+            if cfg.curriculum.on else "")
+        summary["method"] = method
+        lines += [f"method: {method}",
+                  f"training: {result['elapsed_s'] / 60:.2f} min of {cfg.budget_minutes:g} "
                   f"budgeted ({result['iterations']} iterations, "
                   f"{result['env_steps'] / 1e6:.2f} M env steps; compile "
                   f"{result['compile_s']:.0f} s), {cfg.num_envs} worlds",
@@ -260,7 +280,14 @@ def report(args, cfg, result, blocks, out: Path, wall: float) -> None:
                           f" px, unroll {cfg.unroll}", "batch": cfg.num_envs,
                 "value": result["rollout_steps_per_s"], "unit": "env-steps/s",
                 "steps_per_s_with_updates": result["steps_per_s"],
-                "compile_s": result["compile_s"], "command": summary["command"]}) + "\n")
+                "compile_s": result["compile_s"], "run_s": result["elapsed_s"],
+                "search_s": result["search_s"], "method": method,
+                "command": summary["command"]}) + "\n")
+        for r in result["rounds"]:
+            lines.append(f"adversary round {r['round']} (iteration {r['iteration']}): "
+                         f"{r['failing_per_1000']:.0f} failing episodes per 1,000 of "
+                         f"{r['episodes']}, {r['failing_candidates']} failing fields, "
+                         f"{r['distinct_failures']} distinct, {r['search_s']:.0f} s")
     if blocks is not None:
         md, rows = EV.table(blocks)
         lines += [md, ""]

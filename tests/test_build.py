@@ -43,6 +43,9 @@ def test_episode_cli_equals_sweep_cell(runs):
     assert sweep["max_offset"].nunique() == 3
 
 
+# -m slow (.ci/slow): 37 s of CPU compilation (another batch size); the suite keeps the
+# episode CLI's episodes equal to the sweep's
+@pytest.mark.slow
 def test_batch_composition_does_not_change_an_episode(runs):
     _, run, sweep, _ = runs
     built = B.build(run)

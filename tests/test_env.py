@@ -255,3 +255,54 @@ def test_episode_and_env_share_the_step(tiny):
     a, b = (M.summarise(log, env.dt) for log in (ours, theirs))
     for k in a:
         np.testing.assert_allclose(a[k], b[k], rtol=1e-4, atol=1e-5, err_msg=k)
+
+
+class _PoolToy(_Toy):
+    """The toy whose reset takes x0 from `given` (a pooled field) where it is not NaN."""
+
+    def reset_world(self, rng, given=None):
+        s = self.reset(rng)
+        if given is None:
+            return s
+        x0 = jnp.where(jnp.isnan(given[0]), s.data["x0"], given[0])
+        return s.replace(data={"x": x0, "x0": x0})
+
+
+@pytest.mark.parametrize("max_resets", [64, 32])  # the whole batch, the gathered few
+def test_pool_puts_its_share_into_every_batch_of_resets(max_resets):
+    """A pool of searched values (here x0 = -10 - row) goes into the given share of a reset
+    batch, exactly for the whole batch (16 of 64) and to the rounding of share · n for the
+    worlds that end together; an empty pool, or share 0, leaves every reset to the draw."""
+    B = 64
+    pool = RZ.make_pool(np.array([[-10.0], [-11.0], [-12.0]]), size=8, share=0.25)
+    assert int(pool.count) == 3 and np.isnan(np.asarray(pool.values)[3:]).all()
+    env = E.AutoResetWrapper(E.VmapWrapper(E.EpisodeWrapper(_PoolToy())), B, max_resets)
+    s = jax.jit(env.reset)(jax.random.key(0), pool)
+    x0 = np.asarray(s.data["x0"])
+    pooled = x0 <= -10.0
+    assert pooled.sum() == 16 and set(np.unique(x0[pooled])) <= {-10.0, -11.0, -12.0}
+    assert len(np.unique(x0[pooled])) > 1  # random rows of the pool
+    assert np.all(x0[~pooled] >= 0.0)  # the others drawn (uniform in [0, 1))
+    # half the worlds end at once (x ≥ 3): ⌊0.25 · 32 + u⌋ = 8 of their resets are pooled
+    step = jax.jit(env.step)
+    a = jnp.where(jnp.arange(B)[:, None] % 2 == 0, jnp.array([20.0, 0.0]), 0.0)
+    s2 = step(s, a, pool)
+    new = np.asarray(s2.done) > 0
+    assert new.sum() == 32
+    assert (np.asarray(s2.data["x0"])[new] <= -10.0).sum() == 8
+    for empty in (RZ.empty_pool(1, 8), RZ.make_pool(np.array([[-10.0]]), 8, 0.0)):
+        assert np.all(np.asarray(jax.jit(env.reset)(jax.random.key(1), empty).data["x0"])
+                      >= 0.0)
+    with pytest.raises(ValueError, match="share: must lie in"):
+        RZ.make_pool(np.zeros((1, 1)), 4, 1.5)
+
+
+def test_given_values_replace_the_draw_within_the_ranges():
+    base = F.make_params("vineyard", terrain_width=5.0, terrain_length=14.0, row_length=10.0)
+    key = jax.random.key(3)
+    drawn = RZ.sample_params(base, RANGES, key)
+    given = RZ.sample_params(base, RANGES, key, jnp.array([2.6, jnp.nan]))
+    np.testing.assert_allclose(given.d_RR, 2.6)
+    np.testing.assert_array_equal(given.terrain_dh, drawn.terrain_dh)  # NaN: drawn
+    clipped = RZ.sample_params(base, RANGES, key, jnp.array([9.0, -1.0]))
+    np.testing.assert_allclose([clipped.d_RR, clipped.terrain_dh], [2.9, 0.0])

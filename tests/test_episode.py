@@ -93,6 +93,8 @@ def test_oracle_drives_the_lane(setup):
     assert (np.abs(s["path_ratio"] - 1.0) < 0.01).all()
 
 
+# -m slow (.ci/slow): 35 s of CPU compilation of the unchunked loop
+@pytest.mark.slow
 def test_early_stop_matches_stepping_every_step(setup, monkeypatch):
     mx, fields, log, _ = setup
     assert (log.steps < CFG.n_steps - E.CHUNK).all()  # every episode ends chunks early
@@ -109,21 +111,29 @@ def test_early_stop_matches_stepping_every_step(setup, monkeypatch):
     np.testing.assert_array_equal(np.where(alive, log.cmd, 0), np.where(alive, full.cmd, 0))
 
 
-def test_the_step_is_traced_once_per_compile(setup):
-    """The batch's loop runs the vmapped step: the policy is traced once (not again for the
-    output shapes, and the loops are never batched afterwards)."""
+def test_step_traced_once_and_prepare_once_per_episode(setup):
+    """The batch's loop runs the vmapped step: the policy's act is traced once (not again for
+    the output shapes, and the loops are never batched afterwards); its `prepare` runs outside
+    the step loop, once per episode, and what it returns reaches every step."""
     mx, fields, _, _ = setup
-    calls = []
+    acts, prepares = [], []
+
+    def prepare(params, field):  # traced once; the value differs per field
+        prepares.append(1)
+        return {"v": 0.1 * field.params.d_rr, "fields": 1}
 
     def act(params, state, obs, key):
-        calls.append(1)
-        return state, jnp.stack([jnp.float32(0.3), jnp.float32(0.0)])
+        acts.append(1)
+        return state, jnp.stack([obs.aux["v"], jnp.float32(0.0)])
 
-    cfg = dataclasses.replace(CFG, max_time=2.0)
+    cfg = dataclasses.replace(CFG, max_time=2.0)  # 30 steps
     log = E.rollout(mx, fields, None, jax.random.split(jax.random.key(1), B),
-                    C.Policy(lambda p: (), act), (), cfg)
-    assert len(calls) == 1
-    assert np.asarray(log.alive).all() and np.allclose(np.asarray(log.cmd[..., 0]), 0.3)
+                    C.Policy(lambda p: (), act, prepare), (), cfg)
+    assert len(acts) == 1 and len(prepares) == 1
+    assert np.asarray(log.alive).all()
+    np.testing.assert_allclose(np.asarray(log.cmd[:, :, 0]),
+                               np.broadcast_to(0.1 * np.asarray(fields.params.d_rr)[:, None],
+                                               (B, 30)), rtol=1e-6)
 
 
 def test_a_command_of_the_wrong_shape_is_named(setup):
@@ -132,26 +142,6 @@ def test_a_command_of_the_wrong_shape_is_named(setup):
     with pytest.raises(ValueError, match=r"command must be float \[2\].*\(3,\)"):
         E.rollout(mx, fields, None, jax.random.split(jax.random.key(1), B),
                   C.Policy(lambda p: (), act), (), dataclasses.replace(CFG, max_time=1.0))
-
-
-def test_prepare_runs_once_per_episode_and_reaches_every_step(setup):
-    mx, fields, _, _ = setup
-    calls = []
-
-    def prepare(params, field):  # traced once; the value differs per field
-        calls.append(1)
-        return {"v": 0.1 * field.params.d_rr, "fields": 1}
-
-    def act(params, state, obs, key):
-        return state, jnp.stack([obs.aux["v"], jnp.float32(0.0)])
-
-    cfg = dataclasses.replace(CFG, max_time=2.0)  # 30 steps
-    log = E.rollout(mx, fields, None, jax.random.split(jax.random.key(1), B),
-                    C.Policy(lambda p: (), act, prepare), (), cfg)
-    assert len(calls) == 1  # outside the step loop: traced (and run) once per episode
-    np.testing.assert_allclose(np.asarray(log.cmd[:, :, 0]),
-                               np.broadcast_to(0.1 * np.asarray(fields.params.d_rr)[:, None],
-                                               (B, 30)), rtol=1e-6)
 
 
 def test_new_field_params_do_not_retrace(setup):

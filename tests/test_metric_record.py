@@ -118,6 +118,9 @@ TINY = {"name": "toy", "seeds": 2, "batch_size": 4, "controller": {"name": "orac
         "camera": {"width": 16, "height": 16}}
 
 
+# -m slow (.ci/slow): 37 s of CPU compilation; test_registries keeps a toy crop and controller
+# running a sweep
+@pytest.mark.slow
 def test_registered_metric_runs_a_sweep(toy, tmp_path):
     sweep_run.run(sweep_config.from_dict(TINY), tmp_path, progress=False)
     res = pd.read_csv(tmp_path / "results.csv")

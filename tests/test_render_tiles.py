@@ -231,6 +231,8 @@ def test_tiles_see_what_single_rays_see_on_a_padded_image(lane_scene):
     assert np.array_equal(np.asarray(cls), ref)
 
 
+# -m slow (.ci/slow): 20 s of CPU compilation; the suite keeps the reach bound of the deep pass
+@pytest.mark.slow
 def test_deep_tiles_complete_grazing_views(lane_scene):
     # looking along the lane a little towards a row: each tile's rays meet the row's plants
     # at many depths, more than `keep` candidates
@@ -302,6 +304,8 @@ def _check_exact(t, plant, k, t_any, tr, kr, flat):
                                                                           best][hit])
 
 
+# -m slow (.ci/slow): 21 s of CPU compilation for one more renderer program
+@pytest.mark.slow
 def test_precomputed_table_gives_the_same_frame(lane_scene):
     fld, shape, pos = lane_scene
     intr = RD.Intrinsics(16, 16, 45.0)
@@ -316,8 +320,10 @@ def test_precomputed_table_gives_the_same_frame(lane_scene):
     assert np.asarray(a.mask).any()
 
 
-# the Pallas kernels run in their interpreter on a CPU: minutes; -m slow (.ci/slow)
-@pytest.mark.parametrize("kernel", ["fused", pytest.param("pallas", marks=pytest.mark.slow)])
+# -m slow (.ci/slow): the Pallas kernels run in their interpreter on a CPU (minutes); the fused
+# kernel's own program costs 20 s of CPU compilation, and every other render test runs it
+@pytest.mark.slow
+@pytest.mark.parametrize("kernel", ["fused", "pallas"])
 def test_every_kernel_renders_the_same_frame(lane_scene, kernel):
     fld, shape, pos = lane_scene
     intr = RD.Intrinsics(24, 16, 45.0)
@@ -453,6 +459,8 @@ def test_settle_modes_draw_the_same_image():
     assert all(np.array_equal(rgb[0], other) for other in rgb[1:])
 
 
+# -m slow (.ci/slow): 45 s of CPU compilation; test_render keeps obstacles against MuJoCo
+@pytest.mark.slow
 def test_obstacles_culled_per_tile_match_every_obstacle():
     # a camera looking down on two crossing branches: the tiles' nearest two obstacles give
     # the same picture (and the same shadows) as every ray testing all the frame's obstacles
@@ -476,6 +484,8 @@ def test_obstacles_culled_per_tile_match_every_obstacle():
     assert np.array_equal(np.asarray(a.rgb), np.asarray(b.rgb))
 
 
+# -m slow (.ci/slow): 19 s of CPU compilation for one more renderer program
+@pytest.mark.slow
 def test_deep_sub_tiles_keep_what_whole_deep_tiles_drop(lane_scene):
     # the same grazing view, deep lists too short for a whole tile: split into 2 x 2 sub-tiles
     # (each its own cone and cut), the deep pass finds the plants the whole tile's list drops

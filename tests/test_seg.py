@@ -239,6 +239,8 @@ def test_interrupted_run_resumes_to_the_same_weights(tiny, tmp_path):
     assert losses[0] == losses[1]
 
 
+# -m slow (.ci/slow): 24 s of CPU compilation of the unfused training step
+@pytest.mark.slow
 def test_unfused_batch_function_trains_on_the_fused_steps_batches(tiny, tmp_path):
     """The CLI's on-the-fly data runs the batch function before the step (its renderers compiled
     once, shared with the validation set): the same keys, batches and weights as the fused step."""

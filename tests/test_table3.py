@@ -101,6 +101,8 @@ def test_run_table_resumes_and_leaves_out_missing_checkpoints(tmp_path, monkeypa
     assert [line for line in again.splitlines() if line.startswith("| ")] == table
 
 
+# -m slow (.ci/slow): 48 s of CPU compilation and episodes
+@pytest.mark.slow
 def test_the_blocks_of_a_preset_share_one_program(tmp_path):
     from mjxrow.rollout import build as B
 

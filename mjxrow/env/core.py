@@ -228,9 +228,10 @@ class Env:
     # the parts, so that a batch renders its frames once per step, after the worlds that
     # ended were replaced (a reset then costs no frame of its own).
 
-    def reset(self, rng: jax.Array) -> State:
-        """A new world and episode from PRNG key `rng`, observed (one world; pure)."""
-        return self.observe(self.reset_world(rng))
+    def reset(self, rng: jax.Array, given: jax.Array | None = None) -> State:
+        """A new world and episode from PRNG key `rng`, observed (one world; pure); `given`
+        as in `reset_world`."""
+        return self.observe(self.reset_world(rng, given))
 
     def step(self, state: State, action: jax.Array) -> State:
         """One control step under `action` float [2] in [-1, 1] (clipped), observed. A state
@@ -239,12 +240,13 @@ class Env:
         return jax.tree.map(lambda x, y: jnp.where(state.done > 0, x, y),
                             state.replace(reward=jnp.zeros_like(state.reward)), new)
 
-    def reset_world(self, rng: jax.Array) -> State:
+    def reset_world(self, rng: jax.Array, given: jax.Array | None = None) -> State:
         """A new world and episode, not yet observed (`obs` and the teacher's action are
-        zeros until `observe`)."""
+        zeros until `observe`). `given` float32 [len(self.ranges)]: ranged field values to
+        take instead of the draw where not NaN (`env.randomize.sample_params`)."""
         rz, scfg = self.cfg.randomize, self.episode.sim
         ks = jax.random.split(rng, 8)
-        params = env_randomize.sample_params(self.base, self.ranges, ks[0])
+        params = env_randomize.sample_params(self.base, self.ranges, ks[0], given)
         field = mjxrow_field.generate(params, self.shape, ks[1])
         lane = mjxrow_field.robot_lane(field)
         m = sim.world_model(self.mx, field, lane, scfg)

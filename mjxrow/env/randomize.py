@@ -18,21 +18,25 @@ from typing import ClassVar
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import struct
 
 from mjxrow import field
 from mjxrow.render import shade
 
-# Default ranges per preset (metres, slopes dz/dx, densities per 100 m²): wide enough to cover
-# the default sweep (d_rr 1.5-2.5 m, |ΔH| 0-0.5 m) and sweeps/slope_roughness.yaml (lateral slope
-# 0-0.25, |ΔH| 0-0.5 m) for zucchini, and the same spirit around the other presets' defaults
-# (one row per group in vineyard and pear: their rows are d_RR apart).
+# Default ranges per preset (metres, slopes dz/dx, densities per 100 m², weeds per m²,
+# curvature 1/m): wide enough to cover the default sweep (d_rr 1.5-2.5 m, |ΔH| 0-0.5 m),
+# sweeps/slope_roughness.yaml (lateral slope 0-0.25, |ΔH| 0-0.5 m) and the box of
+# searches/*_variety.yaml (curved rows, gap runs, weeds, plant width 0.6-1.0 m) for zucchini,
+# and the same spirit around the other presets' defaults (one row per group in vineyard and
+# pear: their rows are d_RR apart).
 _COMMON = {"terrain_dh": (0.0, 0.5), "slope_y": (-0.25, 0.25), "slope_x": (-0.05, 0.05),
            "p_missing": (0.0, 0.15), "stone_density": (0.0, 3.0), "branch_density": (0.0, 1.0),
            "plant_size_var": (0.03, 0.15), "plant_jitter": (0.0, 0.06),
-           "terrain_scale": (2.0, 6.0)}
+           "terrain_scale": (2.0, 6.0), "row_curvature": (0.0, 0.012),
+           "gap_rate": (0.0, 1.5), "gap_length": (0.7, 2.5), "weed_density": (0.0, 2.0)}
 RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "zucchini": {**_COMMON, "d_rr": (1.5, 2.5), "d_pp": (0.55, 0.9),
-                 "plant_height": (0.45, 0.75), "plant_width": (0.75, 0.95)},
+                 "plant_height": (0.45, 0.75), "plant_width": (0.6, 1.0)},
     "vineyard": {**_COMMON, "d_RR": (2.2, 3.2), "d_pp": (0.8, 1.3),
                  "plant_height": (1.6, 2.2), "plant_width": (0.4, 0.7)},
     "pear": {**_COMMON, "d_RR": (4.0, 6.0), "d_pp": (1.8, 2.6)},
@@ -121,14 +125,20 @@ def check_ranges(base: field.FieldParams, ranges, shape: field.FieldShape) -> No
             raise ValueError(f"env.randomize.ranges: {name}: {reason} (at {at})")
 
 
-def sample_params(base: field.FieldParams, ranges, key: jax.Array) -> field.FieldParams:
-    """FieldParams of one world: each ranged parameter uniform in (lo, hi), the rest `base`."""
+def sample_params(base: field.FieldParams, ranges, key: jax.Array,
+                  given: jax.Array | None = None) -> field.FieldParams:
+    """FieldParams of one world: each ranged parameter uniform in (lo, hi), the rest `base`.
+    `given` float32 [len(ranges)]: values to take instead of the draw where they are not NaN
+    (a searched field of the adversarial curriculum), clipped to the ranges so that the field
+    fits the compiled shape."""
     if not ranges:
         return base
     u = jax.random.uniform(key, (len(ranges),))
     lo = jnp.asarray([r[1] for r in ranges], jnp.float32)
     hi = jnp.asarray([r[2] for r in ranges], jnp.float32)
     x = lo + u * (hi - lo)
+    if given is not None:
+        x = jnp.where(jnp.isnan(given), x, jnp.clip(given, lo, hi))
     return base.replace(**{name: x[i] for i, (name, _, _) in enumerate(ranges)})
 
 
@@ -149,3 +159,48 @@ def sample_jitter(rz: Randomize, key: jax.Array) -> jax.Array:
     half = jnp.asarray([rz.cam_height, math.radians(rz.cam_pitch_deg),
                         math.radians(rz.cam_roll_deg)], jnp.float32)
     return half * jax.random.uniform(key, (3,), minval=-1.0, maxval=1.0)
+
+
+@struct.dataclass
+class Pool:
+    """Fields that resets take besides the uniform draws (the adversarial curriculum's
+    searched failures): `values` float32 [P, k] in the order of the environment's ranges (NaN:
+    that value is drawn), its first `count` rows valid; a `share` of every batch of resets
+    takes a random valid row. Traced: a new pool runs in the same compiled program."""
+
+    values: jax.Array  # float32 [P, k]
+    count: jax.Array  # int32 []
+    share: jax.Array  # float32 [], in [0, 1]
+
+
+def empty_pool(k: int, size: int = 1) -> Pool:
+    """A pool of `size` rows of k values, none valid (every reset draws)."""
+    return Pool(values=jnp.full((size, k), jnp.nan, jnp.float32), count=jnp.int32(0),
+                share=jnp.float32(0.0))
+
+
+def make_pool(rows: np.ndarray, size: int, share: float) -> Pool:
+    """A pool of `size` rows holding `rows` [n, k] (the first `size` of them; NaN: drawn)."""
+    rows = np.asarray(rows, np.float32)[:size]  # [n, k]
+    if not 0.0 <= share <= 1.0:
+        raise ValueError(f"share: must lie in [0, 1], got {share}")
+    values = np.full((size, rows.shape[1]), np.nan, np.float32)
+    values[:len(rows)] = rows
+    return Pool(values=jnp.asarray(values), count=jnp.int32(len(rows)),
+                share=jnp.float32(share if len(rows) else 0.0))
+
+
+def pool_draws(pool: Pool, keys: jax.Array, real: jax.Array) -> jax.Array:
+    """The `given` rows (float32 [K, k]; NaN: drawn) of a batch of K reset slots, of which
+    `real` (bool [K]) are resets that happen: the first m real ones take a random valid pool
+    row, m = ⌊share · n + u⌋ for n real slots and u uniform (so m is share · n rounded, exactly
+    so in expectation)."""
+    real = jnp.asarray(real, bool)
+    n = jnp.sum(real)
+    u = jax.random.uniform(jax.random.fold_in(keys[0], 0x5EED))
+    m = jnp.floor(pool.share * n + u).astype(jnp.int32)
+    pos = jnp.cumsum(real) - 1
+    take = real & (pos < m) & (pool.count > 0)
+    rows = jax.vmap(lambda k: jax.random.randint(jax.random.fold_in(k, 0x9001), (), 0,
+                                                 jnp.maximum(pool.count, 1)))(keys)
+    return jnp.where(take[:, None], pool.values[rows], jnp.nan)

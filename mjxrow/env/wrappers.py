@@ -14,7 +14,9 @@
   reset costs a field and a plant table, so only the worlds that ended are reset: up to
   `max_resets` of them gathered into one small vmapped reset per step, or (when more ended at
   once) the whole batch. The frames are rendered once per step, after the resets, so the
-  compiled step holds one renderer. `info["rng"]` holds each world's next key.
+  compiled step holds one renderer. `info["rng"]` holds each world's next key. `reset` and
+  `step` take an optional `randomize.Pool` (traced): a share of every batch of resets takes
+  fields from it (the adversarial curriculum's searched failures) instead of the uniform draw.
 
 The environment provides `reset = observe ∘ reset_world` and `step = observe ∘ advance`; the
 wrappers pass the parts through.
@@ -28,6 +30,7 @@ import jax
 import jax.numpy as jnp
 
 from mjxrow.env.core import State
+from mjxrow.env.randomize import Pool, pool_draws
 
 RESET_INFO = ("steps",)  # info entries that belong to the new episode (observe sets the
 # teacher's action)
@@ -67,11 +70,12 @@ class EpisodeWrapper(Wrapper):
             raise ValueError(f"action_repeat: must be at least 1, got {action_repeat}")
         self.episode_length, self.action_repeat = episode_length, action_repeat
 
-    def reset(self, rng: jax.Array) -> State:
-        return self.observe(self.reset_world(rng))
+    def reset(self, rng: jax.Array, given: jax.Array | None = None) -> State:
+        return self.observe(self.reset_world(rng, given))
 
-    def reset_world(self, rng: jax.Array) -> State:
-        state = self.env.reset_world(rng)
+    def reset_world(self, rng: jax.Array, given: jax.Array | None = None) -> State:
+        # `given` only where a pool gives it (an environment without pools takes just rng)
+        state = self.env.reset_world(rng) if given is None else self.env.reset_world(rng, given)
         return state.replace(info={**state.info, "steps": jnp.int32(0)})
 
     def observe(self, state: State) -> State:
@@ -112,11 +116,18 @@ class VmapWrapper(Wrapper):
             rng = jax.random.split(rng, self.batch_size)
         return rng
 
-    def reset(self, rng: jax.Array) -> State:
-        return jax.vmap(self.env.reset)(self._keys(rng))
+    def reset(self, rng: jax.Array, given: jax.Array | None = None) -> State:
+        return self._vmapped(self.env.reset, rng, given)
 
-    def reset_world(self, rng: jax.Array) -> State:
-        return jax.vmap(self.env.reset_world)(self._keys(rng))
+    def reset_world(self, rng: jax.Array, given: jax.Array | None = None) -> State:
+        return self._vmapped(self.env.reset_world, rng, given)
+
+    def _vmapped(self, fn, rng: jax.Array, given: jax.Array | None) -> State:
+        """`fn` over the batch's keys, and over the rows of `given` [B, k] unless None."""
+        keys = self._keys(rng)
+        if given is None:
+            return jax.vmap(fn)(keys)
+        return jax.vmap(fn)(keys, given)
 
     def step(self, state: State, action: jax.Array) -> State:
         return jax.vmap(self.env.step)(state, action)
@@ -149,13 +160,14 @@ class AutoResetWrapper(Wrapper):
         self.batch_size = batch_size
         self.max_resets = min(max_resets or batch_size, batch_size)
 
-    def reset(self, rng: jax.Array) -> State:
+    def reset(self, rng: jax.Array, pool: Pool | None = None) -> State:
         keys = jax.random.split(rng, self.batch_size)
-        state = self.env.reset(keys)
+        given = None if pool is None else pool_draws(pool, keys, jnp.ones(len(keys), bool))
+        state = self.env.reset(keys, given)
         nxt = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
         return state.replace(info={**state.info, "rng": nxt})
 
-    def step(self, state: State, action: jax.Array) -> State:
+    def step(self, state: State, action: jax.Array, pool: Pool | None = None) -> State:
         if "steps" in state.info:
             steps = jnp.where(state.done > 0, 0, state.info["steps"])
             state = state.replace(info={**state.info, "steps": steps})
@@ -167,13 +179,16 @@ class AutoResetWrapper(Wrapper):
         B, K = self.batch_size, self.max_resets
 
         def everyone(state):
-            fresh = self.env.reset_world(reset_keys)
+            given = None if pool is None else pool_draws(pool, reset_keys, done)
+            fresh = self.env.reset_world(reset_keys, given)
             return jax.tree.map(lambda x, y: _where(done, x, y), _take_reset(state, fresh),
                                 state)
 
         def some(state):
             idx = jnp.nonzero(done, size=K, fill_value=B)[0]
-            fresh = self.env.reset_world(reset_keys[jnp.minimum(idx, B - 1)])
+            keys = reset_keys[jnp.minimum(idx, B - 1)]
+            given = None if pool is None else pool_draws(pool, keys, idx < B)
+            fresh = self.env.reset_world(keys, given)
             part = lambda s: (s.data, {k: s.info[k] for k in RESET_INFO  # noqa: E731
                                        if k in s.info})
             merged = jax.tree.map(lambda x, r: x.at[idx].set(r, mode="drop"), part(state),

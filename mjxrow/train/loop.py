@@ -5,10 +5,17 @@ auto-resetting environments (one per crop), within a wall-time budget, resumable
 
 writes into `out`: `state/` (orbax training state, resumed by the next call with the same
 `out`), `train_log.jsonl` (one line per iteration: phase, env steps, losses, episode metrics,
-steps/s), `learning_curve.png` (return, success, steps/s over env steps) and `policy/` (the
-policy checkpoint the `policy` controller loads). The budget counts the iterations' wall time
-(compilation excluded) over every call with the same `out`; the first `bc_fraction` of it is
-BC / DAgger, the rest PPO. A progress bar shows the budget spent and its ETA.
+steps/s), `learning_curve.png` (return, success, steps/s over env steps; with the adversarial
+curriculum, the failure rate its searches find) and `policy/` (the policy checkpoint the
+`policy` controller loads). The budget counts the iterations' wall time (compilation and the
+curriculum's searches excluded) over every call with the same `out`; the first `bc_fraction`
+of it is BC / DAgger, the rest PPO; `iterations` caps the iterations as well. A progress bar
+shows the budget spent and its ETA.
+
+The training state holds everything the next iteration depends on: the network, both
+optimisers, the PRNG key, the counters, the worlds being driven (every environment's batched
+state) and the curriculum's pools, so a run resumed from a state saved at iteration k computes
+the same iteration k + 1 as the run that went on.
 """
 
 from __future__ import annotations
@@ -33,6 +40,7 @@ from mjxrow.policies import checkpoint as policies_checkpoint
 from mjxrow.policies import networks as policies_networks
 from mjxrow.rollout.config import build_run
 from mjxrow.train import bc as train_bc
+from mjxrow.train import curriculum as train_curriculum
 from mjxrow.train import ppo as train_ppo
 from mjxrow.train import rollout
 from mjxrow.train import state as train_state
@@ -51,11 +59,15 @@ class TrainConfig:
     episode_length: int | None = None  # training time limit [steps] (None: the episode's)
     seed: int = 0  # PRNG seed of the network, the worlds and the rollouts
     save_every: int = 25  # iterations between training-state checkpoints
+    iterations: int | None = None  # stop after this many iterations in all (None: budget only)
+    init: str = ""  # a policy checkpoint ('shipped' or a folder) whose network the run starts
+    # from (its observation and network must be this run's); '' for a fresh network
     run: tuple[tuple[str, Any], ...] = ()  # RunConfig keys of every preset's environment
     env: mjxrow_env.EnvConfig = mjxrow_env.EnvConfig()
     net: policies_networks.NetConfig = policies_networks.NetConfig()
     ppo: train_ppo.PPOConfig = train_ppo.PPOConfig()
     bc: train_bc.BCConfig = train_bc.BCConfig()
+    curriculum: train_curriculum.CurriculumConfig = train_curriculum.CurriculumConfig()
 
     def __post_init__(self):
         if not self.presets:
@@ -70,6 +82,8 @@ class TrainConfig:
                              f"{self.budget_minutes}")
         if self.unroll < 1:
             raise ValueError(f"train.unroll: must be at least 1, got {self.unroll}")
+        if self.iterations is not None and self.iterations < 1:
+            raise ValueError(f"train.iterations: must be at least 1, got {self.iterations}")
 
     @property
     def per_env(self) -> int:
@@ -109,17 +123,27 @@ class Trainer:
         self.limits = tuple(float(x) for x in np.asarray(self.raw[0].limits))
         self.unroll = jax.jit(functools.partial(rollout.unroll, self.net, self.envs,
                                                 length=cfg.unroll))
-        self.reset = jax.jit(lambda key: tuple(
-            e.reset(k) for e, k in zip(self.envs, jax.random.split(key, len(self.envs)),
-                                       strict=True)))
+        self.reset = jax.jit(lambda key, pools: tuple(
+            e.reset(k, p) for e, k, p in zip(self.envs, jax.random.split(key, len(self.envs)),
+                                             pools, strict=True)))
         self.bc_tx = train_ppo.optimizer(cfg.bc.learning_rate, cfg.bc.max_grad_norm)
         self.ppo_tx = train_ppo.optimizer(cfg.ppo.learning_rate, cfg.ppo.max_grad_norm)
         self.bc_update = jax.jit(functools.partial(self._update, "bc"))
         self.ppo_update = jax.jit(functools.partial(self._update, "ppo"))
 
     def init_params(self, key: jax.Array) -> Any:
+        """A fresh network, or `cfg.init`'s weights (ValueError naming train.init when its
+        observation or network is not this run's)."""
         shapes = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), self.obs_example)
-        return policies_networks.init(self.net, shapes, key)
+        params = policies_networks.init(self.net, shapes, key)
+        if not self.cfg.init:
+            return params
+        ck = policies_checkpoint.load(self.cfg.init, dataclasses.asdict(self.spec),
+                                      key="train.init")
+        if ck.net.cfg != self.cfg.net:
+            raise ValueError(f"train.init: {ck.path} holds network {ck.net.cfg}; this run "
+                             f"trains {self.cfg.net}")
+        return jax.tree.map(lambda ref, x: jnp.asarray(x, ref.dtype), params, ck.variables)
 
     def _update(self, phase, params, opt_state, traj, boot, key):
         c = self.cfg.ppo
@@ -143,7 +167,8 @@ class Trainer:
     def about(self) -> dict:
         """What a saved training state must match to be resumed."""
         return {"observation": self.spec.to_dict(), "network": self.cfg.net.to_dict(),
-                "presets": list(self.cfg.presets), "num_envs": self.cfg.num_envs}
+                "presets": list(self.cfg.presets), "num_envs": self.cfg.num_envs,
+                "state_format": STATE_FORMAT}
 
 
 def _schedule(cfg: TrainConfig, elapsed: float) -> tuple[str, float, float, bool]:
@@ -155,20 +180,58 @@ def _schedule(cfg: TrainConfig, elapsed: float) -> tuple[str, float, float, bool
     return "ppo", 0.0, 0.0, True
 
 
+STATE_FORMAT = 2  # what a training state holds (2: with the worlds and the pools)
+
+
+def _is_key(x: Any) -> bool:
+    return jnp.issubdtype(getattr(x, "dtype", np.float32), jax.dtypes.prng_key)
+
+
+def _storable(tree: Any) -> dict:
+    """The leaves of `tree` that orbax can store, by their index: typed PRNG keys as their key
+    data, empty arrays left out (orbax refuses them; `_restored` makes them again)."""
+    out = {}
+    for i, x in enumerate(jax.tree.leaves(tree)):
+        if _is_key(x):
+            x = jax.random.key_data(x)
+        if math.prod(x.shape):
+            out[f"{i:05d}"] = x
+    return out
+
+
+def _restored(stored: dict, like: Any) -> Any:
+    """The tree of `like` (arrays or shapes) from `_storable`'s leaves."""
+    leaves, treedef = jax.tree.flatten(like)
+    out = []
+    for i, ref in enumerate(leaves):
+        x = stored.get(f"{i:05d}")
+        if _is_key(ref):
+            out.append(jax.random.wrap_key_data(jnp.asarray(x)))
+        else:
+            out.append(jnp.zeros(ref.shape, ref.dtype) if x is None else jnp.asarray(x))
+    return jax.tree.unflatten(treedef, out)
+
+
 def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
           deadline: float | None = None, log=print) -> dict[str, Any]:
-    """Train (or resume training) into `out`; stop when the budget is spent or at the
-    `deadline` (a `time.time()` value, e.g. to leave room for an evaluation). Returns the
-    summary: paths, iterations, env steps, elapsed, compile time, steps/s, last metrics."""
+    """Train (or resume training) into `out`; stop when the budget or `cfg.iterations` is spent
+    or at the `deadline` (a `time.time()` value, e.g. to leave room for an evaluation). Returns
+    the summary: paths, iterations, env steps, elapsed, compile time, steps/s, last metrics,
+    the curriculum's rounds."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     tr = Trainer(cfg)
+    cur = train_curriculum.Curriculum(cfg.curriculum, cfg.presets, [e.ranges for e in tr.raw])
     key = jax.random.key(cfg.seed)
     k_init, key = jax.random.split(key)
     params = tr.init_params(k_init)
+    pools = cur.pools()
+    k_reset, key_after = jax.random.split(key)
+    worlds = jax.eval_shape(tr.reset, k_reset, pools)
     state = {"params": params, "bc_opt": tr.bc_tx.init(params), "ppo_opt": tr.ppo_tx.init(params),
-             "counters": _counters(0, 0, 0.0), "key": jax.random.key_data(key)}
+             "counters": _counters(0, 0, 0.0), "key": jax.random.key_data(key),
+             "worlds": jax.eval_shape(_storable, worlds), "pools": pools}
     restored = train_state.restore_state(out / "state", state, tr.about())
     if restored is not None:
         state = restored[1]
@@ -179,14 +242,18 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     env_steps = int(state["counters"]["env_steps"])
     elapsed = float(state["counters"]["elapsed"])
     key = jax.random.wrap_key_data(jnp.asarray(state["key"]))
+    pools = jax.tree.map(jnp.asarray, state["pools"])
+    cur.load(pools)
 
     # compile everything once, before the clock of the budget runs
     t0 = time.perf_counter()
-    k_reset, key = jax.random.split(key)
-    envs = tr.reset(k_reset)
+    if restored is None:
+        envs, key = tr.reset(k_reset, pools), key_after
+    else:
+        envs = _restored(state["worlds"], worlds)
     args = (params, envs, key, jnp.float32(1.0), jnp.float32(0.1), jnp.bool_(False))
-    unroll = tr.unroll.lower(*args).compile()
-    _, traj_s, boot_s, _ = jax.eval_shape(tr.unroll, *args)
+    unroll = tr.unroll.lower(*args, pools=pools).compile()
+    _, traj_s, boot_s, _ = jax.eval_shape(functools.partial(tr.unroll, pools=pools), *args)
     bc_update = tr.bc_update.lower(params, bc_opt, traj_s, boot_s, key).compile()
     ppo_update = tr.ppo_update.lower(params, ppo_opt, traj_s, boot_s, key).compile()
     jax.block_until_ready(envs)
@@ -202,15 +269,24 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
                bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s "
                           "[{elapsed}<{remaining}{postfix}]")
     last: dict[str, Any] = {}
-    rates = []
+    rates, rounds = [], []
+    search_s = 0.0
     window: collections.deque = collections.deque(maxlen=20)  # recent iterations' episodes
+
+    def save():
+        _save(out, tr, {"params": params, "bc_opt": bc_opt, "ppo_opt": ppo_opt,
+                        "counters": _counters(it, env_steps, elapsed),
+                        "key": jax.random.key_data(key), "worlds": _storable(envs),
+                        "pools": pools})
+
     with bar, log_path.open("a") as logf:
-        while elapsed < budget and (deadline is None or time.time() < deadline):
+        while elapsed < budget and (deadline is None or time.time() < deadline) and (
+                cfg.iterations is None or it < cfg.iterations):
             phase, beta, noise, ppo = _schedule(cfg, elapsed)
             key, k_roll, k_upd = jax.random.split(key, 3)
             t0 = time.perf_counter()
             envs, traj, boot, sums = unroll(params, envs, k_roll, jnp.float32(beta),
-                                            jnp.float32(noise), jnp.bool_(ppo))
+                                            jnp.float32(noise), jnp.bool_(ppo), pools=pools)
             jax.block_until_ready(traj.reward)
             t1 = time.perf_counter()
             if phase == "bc":
@@ -238,16 +314,30 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
                                 f"{recent['nav/success']:.2f} {row['steps_per_s']:,.0f} "
                                 f"env-steps/s", refresh=False)
             bar.update(min(round(elapsed), round(budget)) - bar.n)
+            if cur.due(it):
+                t0 = time.perf_counter()
+                live = policies_checkpoint.save(out / "adversary" / "policy", params, tr.spec,
+                                                cfg.net, tr.limits,
+                                                meta=_meta(cfg, tr, it, env_steps, elapsed))
+                rnd = cur.round(Path(live).resolve(), out / "adversary", it,
+                                out / "adversary.jsonl")
+                pools = cur.pools()
+                rounds.append(rnd)
+                search_s += time.perf_counter() - t0
+                bar.write(f"adversary round {rnd['round']} at iteration {it}: "
+                          f"{rnd['failing_per_1000']:.0f} failing episodes per 1,000, "
+                          f"{rnd['failing_candidates']} failing fields, pool {rnd['pool']}")
             if it % cfg.save_every == 0:
-                _save(out, tr, params, bc_opt, ppo_opt, it, env_steps, elapsed, key)
-    _save(out, tr, params, bc_opt, ppo_opt, it, env_steps, elapsed, key)
+                save()
+    save()
     policy_dir = policies_checkpoint.save(out / "policy", params, tr.spec, cfg.net, tr.limits,
                                           meta=_meta(cfg, tr, it, env_steps, elapsed))
-    curve = plot_curve(log_path, out / "learning_curve.png")
+    curve = plot_curve(log_path, out / "learning_curve.png", out / "adversary.jsonl")
     steady = rates[1:] or rates
     return {"out": str(out), "policy": str(policy_dir), "curve": str(curve),
             "iterations": it, "env_steps": env_steps, "elapsed_s": elapsed,
             "compile_s": compile_s, "wall_s": time.perf_counter() - t_start,
+            "search_s": search_s, "rounds": rounds,
             "rollout_steps_per_s": float(np.median([r[0] for r in steady])) if steady
             else math.nan,
             "steps_per_s": float(np.median([r[1] for r in steady])) if steady else math.nan,
@@ -260,11 +350,8 @@ def _counters(it: int, env_steps: int, elapsed: float) -> dict:
             "elapsed": np.asarray(elapsed, np.float64)}
 
 
-def _save(out, tr, params, bc_opt, ppo_opt, it, env_steps, elapsed, key):
-    train_state.save_state(out / "state", it, {
-        "params": params, "bc_opt": bc_opt, "ppo_opt": ppo_opt,
-        "counters": _counters(it, env_steps, elapsed),
-        "key": jax.random.key_data(key)}, tr.about())
+def _save(out, tr, tree):
+    train_state.save_state(out / "state", int(tree["counters"]["iteration"]), tree, tr.about())
 
 
 def _meta(cfg: TrainConfig, tr: Trainer, it: int, env_steps: int, elapsed: float) -> dict:
@@ -282,17 +369,21 @@ def read_log(path: str | Path) -> list[dict]:
     return [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
 
 
-def plot_curve(log_path: str | Path, png: str | Path) -> Path:
+def plot_curve(log_path: str | Path, png: str | Path,
+               adversary: str | Path | None = None) -> Path:
     """Learning curve from a train_log.jsonl: episode return, success rate and env-steps/s
-    over env steps, the BC → PPO switch marked (matplotlib, Agg backend)."""
+    over env steps, the BC → PPO switch marked; with an `adversary` log (the curriculum's
+    rounds, JSON lines) a fourth panel: the failing episodes per 1,000 that each round's
+    search found against the policy (matplotlib, Agg backend)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     rows = read_log(log_path)
+    rounds = read_log(adversary) if adversary is not None else []
     png = Path(png)
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+    fig, axes = plt.subplots(1, 4 if rounds else 3, figsize=(17 if rounds else 13, 3.6))
     x = np.array([r["env_steps"] for r in rows], float) / 1e6
     series = (("return", "episode return"), ("nav/success", "success rate"))
     for ax, (k, title) in zip(axes[:2], series, strict=True):
@@ -307,6 +398,12 @@ def plot_curve(log_path: str | Path, png: str | Path) -> Path:
     axes[2].plot(x, [r["steps_per_s"] for r in rows], label="with updates")
     axes[2].set_title("env-steps/s")
     axes[2].legend()
+    if rounds:
+        steps = {r["iteration"]: r["env_steps"] / 1e6 for r in rows}
+        xs = [steps.get(r["iteration"], np.nan) for r in rounds]
+        axes[3].plot(xs, [r["failing_per_1000"] for r in rounds], "o-")
+        axes[3].set_ylim(bottom=0)
+        axes[3].set_title("search vs policy: failing per 1,000")
     switch = next((r["env_steps"] / 1e6 for r in rows if r["phase"] == "ppo"), None)
     for ax in axes:
         ax.set_xlabel("env steps [M]")

@@ -72,9 +72,11 @@ def unroll(
     noise_std: jax.Array,
     ppo: jax.Array,
     length: int,
+    pools: tuple | None = None,
 ):
     """Run `length` steps in every env of `envs` (batched, auto-resetting; `states` their
-    states). Returns (new states, Transition [length, ΣB, ...] with the envs' worlds
+    states; `pools` one `env.randomize.Pool` per env that its resets draw a share from, or
+    None). Returns (new states, Transition [length, ΣB, ...] with the envs' worlds
     concatenated, bootstrap values [ΣB] of the final observations, episode stats {name: (sum,
     count)}). Pure: jit it with `envs`, `net` and `length` static (closure)."""
 
@@ -93,7 +95,7 @@ def unroll(
         out_states, trs = [], []
         for i, (env, st) in enumerate(zip(envs, states, strict=True)):
             a, logp, value, teacher = act(st, jax.random.fold_in(k, i))
-            nxt = env.step(st, a)
+            nxt = env.step(st, a, None if pools is None else pools[i])
             trs.append(Transition(obs=st.obs, action=a, log_prob=logp, value=value,
                                   reward=nxt.reward, done=nxt.done,
                                   truncation=nxt.info["truncation"], teacher=teacher))
