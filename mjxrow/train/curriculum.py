@@ -109,15 +109,17 @@ def check_box(box, ranges, preset: str) -> None:
 
 class Curriculum:
     """The pools of a training run's environments and the rounds that fill them (module doc).
-    `presets` and `ranges` are the training environments', in order."""
+    `presets` and `ranges` are the training environments', in order; `checkpoint` a policy of
+    the run's observation and network (None: the shipped one) to check the search against."""
 
-    def __init__(self, cfg: CurriculumConfig, presets, ranges):
+    def __init__(self, cfg: CurriculumConfig, presets, ranges,
+                 checkpoint: str | Path | None = None):
         self.cfg = cfg
         self.ranges = tuple(ranges)
         self.rows = [np.zeros((0, len(r)), np.float32) for r in self.ranges]
         self.target = None
-        if cfg.on:
-            scfg = search_config(cfg, None)
+        if cfg.on:  # the search's config checked against a checkpoint of this run's network
+            scfg = search_config(cfg, checkpoint)
             preset = scfg.scenario.preset
             if preset not in presets:
                 raise ValueError(f"train.curriculum.search: the search's preset {preset!r} is "

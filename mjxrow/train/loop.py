@@ -222,10 +222,15 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     tr = Trainer(cfg)
-    cur = train_curriculum.Curriculum(cfg.curriculum, cfg.presets, [e.ranges for e in tr.raw])
     key = jax.random.key(cfg.seed)
     k_init, key = jax.random.split(key)
     params = tr.init_params(k_init)
+    live = None  # the policy the curriculum's searches drive (written before each round)
+    if cfg.curriculum.on:
+        live = Path(policies_checkpoint.save(out / "adversary" / "policy", params, tr.spec,
+                                             cfg.net, tr.limits)).resolve()
+    cur = train_curriculum.Curriculum(cfg.curriculum, cfg.presets, [e.ranges for e in tr.raw],
+                                      live)
     pools = cur.pools()
     k_reset, key_after = jax.random.split(key)
     worlds = jax.eval_shape(tr.reset, k_reset, pools)
@@ -316,11 +321,9 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             bar.update(min(round(elapsed), round(budget)) - bar.n)
             if cur.due(it):
                 t0 = time.perf_counter()
-                live = policies_checkpoint.save(out / "adversary" / "policy", params, tr.spec,
-                                                cfg.net, tr.limits,
-                                                meta=_meta(cfg, tr, it, env_steps, elapsed))
-                rnd = cur.round(Path(live).resolve(), out / "adversary", it,
-                                out / "adversary.jsonl")
+                policies_checkpoint.save(live, params, tr.spec, cfg.net, tr.limits,
+                                         meta=_meta(cfg, tr, it, env_steps, elapsed))
+                rnd = cur.round(live, out / "adversary", it, out / "adversary.jsonl")
                 pools = cur.pools()
                 rounds.append(rnd)
                 search_s += time.perf_counter() - t0
