@@ -8,10 +8,11 @@ training goes where the policy breaks.
     pools = cur.pools()                          # traced: one compiled rollout for every pool
     row = cur.round(policy_dir, out / "adversary", iteration)   # the search, the new pool
 
-A round is one search folder `OUT/adversary/round_<k>/` (the search's own outputs: candidates,
-failures, state), run with the search's YAML, its controller replaced by `policy` on the
-checkpoint being trained, its budget `episodes` episodes (the same every round, so that the
-failure rates compare), no baseline, seed k. Its summary row (failing episodes per 1,000,
+Round 0 runs before the first iteration (the starting policy's failure rate), round k after
+iteration k · `every`. A round is one search folder `OUT/adversary/round_<k>/` (the search's
+own outputs: candidates, failures, state), run with the search's YAML, its controller replaced
+by `policy` on the checkpoint being trained, its budget `episodes` episodes (the same every
+round, so that the failure rates compare), no baseline, seed k. Its summary row (failing episodes per 1,000,
 failing candidates, distinct failures) goes to `OUT/adversary.jsonl`: the failure rate the
 search finds against the policy over the training run, plotted in the learning curve.
 

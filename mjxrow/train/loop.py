@@ -278,6 +278,20 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     search_s = 0.0
     window: collections.deque = collections.deque(maxlen=20)  # recent iterations' episodes
 
+    def adversary_round():
+        """A search against the current policy, its failures into the pool (the curriculum)."""
+        nonlocal pools, search_s
+        t0 = time.perf_counter()
+        policies_checkpoint.save(live, params, tr.spec, cfg.net, tr.limits,
+                                 meta=_meta(cfg, tr, it, env_steps, elapsed))
+        rnd = cur.round(live, out / "adversary", it, out / "adversary.jsonl")
+        pools = cur.pools()
+        rounds.append(rnd)
+        search_s += time.perf_counter() - t0
+        bar.write(f"adversary round {rnd['round']} at iteration {it}: "
+                  f"{rnd['failing_per_1000']:.0f} failing episodes per 1,000, "
+                  f"{rnd['failing_candidates']} failing fields, pool {rnd['pool']}")
+
     def save():
         _save(out, tr, {"params": params, "bc_opt": bc_opt, "ppo_opt": ppo_opt,
                         "counters": _counters(it, env_steps, elapsed),
@@ -285,6 +299,8 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
                         "pools": pools})
 
     with bar, log_path.open("a") as logf:
+        if cur.target is not None and it == 0:  # round 0: the starting policy's failure rate
+            adversary_round()
         while elapsed < budget and (deadline is None or time.time() < deadline) and (
                 cfg.iterations is None or it < cfg.iterations):
             phase, beta, noise, ppo = _schedule(cfg, elapsed)
@@ -320,16 +336,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
                                 f"env-steps/s", refresh=False)
             bar.update(min(round(elapsed), round(budget)) - bar.n)
             if cur.due(it):
-                t0 = time.perf_counter()
-                policies_checkpoint.save(live, params, tr.spec, cfg.net, tr.limits,
-                                         meta=_meta(cfg, tr, it, env_steps, elapsed))
-                rnd = cur.round(live, out / "adversary", it, out / "adversary.jsonl")
-                pools = cur.pools()
-                rounds.append(rnd)
-                search_s += time.perf_counter() - t0
-                bar.write(f"adversary round {rnd['round']} at iteration {it}: "
-                          f"{rnd['failing_per_1000']:.0f} failing episodes per 1,000, "
-                          f"{rnd['failing_candidates']} failing fields, pool {rnd['pool']}")
+                adversary_round()
             if it % cfg.save_every == 0:
                 save()
     save()
