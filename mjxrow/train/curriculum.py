@@ -12,9 +12,10 @@ Round 0 runs before the first iteration (the starting policy's failure rate), ro
 iteration k · `every`. A round is one search folder `OUT/adversary/round_<k>/` (the search's
 own outputs: candidates, failures, state), run with the search's YAML, its controller replaced
 by `policy` on the checkpoint being trained, its budget `episodes` episodes (the same every
-round, so that the failure rates compare), no baseline, seed k. Its summary row (failing episodes per 1,000,
-failing candidates, distinct failures) goes to `OUT/adversary.jsonl`: the failure rate the
-search finds against the policy over the training run, plotted in the learning curve.
+round, so that the failure rates compare), no baseline, seed k. Its summary row (failing
+episodes per 1,000, failing candidates, distinct failures) goes to `OUT/adversary.jsonl`: the
+failure rate the search finds against the policy over the training run, plotted in the
+learning curve.
 
 The pool holds the searched values of the box's keys for the environment of the search's
 preset; every other field value of a pooled reset is drawn as usual. The box must lie inside
