@@ -82,7 +82,8 @@ def test_the_eta_after_the_first_batch_is_within_30_percent(tmp_path):
     bar shows after the first batch, against the time the other three took. The suite's other
     worker shares the two cores and its load changes from second to second, so a run is
     repeated (up to three times, the program compiled once) until one is within 30 %; an ETA
-    that counted compilation or the wrong episodes misses every time."""
+    that counted compilation, the group's one-time build or the wrong episodes misses every
+    time."""
     raw = {**TINY, "field": {**TINY["field"], "d_rr": [2.4, 2.5, 2.6, 2.7]},
            "episode": {"max_time": 120.0}, "sim": {"path_length": 8.0},
            "robot": {"v_max": 0.05}}  # 1,800 steps, every episode to its timeout

@@ -111,10 +111,13 @@ def evaluate_group(group: Group, cfg: sweep_config.SweepConfig,
                    on_batch_done: Callable[[pd.DataFrame], None]) -> pd.DataFrame:
     """Run `group.episodes` in batches of `batch_size(cfg.batch_size, ...)` (the last one
     padded, so one compile per group), sharded over all local devices (rollout.build), calling
-    `on_batch_done(rows)` after each batch. Rows: cell, episode, lane and every metric of
-    `metrics.summarise` (reason as its name)."""
+    `on_batch_done(rows)` after each batch (and its `built()`, where it has one, once the
+    group's model and policy are built: the batches' clock starts there). Rows: cell, episode,
+    lane and every metric of `metrics.summarise` (reason as its name)."""
     by_cell = {c.index: c.cfg for c in group.cells}
     built = rollout_build.build(list(by_cell.values()), group.shape)
+    if getattr(on_batch_done, "built", None) is not None:
+        on_batch_done.built()
     size = built.padded(batch_size(cfg.batch_size, cfg.seeds, len(group.episodes),
                                    jax.default_backend(), built.devices))
     return evaluate_episodes(built, [(by_cell[c], c, e) for c, e in group.episodes], size,

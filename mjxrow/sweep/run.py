@@ -142,8 +142,13 @@ class _CellWriter:
         self.times = [time.perf_counter()]
         self.episodes = 0
         self.compile_s, self.programs = 0.0, 0
-        self.clock = stopwatch.Stopwatch()  # this group's time, compilation apart (the ETA's)
-        self.run_s = 0.0  # this group's time outside compilation, up to its last batch
+        self.clock = stopwatch.Stopwatch()  # the batches' time, compilation apart (the ETA's)
+        self.run_s = 0.0  # the batches' time outside compilation, up to the last one
+
+    def built(self) -> None:
+        """The group's model and policy are built: its batches' clock starts now (building
+        happens once per group, so it is no part of the time per batch the ETA counts)."""
+        self.clock = stopwatch.Stopwatch()
 
     def on_compile(self, event: str, seconds: float, **_) -> None:
         """A jax.monitoring listener: adds up XLA compilations, so that the bar tells compile
