@@ -62,6 +62,8 @@ _SWEEP_216 = r"^sweeps\.yaml \(216 episodes, one call, XLA renderer\), "
 _LOOP = r"^zucchini, segzeros on learned masks, "
 _SCALING = r"^sweeps\.yaml, 114 seeds = 4,104 episodes in 3 calls of 1,368 .*, "
 _MJWARP = r"^zucchini 64x64, fovy 42, shadows, one field, lane poses, "
+_PPO_CUR = r"^PPO from BC/DAgger with the adversarial curriculum"
+_EQUAL = r"^equal budget, 2,048 episodes: "
 
 HEADLINES = [
     Figure("Table 3, the paper's 15 blocks × 100 episodes, empty cache", "table3",
@@ -152,6 +154,16 @@ HEADLINES = [
            goal=(">=", 1_000_000)),
     Figure("policy training (BC / DAgger, RGB 64 × 64)", "train", "", GPU,
            goal=(">=", 50000)),
+    Figure("policy training, PPO with the adversarial curriculum (zucchini with the field "
+           "variety, RGB 64 × 64), env-steps/s with the updates", "train_policy", _PPO_CUR, GPU,
+           batch=2048, pick="median", goal=(">=", 50000)),
+    Figure("policy training, PPO with the adversarial curriculum: compilation of the rollout "
+           "and the updates", "train_policy", _PPO_CUR, GPU, batch=2048, pick="median",
+           field="compile_s", unit="s", goal=("<=", 90)),
+    Figure("failure search at an equal budget (2,048 episodes): distinct failing fields against "
+           "the PPO policy ÷ against SegZeros", "search", _EQUAL + r"the PPO policy .*distinct",
+           GPU, unit="×", fmt="{:.2f}", goal=("<=", 0.5),
+           over=Figure("", "search", _EQUAL + r"SegZeros .*distinct", GPU)),
     Figure("field generation", "fields", "", GPU, batch=1024),
 ]
 

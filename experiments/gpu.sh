@@ -605,17 +605,21 @@ set_render_curved() {  # render_curved.log
   echo "exit $?" >> "$out/render_curved.log"; tail -n 30 "$out/render_curved.log"
 }
 
-set_train_policy() {  # train.log, policy.tgz, train_log.jsonl, learning_curve.png, eval.md,
-  # eval.json, summary.json, benchmarks.jsonl; the training state stays in WORK/train_policy
-  # (a second call resumes it); the set's status is the training's
+set_train_policy() {  # train.log, policy.tgz, learning_curve.png, logs.tgz (train_log.jsonl,
+  # adversary.jsonl, eval.md, eval.json, summary.json, benchmarks.jsonl: one file, since a device
+  # machine returns few); the training state stays in WORK/train_policy (a second call
+  # resumes it); the set's status is the training's
   read -r -a args <<<"${TRAIN_ARGS:-}"
   (nvidia-smi --query-gpu=name,driver_version --format=csv,noheader || true) > "$out/train.log"
   "${py[@]}" experiments/train_policy.py --out "$work" --budget-minutes 5 --deadline-minutes 9 \
     --eval-reserve-minutes 1.5 --bc-fraction 1 --ship "${args[@]}" 2>&1 | tee -a "$out/train.log"
   status=${PIPESTATUS[0]}
-  for f in train_log.jsonl learning_curve.png eval.md eval.json summary.json benchmarks.jsonl; do
-    [ -e "$work/$f" ] && cp "$work/$f" "$out/"
+  [ -e "$work/learning_curve.png" ] && cp "$work/learning_curve.png" "$out/"
+  logs=()
+  for f in train_log.jsonl adversary.jsonl eval.md eval.json summary.json benchmarks.jsonl; do
+    [ -e "$work/$f" ] && logs+=("$f")
   done
+  [ ${#logs[@]} -gt 0 ] && tar -czf "$out/logs.tgz" -C "$work" "${logs[@]}"
   # the checkpoints as one file: a device machine returns few files and no deep folders
   parts=(); [ -d "$work/policy" ] && parts+=(-C "$work" policy)
   if [ -d mjxrow/checkpoints/policy ]; then

@@ -4,7 +4,8 @@ the table: one command on one GPU.
     python experiments/train_policy.py --out runs/policy [--budget-minutes 5]
         [--deadline-minutes 8.5] [--presets zucchini vineyard] [--num-envs 2048]
         [--episodes 100] [--bc-fraction 0.5] [--observation rgb] [--teacher oracle]
-        [--seed 0] [--set KEY=VALUE ...] [--no-eval] [--eval-only] [--ship] [--smoke]
+        [--seed 0] [--iterations N] [--init CHECKPOINT] [--curriculum SEARCH.yaml]
+        [--set KEY=VALUE ...] [--no-eval] [--eval-only] [--ship] [--smoke]
 
 Training (mjxrow.train.loop): behaviour cloning / DAgger from the teacher (`--teacher`, the
 oracle's pure pursuit by default) for the first `--bc-fraction` of the budget, then PPO, in
@@ -13,6 +14,15 @@ worlds split evenly over `--presets`). The budget counts training wall time over
 with the same `--out` (compilation excluded): a second command resumes from the orbax state in
 OUT/state/ and trains until the budget is spent. `--deadline-minutes` bounds this command's
 whole wall time: training stops early enough for the evaluation to finish before it.
+
+`--init shipped` (or a policy folder of the same observation and network) starts from trained
+weights, e.g. PPO (`--bc-fraction 0`) on the shipped BC / DAgger policy. `--curriculum
+SEARCH.yaml` is the adversarial curriculum (mjxrow.train.curriculum): before the first
+iteration and every `train.curriculum.every` iterations (default 20) the failure search runs
+against the current policy (`train.curriculum.episodes` episodes, default 512), and a
+`train.curriculum.share` (default 0.25) of every batch of resets of the searched preset takes
+its failing fields; OUT/adversary.jsonl and OUT/adversary.png give the failure rate per round.
+`--iterations` stops after that many iterations in all (besides the budget).
 
 Evaluation (mjxrow.train.evaluate, through the run builder, i.e. the sweep's episodes and
 metrics): `--episodes` episodes per preset at its default geometry in the Table 3 scenario

@@ -176,3 +176,41 @@ class Curriculum:
             with Path(log_path).open("a") as f:
                 f.write(json.dumps(row) + "\n")
         return row
+
+
+def plot_rounds(log_path: str | Path, png: str | Path) -> Path | None:
+    """The failure rate each round's search found against the policy (failing episodes per
+    1,000 with its 95 % Wilson interval) over the training iterations, from the rounds' log
+    (`OUT/adversary.jsonl`); None when there is no round (matplotlib, Agg backend)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from mjxrow.rollout import metrics as rollout_metrics
+
+    p = Path(log_path)
+    rows = [json.loads(x) for x in p.read_text().splitlines() if x.strip()] if p.is_file() \
+        else []
+    if not rows:
+        return None
+    it = np.array([r["iteration"] for r in rows])
+    mid, err = [], []
+    for r in rows:
+        fails = np.zeros(r["episodes"], bool)
+        fails[:r["failing_episodes"]] = True
+        a = rollout_metrics.aggregate({"fail": fails})["fail"]
+        mid.append(1000 * a["mean"])
+        err.append((1000 * (a["mean"] - a["lo"]), 1000 * (a["hi"] - a["mean"])))
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    ax.errorbar(it, mid, yerr=np.array(err).T, fmt="o-", capsize=3)
+    ax.set_xlabel("training iteration (round 0: the starting policy)")
+    ax.set_ylabel("failing episodes per 1,000")
+    ax.set_ylim(bottom=0)
+    ax.set_title(f"the failure search against the policy ({rows[0]['episodes']} episodes a "
+                 "round, 95 % intervals)", fontsize=10)
+    fig.tight_layout()
+    png = Path(png)
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+    return png

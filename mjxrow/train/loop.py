@@ -343,6 +343,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     policy_dir = policies_checkpoint.save(out / "policy", params, tr.spec, cfg.net, tr.limits,
                                           meta=_meta(cfg, tr, it, env_steps, elapsed))
     curve = plot_curve(log_path, out / "learning_curve.png", out / "adversary.jsonl")
+    train_curriculum.plot_rounds(out / "adversary.jsonl", out / "adversary.png")
     steady = rates[1:] or rates
     return {"out": str(out), "policy": str(policy_dir), "curve": str(curve),
             "iterations": it, "env_steps": env_steps, "elapsed_s": elapsed,
@@ -400,26 +401,32 @@ def plot_curve(log_path: str | Path, png: str | Path,
         y = np.array([r.get(k, np.nan) for r in rows], float)
         ax.plot(x, y, ".", ms=3, alpha=0.4)
         ok = np.isfinite(y)
-        if ok.sum() > 4:
+        if ok.sum() > 4:  # a centred moving mean; at the ends over the points there are
             w = max(1, ok.sum() // 20)
-            ax.plot(x[ok], np.convolve(y[ok], np.ones(w) / w, mode="same"), "-", lw=1.5)
+            kernel = np.ones(w)
+            mean = np.convolve(y[ok], kernel, mode="same") / np.convolve(
+                np.ones(ok.sum()), kernel, mode="same")
+            ax.plot(x[ok], mean, "-", lw=1.5)
         ax.set_title(title)
     axes[2].plot(x, [r["rollout_steps_per_s"] for r in rows], label="rollout")
     axes[2].plot(x, [r["steps_per_s"] for r in rows], label="with updates")
     axes[2].set_title("env-steps/s")
     axes[2].legend()
     if rounds:
-        steps = {r["iteration"]: r["env_steps"] / 1e6 for r in rows}
+        steps = {0: 0.0, **{r["iteration"]: r["env_steps"] / 1e6 for r in rows}}
         xs = [steps.get(r["iteration"], np.nan) for r in rounds]
         axes[3].plot(xs, [r["failing_per_1000"] for r in rounds], "o-")
         axes[3].set_ylim(bottom=0)
         axes[3].set_title("search vs policy: failing per 1,000")
-    switch = next((r["env_steps"] / 1e6 for r in rows if r["phase"] == "ppo"), None)
+    phases = [r["phase"] for r in rows]  # the BC → PPO switch, where both phases ran
+    switch = next((r["env_steps"] / 1e6 for i, r in enumerate(rows)
+                   if r["phase"] == "ppo" and "bc" in phases[:i]), None)
     for ax in axes:
         ax.set_xlabel("env steps [M]")
         if switch is not None:
             ax.axvline(switch, color="grey", ls="--", lw=0.8)
-    fig.suptitle("policy training (dashed: BC/DAgger → PPO)")
+    fig.suptitle("policy training" + (" (dashed: BC/DAgger → PPO)" if switch is not None
+                                      else f" ({phases[0] if phases else 'no'} iterations)"))
     fig.tight_layout()
     fig.savefig(png, dpi=110)
     plt.close(fig)
