@@ -143,6 +143,9 @@ def test_a_minutes_budget_counts_generations_that_compile_nothing(tmp_path):
     assert table.loc["random", "episodes"] == table.loc["cma_es", "episodes"]
 
 
+# -m slow (.ci/slow): 35-45 s of CPU (the command end to end with its figures); the suite
+# keeps the search's runs, resume and its one-line errors
+@pytest.mark.slow
 def test_command_outputs_and_replay_of_a_failure(tmp_path, capsys):
     """The command end to end on a box of which a quarter fails: figures, report, the
     confirmation with new seeds, the summary printed last, a benchmarks row; then
