@@ -299,3 +299,19 @@ def test_curriculum_checks_its_search_and_fills_the_pool_of_its_preset():
         CU.Curriculum(cfg, ("vineyard", "zucchini"), short)
     with pytest.raises(ValueError, match="train.curriculum.share: must lie in"):
         CU.CurriculumConfig(search=search, share=2.0)
+
+
+def test_init_starts_from_a_checkpoint_of_the_same_network(saved):
+    """`train.init` gives the run the checkpoint's weights; another network is a one-line error
+    naming train.init (another observation: `CK.load`'s check, tested above)."""
+    from mjxrow.train.loop import Trainer
+
+    tr = Trainer(dataclasses.replace(CFG, init=str(saved)))
+    params = tr.init_params(jax.random.key(7))
+    for a, b in zip(jax.tree.leaves(params), jax.tree.leaves(CK.load(saved).variables),
+                    strict=True):
+        np.testing.assert_array_equal(a, b)
+    other = N.NetConfig(hidden=8, channels=(4,), kernels=(3,), strides=(2,))
+    with pytest.raises(ValueError, match="^train.init: .* holds network"):
+        Trainer(dataclasses.replace(CFG, init=str(saved), net=other)).init_params(
+            jax.random.key(0))
