@@ -167,8 +167,10 @@ def code_version() -> str:
     return h.hexdigest()
 
 
-def _is_key(x) -> bool:
-    return isinstance(x, jax.Array) and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
+def is_key(x) -> bool:
+    """Whether `x` (an array or a jax.ShapeDtypeStruct) holds typed PRNG keys."""
+    dtype = getattr(x, "dtype", None)
+    return dtype is not None and jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key)
 
 
 class _Program:
@@ -207,7 +209,7 @@ def exported(fn: Any, args: tuple, key: str, out_tree: Any) -> Any | None:
     if root is None or jax.process_count() > 1:
         return None
     leaves, treedef = jax.tree.flatten(args)
-    keys = tuple(_is_key(x) for x in leaves)
+    keys = tuple(is_key(x) for x in leaves)
     impls = tuple(jax.random.key_impl(x) if k else None for x, k in zip(leaves, keys,
                                                                         strict=True))
     flat = [jax.random.key_data(x) if k else x for x, k in zip(leaves, keys, strict=True)]

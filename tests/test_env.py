@@ -290,7 +290,8 @@ def test_pool_puts_its_share_into_every_batch_of_resets(max_resets):
     new = np.asarray(s2.done) > 0
     assert new.sum() == 32
     assert (np.asarray(s2.data["x0"])[new] <= -10.0).sum() == 8
-    for empty in (RZ.empty_pool(1, 8), RZ.make_pool(np.array([[-10.0]]), 8, 0.0)):
+    for empty in (RZ.make_pool(np.zeros((0, 1)), 8, 0.25),
+                  RZ.make_pool(np.array([[-10.0]]), 8, 0.0)):
         assert np.all(np.asarray(jax.jit(env.reset)(jax.random.key(1), empty).data["x0"])
                       >= 0.0)
     with pytest.raises(ValueError, match="share: must lie in"):

@@ -5,12 +5,12 @@ the observation shared with the `policy` controller (`observe`), and the episode
 auto-reset wrappers (`wrappers`)."""
 
 from mjxrow.env.core import Env, EnvConfig, EnvData, State, teacher_run
-from mjxrow.env.randomize import RANGES, Pool, Randomize, default_ranges, empty_pool, make_pool
+from mjxrow.env.randomize import RANGES, Pool, Randomize, default_ranges, make_pool
 from mjxrow.env.reward import TERMS, RewardConfig
 from mjxrow.env.wrappers import AutoResetWrapper, EpisodeWrapper, VmapWrapper, Wrapper
 from mjxrow.policies.observe import KINDS, ObsSpec, Segmenter, odometry, scale_action
 
 __all__ = ["KINDS", "RANGES", "TERMS", "AutoResetWrapper", "Env", "EnvConfig", "EnvData",
            "EpisodeWrapper", "ObsSpec", "Pool", "Randomize", "RewardConfig", "Segmenter", "State",
-           "VmapWrapper", "Wrapper", "default_ranges", "empty_pool", "make_pool", "odometry",
-           "scale_action", "teacher_run"]
+           "VmapWrapper", "Wrapper", "default_ranges", "make_pool", "odometry", "scale_action",
+           "teacher_run"]

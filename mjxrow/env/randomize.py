@@ -173,14 +173,9 @@ class Pool:
     share: jax.Array  # float32 [], in [0, 1]
 
 
-def empty_pool(k: int, size: int = 1) -> Pool:
-    """A pool of `size` rows of k values, none valid (every reset draws)."""
-    return Pool(values=jnp.full((size, k), jnp.nan, jnp.float32), count=jnp.int32(0),
-                share=jnp.float32(0.0))
-
-
 def make_pool(rows: np.ndarray, size: int, share: float) -> Pool:
-    """A pool of `size` rows holding `rows` [n, k] (the first `size` of them; NaN: drawn)."""
+    """A pool of `size` rows holding `rows` [n, k] (the first `size` of them; NaN: drawn);
+    no rows: an empty pool (every reset draws)."""
     rows = np.asarray(rows, np.float32)[:size]  # [n, k]
     if not 0.0 <= share <= 1.0:
         raise ValueError(f"share: must lie in [0, 1], got {share}")

@@ -276,6 +276,8 @@ class Built:
 LOG_TREE = jax.tree.structure(Log(**{
     **{f.name: 0 for f in dataclasses.fields(Log)},
     "lane": field_lanes.Lane(u=0, s_end=0, bend=field_lanes.Bend(0, 0, 0, 0))}))
+
+
 def _arg_shapes(args: tuple) -> str:
     """The shapes and dtypes of a program's arguments, as one string (a `_PROGRAMS` key)."""
     return str(jax.tree.map(lambda x: (np.shape(x), str(getattr(x, "dtype", ""))), args))

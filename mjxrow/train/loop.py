@@ -6,11 +6,11 @@ auto-resetting environments (one per crop), within a wall-time budget, resumable
 writes into `out`: `state/` (orbax training state, resumed by the next call with the same
 `out`), `train_log.jsonl` (one line per iteration: phase, env steps, losses, episode metrics,
 steps/s), `learning_curve.png` (return, success, steps/s over env steps; with the adversarial
-curriculum, the failure rate its searches find) and `policy/` (the policy checkpoint the
-`policy` controller loads). The budget counts the iterations' wall time (compilation and the
-curriculum's searches excluded) over every call with the same `out`; the first `bc_fraction`
-of it is BC / DAgger, the rest PPO; `iterations` caps the iterations as well. A progress bar
-shows the budget spent and its ETA.
+curriculum also `adversary.png`, the failure rate its searches find) and `policy/` (the policy
+checkpoint the `policy` controller loads). The budget counts the iterations' wall time
+(compilation and the curriculum's searches excluded) over every call with the same `out`; the
+first `bc_fraction` of it is BC / DAgger, the rest PPO; `iterations` caps the iterations as
+well. A progress bar shows the budget spent and its ETA.
 
 The training state holds everything the next iteration depends on: the network, both
 optimisers, the PRNG key, the counters, the worlds being driven (every environment's batched
@@ -183,35 +183,6 @@ def _schedule(cfg: TrainConfig, elapsed: float) -> tuple[str, float, float, bool
 STATE_FORMAT = 2  # what a training state holds (2: with the worlds and the pools)
 
 
-def _is_key(x: Any) -> bool:
-    return jnp.issubdtype(getattr(x, "dtype", np.float32), jax.dtypes.prng_key)
-
-
-def _storable(tree: Any) -> dict:
-    """The leaves of `tree` that orbax can store, by their index: typed PRNG keys as their key
-    data, empty arrays left out (orbax refuses them; `_restored` makes them again)."""
-    out = {}
-    for i, x in enumerate(jax.tree.leaves(tree)):
-        if _is_key(x):
-            x = jax.random.key_data(x)
-        if math.prod(x.shape):
-            out[f"{i:05d}"] = x
-    return out
-
-
-def _restored(stored: dict, like: Any) -> Any:
-    """The tree of `like` (arrays or shapes) from `_storable`'s leaves."""
-    leaves, treedef = jax.tree.flatten(like)
-    out = []
-    for i, ref in enumerate(leaves):
-        x = stored.get(f"{i:05d}")
-        if _is_key(ref):
-            out.append(jax.random.wrap_key_data(jnp.asarray(x)))
-        else:
-            out.append(jnp.zeros(ref.shape, ref.dtype) if x is None else jnp.asarray(x))
-    return jax.tree.unflatten(treedef, out)
-
-
 def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
           deadline: float | None = None, log=print) -> dict[str, Any]:
     """Train (or resume training) into `out`; stop when the budget or `cfg.iterations` is spent
@@ -236,7 +207,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     worlds = jax.eval_shape(tr.reset, k_reset, pools)
     state = {"params": params, "bc_opt": tr.bc_tx.init(params), "ppo_opt": tr.ppo_tx.init(params),
              "counters": _counters(0, 0, 0.0), "key": jax.random.key_data(key),
-             "worlds": jax.eval_shape(_storable, worlds), "pools": pools}
+             "worlds": jax.eval_shape(train_state.storable, worlds), "pools": pools}
     restored = train_state.restore_state(out / "state", state, tr.about())
     if restored is not None:
         state = restored[1]
@@ -255,7 +226,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     if restored is None:
         envs, key = tr.reset(k_reset, pools), key_after
     else:
-        envs = _restored(state["worlds"], worlds)
+        envs = train_state.restored(state["worlds"], worlds)
     args = (params, envs, key, jnp.float32(1.0), jnp.float32(0.1), jnp.bool_(False))
     unroll = tr.unroll.lower(*args, pools=pools).compile()
     _, traj_s, boot_s, _ = jax.eval_shape(functools.partial(tr.unroll, pools=pools), *args)
@@ -293,10 +264,10 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
                   f"{rnd['failing_candidates']} failing fields, pool {rnd['pool']}")
 
     def save():
-        _save(out, tr, {"params": params, "bc_opt": bc_opt, "ppo_opt": ppo_opt,
-                        "counters": _counters(it, env_steps, elapsed),
-                        "key": jax.random.key_data(key), "worlds": _storable(envs),
-                        "pools": pools})
+        train_state.save_state(out / "state", it, {
+            "params": params, "bc_opt": bc_opt, "ppo_opt": ppo_opt,
+            "counters": _counters(it, env_steps, elapsed), "key": jax.random.key_data(key),
+            "worlds": train_state.storable(envs), "pools": pools}, tr.about())
 
     with bar, log_path.open("a") as logf:
         if cur.target is not None and it == 0:  # round 0: the starting policy's failure rate
@@ -342,7 +313,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     save()
     policy_dir = policies_checkpoint.save(out / "policy", params, tr.spec, cfg.net, tr.limits,
                                           meta=_meta(cfg, tr, it, env_steps, elapsed))
-    curve = plot_curve(log_path, out / "learning_curve.png", out / "adversary.jsonl")
+    curve = plot_curve(log_path, out / "learning_curve.png")
     train_curriculum.plot_rounds(out / "adversary.jsonl", out / "adversary.png")
     steady = rates[1:] or rates
     return {"out": str(out), "policy": str(policy_dir), "curve": str(curve),
@@ -361,10 +332,6 @@ def _counters(it: int, env_steps: int, elapsed: float) -> dict:
             "elapsed": np.asarray(elapsed, np.float64)}
 
 
-def _save(out, tr, tree):
-    train_state.save_state(out / "state", int(tree["counters"]["iteration"]), tree, tr.about())
-
-
 def _meta(cfg: TrainConfig, tr: Trainer, it: int, env_steps: int, elapsed: float) -> dict:
     return {"presets": list(cfg.presets), "iterations": it, "env_steps": env_steps,
             "train_minutes": elapsed / 60.0, "num_envs": cfg.num_envs,
@@ -380,28 +347,25 @@ def read_log(path: str | Path) -> list[dict]:
     return [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
 
 
-def plot_curve(log_path: str | Path, png: str | Path,
-               adversary: str | Path | None = None) -> Path:
+def plot_curve(log_path: str | Path, png: str | Path) -> Path:
     """Learning curve from a train_log.jsonl: episode return, success rate and env-steps/s
-    over env steps, the BC → PPO switch marked; with an `adversary` log (the curriculum's
-    rounds, JSON lines) a fourth panel: the failing episodes per 1,000 that each round's
-    search found against the policy (matplotlib, Agg backend)."""
+    over env steps, the BC → PPO switch marked where both phases ran (matplotlib, Agg
+    backend). The curriculum's rounds have their own figure (`curriculum.plot_rounds`)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     rows = read_log(log_path)
-    rounds = read_log(adversary) if adversary is not None else []
     png = Path(png)
-    fig, axes = plt.subplots(1, 4 if rounds else 3, figsize=(17 if rounds else 13, 3.6))
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
     x = np.array([r["env_steps"] for r in rows], float) / 1e6
     series = (("return", "episode return"), ("nav/success", "success rate"))
     for ax, (k, title) in zip(axes[:2], series, strict=True):
         y = np.array([r.get(k, np.nan) for r in rows], float)
         ax.plot(x, y, ".", ms=3, alpha=0.4)
         ok = np.isfinite(y)
-        if ok.sum() > 4:  # a centred moving mean; at the ends over the points there are
+        if ok.sum() > 4:  # a centred moving mean; at the ends, over the points there are
             w = max(1, ok.sum() // 20)
             kernel = np.ones(w)
             mean = np.convolve(y[ok], kernel, mode="same") / np.convolve(
@@ -412,12 +376,6 @@ def plot_curve(log_path: str | Path, png: str | Path,
     axes[2].plot(x, [r["steps_per_s"] for r in rows], label="with updates")
     axes[2].set_title("env-steps/s")
     axes[2].legend()
-    if rounds:
-        steps = {0: 0.0, **{r["iteration"]: r["env_steps"] / 1e6 for r in rows}}
-        xs = [steps.get(r["iteration"], np.nan) for r in rounds]
-        axes[3].plot(xs, [r["failing_per_1000"] for r in rounds], "o-")
-        axes[3].set_ylim(bottom=0)
-        axes[3].set_title("search vs policy: failing per 1,000")
     phases = [r["phase"] for r in rows]  # the BC → PPO switch, where both phases ran
     switch = next((r["env_steps"] / 1e6 for i, r in enumerate(rows)
                    if r["phase"] == "ppo" and "bc" in phases[:i]), None)

@@ -5,11 +5,15 @@ and network it belongs to."""
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import orbax.checkpoint as ocp
+
+from mjxrow import runtime
 
 
 def _manager(folder: Path) -> ocp.CheckpointManager:
@@ -65,3 +69,28 @@ def restore_state(folder: str | Path, target: Any, about: dict,
                              "folder to resume from the one before, or use another --out"
                              ) from None
     return int(step), tree
+
+
+def storable(tree: Any) -> dict:
+    """The leaves of `tree` that orbax can store, by their index: typed PRNG keys as their key
+    data, empty arrays left out (orbax refuses them; `restored` makes them again)."""
+    out = {}
+    for i, x in enumerate(jax.tree.leaves(tree)):
+        if runtime.is_key(x):
+            x = jax.random.key_data(x)
+        if math.prod(x.shape):
+            out[f"{i:05d}"] = x
+    return out
+
+
+def restored(stored: dict, like: Any) -> Any:
+    """The tree of `like` (arrays or shapes) from `storable`'s leaves."""
+    leaves, treedef = jax.tree.flatten(like)
+    out = []
+    for i, ref in enumerate(leaves):
+        x = stored.get(f"{i:05d}")
+        if runtime.is_key(ref):
+            out.append(jax.random.wrap_key_data(jnp.asarray(x)))
+        else:
+            out.append(jnp.zeros(ref.shape, ref.dtype) if x is None else jnp.asarray(x))
+    return jax.tree.unflatten(treedef, out)
