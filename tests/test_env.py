@@ -65,6 +65,40 @@ def test_reset_step_jit_vmap(tiny):
         assert f"reward/{k}" in s2.metrics
 
 
+def _scatters(jaxpr, out):
+    """(origin file, eqn) of every scatter in `jaxpr` and its sub-jaxprs; the origin is the
+    first frame outside JAX (the line that indexed)."""
+    for e in jaxpr.eqns:
+        if e.primitive.name.startswith("scatter"):
+            frames = [f.file_name for f in e.source_info.traceback.frames
+                      if "/jax/" not in f.file_name and "/jaxlib/" not in f.file_name]
+            out.append((frames[0] if frames else "", e))
+        for p in e.params.values():
+            for q in p if isinstance(p, (list, tuple)) else [p]:
+                sub = getattr(q, "jaxpr", q)
+                if hasattr(sub, "eqns"):
+                    _scatters(sub, out)
+    return out
+
+
+def test_training_step_scatters_unique_indices(tiny):
+    # Under XLA's deterministic ops (the GPU default) a scatter that may repeat an index
+    # becomes a serial loop over its updates; the auto-reset merge of every state leaf, the
+    # renderer's deep pass and the obstacle slots once halved the training env-steps/s. Every
+    # scatter of the project's own code in the training step has unique indices (integer adds,
+    # which stay exact in any order, aside).
+    env = E.AutoResetWrapper(E.VmapWrapper(E.EpisodeWrapper(tiny[0])), 4, 2)
+    st = jax.eval_shape(env.reset, jax.random.key(0))
+    jaxpr = jax.make_jaxpr(env.step)(st, jnp.zeros((4, 2))).jaxpr
+    ours = [(f, e) for f, e in _scatters(jaxpr, []) if "/mjxrow/" in f]
+    assert len(ours) > 100  # the merge of every leaf, the obstacles, the log, ...
+    bad = [(f, e.primitive.name, e.invars[0].aval) for f, e in ours
+           if not e.params["unique_indices"]
+           and not (e.primitive.name == "scatter-add"
+                    and jnp.issubdtype(e.invars[0].aval.dtype, jnp.integer))]
+    assert not bad, bad
+
+
 @pytest.mark.slow  # minutes of CPU compilation (trainer / episode programs)
 def test_episode_matches_rollout_episode(tiny):
     """The oracle driving the environment ends its episode at the step and with the reason

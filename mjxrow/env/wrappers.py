@@ -11,12 +11,13 @@
   info (`RESET_INFO`) come from a fresh `reset_world` — a NEW world, unlike Brax's, which
   returns to the first state — while `reward`, `done`, `metrics` and `truncation` stay those of
   the ending step; then every world is observed (`obs`: the new worlds' first frames). A
-  reset costs a field and a plant table, so only the worlds that ended are reset: up to
-  `max_resets` of them gathered into one small vmapped reset per step, or (when more ended at
-  once) the whole batch. The frames are rendered once per step, after the resets, so the
-  compiled step holds one renderer. `info["rng"]` holds each world's next key. `reset` and
-  `step` take an optional `randomize.Pool` (traced): a share of every batch of resets takes
-  fields from it (the adversarial curriculum's searched failures) instead of the uniform draw.
+  reset costs a field and a plant table, so only the worlds that ended are reset, gathered
+  `max_resets` at a time into one small vmapped reset (a loop of as many passes as needed: one
+  when at most `max_resets` ended; the compiled step holds one reset). The frames are
+  rendered once per step, after the resets, so the compiled step holds one renderer.
+  `info["rng"]` holds each world's next key. `reset` and `step` take an optional
+  `randomize.Pool` (traced): a share of every batch of resets takes fields from it (the
+  adversarial curriculum's searched failures) instead of the uniform draw.
 
 The environment provides `reset = observe ∘ reset_world` and `step = observe ∘ advance`; the
 wrappers pass the parts through.
@@ -152,8 +153,8 @@ def _take_reset(state: State, fresh: State) -> State:
 class AutoResetWrapper(Wrapper):
     """Resets the worlds whose episode ended, each to a new world (see the module doc). Wraps
     a batched environment of `batch_size` worlds with `reset_world`, `advance` and `observe`
-    (the parts of reset and step); `max_resets` (None: the batch) worlds at most are reset by
-    the cheap path in one step."""
+    (the parts of reset and step); `max_resets` (None: the batch) worlds are reset per pass of
+    the reset loop."""
 
     def __init__(self, env: Any, batch_size: int, max_resets: int | None = None):
         super().__init__(env)
@@ -177,28 +178,29 @@ class AutoResetWrapper(Wrapper):
         split = jax.vmap(jax.random.split)(state.info["rng"])
         nxt, reset_keys = split[:, 0], split[:, 1]
         B, K = self.batch_size, self.max_resets
+        given = None if pool is None else pool_draws(pool, reset_keys, done)
+        part = lambda s: (s.data, {k: s.info[k] for k in RESET_INFO  # noqa: E731
+                                   if k in s.info})
 
-        def everyone(state):
-            given = None if pool is None else pool_draws(pool, reset_keys, done)
-            fresh = self.env.reset_world(reset_keys, given)
-            return jax.tree.map(lambda x, y: _where(done, x, y), _take_reset(state, fresh),
-                                state)
+        def reset_some(carry):
+            state, left = carry
+            idx = jnp.nonzero(left, size=K, fill_value=B)[0]  # the first K worlds left
+            real = idx < B
+            src = jnp.minimum(idx, B - 1)
+            fresh = self.env.reset_world(reset_keys[src], None if given is None else given[src])
+            # the unused slots point past the batch, each at its own index (dropped): the
+            # indices are unique and sorted, so the scatter writes K rows in place, also under
+            # XLA's deterministic ops (which turn a scatter of repeated indices into a loop)
+            idx = jnp.where(real, idx, B + jnp.arange(K))
+            put = lambda x, r: x.at[idx].set(r, mode="drop", unique_indices=True,  # noqa: E731
+                                             indices_are_sorted=True)
+            merged = jax.tree.map(put, part(state), part(_take_reset(state, fresh)))
+            state = state.replace(data=merged[0], info={**state.info, **merged[1]})
+            return state, put(left, jnp.zeros(K, bool))
 
-        def some(state):
-            idx = jnp.nonzero(done, size=K, fill_value=B)[0]
-            keys = reset_keys[jnp.minimum(idx, B - 1)]
-            given = None if pool is None else pool_draws(pool, keys, idx < B)
-            fresh = self.env.reset_world(keys, given)
-            part = lambda s: (s.data, {k: s.info[k] for k in RESET_INFO  # noqa: E731
-                                       if k in s.info})
-            merged = jax.tree.map(lambda x, r: x.at[idx].set(r, mode="drop"), part(state),
-                                  part(_take_reset(state, fresh)))
-            return state.replace(data=merged[0], info={**state.info, **merged[1]})
-
-        if K >= B:
-            state = everyone(state)
-        else:
-            state = jax.lax.cond(jnp.sum(done) > K, everyone, some, state)
+        # K worlds per pass, as many passes as needed (one when at most K ended): the program
+        # holds one reset of K worlds
+        state, _ = jax.lax.while_loop(lambda c: jnp.any(c[1]), reset_some, (state, done))
         state = self.env.observe(state)  # every world's frame, the new worlds' included
         info = {**state.info, "rng": jnp.where(done, nxt, state.info["rng"])}
         return state.replace(info=info)

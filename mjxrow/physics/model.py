@@ -401,9 +401,9 @@ def world_model(
         # capsule axis (local z) laid horizontally along yaw: Rz(yaw) · Ry(π/2)
         quat = _quat_mul(_axis_quat(field.obst_yaw[idx], 2),
                          _axis_quat(jnp.full(k, 0.5 * jnp.pi), 1))
-        geom_pos = geom_pos.at[obst_ids].set(pos.astype(geom_pos.dtype))
-        geom_quat = geom_quat.at[obst_ids].set(quat.astype(geom_quat.dtype))
-        geom_size = geom_size.at[obst_ids].set(size.astype(geom_size.dtype))
+        geom_pos = geom_pos.at[obst_ids].set(pos.astype(geom_pos.dtype), unique_indices=True)
+        geom_quat = geom_quat.at[obst_ids].set(quat.astype(geom_quat.dtype), unique_indices=True)
+        geom_size = geom_size.at[obst_ids].set(size.astype(geom_size.dtype), unique_indices=True)
     mx = mx.tree_replace({"hfield_data": data.astype(mx.hfield_data.dtype),
                           "geom_pos": geom_pos, "geom_quat": geom_quat, "geom_size": geom_size})
     start = field_lanes.point(field_lanes.lane(field, lane), field.row_x[1] - sim_cfg.path_length)
@@ -429,9 +429,10 @@ def refresh_contacts(mx: mjx.Model, points: jax.Array) -> mjx.Model:
     dist = jnp.min(jnp.linalg.norm(rel - t[..., None] * axis, axis=-1), 0) - size[:, 0]
     parked = pos[:, 2] < mx.geom_pos[_geom_ids(mx)[0], 2] - 0.5 * _PARK_DEPTH
     _, idx = jax.lax.top_k(-jnp.where(parked, jnp.inf, dist), j)
-    return mx.tree_replace({"geom_pos": mx.geom_pos.at[slot_ids].set(pos[idx]),
-                            "geom_quat": mx.geom_quat.at[slot_ids].set(quat[idx]),
-                            "geom_size": mx.geom_size.at[slot_ids].set(size[idx])})
+    put = lambda x, v: x.at[slot_ids].set(v, unique_indices=True)  # noqa: E731 (distinct ids)
+    return mx.tree_replace({"geom_pos": put(mx.geom_pos, pos[idx]),
+                            "geom_quat": put(mx.geom_quat, quat[idx]),
+                            "geom_size": put(mx.geom_size, size[idx])})
 
 
 def world_mjmodel(m: mujoco.MjModel, mx_world: mjx.Model) -> mujoco.MjModel:

@@ -159,7 +159,8 @@ def step(mx: mjx.Model, state: SimState, cmd: jax.Array, sim_cfg: SimConfig) -> 
         d, target = carry
         target = robot.ramp(target, cmd, rn, dt)
         tau, stiff = robot.servo(robot.wheel_speeds(target, rn), d.qvel[dofs], rn)
-        m = mx.tree_replace({"dof_armature": mx.dof_armature.at[dofs].set(armature + dt * stiff)})
+        m = mx.tree_replace({"dof_armature": mx.dof_armature.at[dofs].set(
+            armature + dt * stiff, unique_indices=True)})
         d = d.replace(ctrl=tau.astype(d.ctrl.dtype))
         return (mjx.step(m, d), target), None
 

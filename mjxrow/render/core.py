@@ -215,9 +215,10 @@ def _trace_plants(shape, tab, sweep, oc, d, t_far, cfg):
             t2, plant2, k2 = _deep_pass(tab, P, (o[sel], cc[sel], g[sel], tau[sel]), d[sel],
                                         t_min[sel], u[sel], score > 0, reach[sel], oc, cfg)
             better = t2 < t[sel]
-            t = t.at[sel].set(jnp.where(better, t2, t[sel]))
-            plant = plant.at[sel].set(jnp.where(better, plant2, plant[sel]))
-            k = k.at[sel].set(jnp.where(better, k2, k[sel]))
+            # top_k's indices are distinct: a plain scatter, also under deterministic ops
+            t = t.at[sel].set(jnp.where(better, t2, t[sel]), unique_indices=True)
+            plant = plant.at[sel].set(jnp.where(better, plant2, plant[sel]), unique_indices=True)
+            k = k.at[sel].set(jnp.where(better, k2, k[sel]), unique_indices=True)
     return t.reshape(-1), plant.reshape(-1), k.reshape(-1)
 
 

@@ -55,7 +55,7 @@ class TrainConfig:
     unroll: int = 32  # control steps per rollout (one iteration)
     budget_minutes: float = 5.0  # training wall time over all resumed calls (compile excluded)
     bc_fraction: float = 0.5  # share of the budget for BC / DAgger before PPO (1: no PPO)
-    max_resets: int | None = None  # worlds reset per step by the cheap path (None: B / 16)
+    max_resets: int | None = None  # worlds per pass of the reset loop (None: B / 16)
     episode_length: int | None = None  # training time limit [steps] (None: the episode's)
     seed: int = 0  # PRNG seed of the network, the worlds and the rollouts
     save_every: int = 25  # iterations between training-state checkpoints
