@@ -27,6 +27,7 @@ import json
 import math
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -121,15 +122,47 @@ class Trainer:
         self.net = policies_networks.PolicyNet(cfg.net)
         self.obs_example = jax.eval_shape(self.raw[0].reset, jax.random.key(0)).obs
         self.limits = tuple(float(x) for x in np.asarray(self.raw[0].limits))
-        self.unroll = jax.jit(functools.partial(rollout.unroll, self.net, self.envs,
-                                                length=cfg.unroll))
-        self.reset = jax.jit(lambda key, pools: tuple(
-            e.reset(k, p) for e, k, p in zip(self.envs, jax.random.split(key, len(self.envs)),
-                                             pools, strict=True)))
+        # one rollout program per environment (crop): they compile side by side, in threads
+        self.unrolls = tuple(jax.jit(functools.partial(rollout.unroll, self.net, (e,),
+                                                       length=cfg.unroll)) for e in self.envs)
+        self.resets = tuple(jax.jit(e.reset) for e in self.envs)  # (key, pool) → worlds
         self.bc_tx = train_ppo.optimizer(cfg.bc.learning_rate, cfg.bc.max_grad_norm)
         self.ppo_tx = train_ppo.optimizer(cfg.ppo.learning_rate, cfg.ppo.max_grad_norm)
         self.bc_update = jax.jit(functools.partial(self._update, "bc"))
         self.ppo_update = jax.jit(functools.partial(self._update, "ppo"))
+
+    def lower_resets(self, key: jax.Array, pools: tuple) -> list:
+        """Every environment's reset, lowered (traced) for `key` (split over them) and
+        `pools`; a lowered program's `out_info` is the shape of its worlds."""
+        keys = jax.random.split(key, len(self.envs))
+        return [r.lower(k, p) for r, k, p in zip(self.resets, keys, pools, strict=True)]
+
+    def compile(self, params, worlds, key, pools, opts: dict, resets: list = ()):
+        """Every program the run needs, compiled side by side (one thread each: XLA compiles
+        separate programs in parallel where the machine has the cores; the tracing before it
+        is Python's, one at a time): the lowered `resets`, the rollout of every environment
+        (on worlds of the shapes `worlds`), and the update of every phase in `opts` ({'bc' or
+        'ppo': its optimiser state}). Returns ([reset executables], [rollout executables],
+        {phase: update executable})."""
+        c = (jnp.float32(1.0), jnp.float32(0.1), jnp.bool_(False))
+        futures = {("reset", i): None for i in range(len(resets))}
+        with ThreadPoolExecutor(len(resets) + len(self.unrolls) + len(opts)) as ex:
+            for i, low in enumerate(resets):
+                futures[("reset", i)] = ex.submit(low.compile)
+            outs = []
+            for i, (u, st, pool) in enumerate(zip(self.unrolls, worlds, pools, strict=True)):
+                low = u.lower(params, (st,), jax.random.fold_in(key, i), *c, pools=(pool,))
+                outs.append(low.out_info)
+                futures[("rollout", i)] = ex.submit(low.compile)
+            traj, boot = _joined_shapes([o[1] for o in outs]), _joined_shapes([o[2] for o in outs])
+            for ph, opt in opts.items():
+                update = self.bc_update if ph == "bc" else self.ppo_update
+                low = update.lower(params, opt, traj, boot, key)
+                futures[("update", ph)] = ex.submit(low.compile)
+            jobs = {k: f.result() for k, f in futures.items()}
+        return ([jobs[("reset", i)] for i in range(len(resets))],
+                [jobs[("rollout", i)] for i in range(len(self.unrolls))],
+                {ph: jobs[("update", ph)] for ph in opts})
 
     def init_params(self, key: jax.Array) -> Any:
         """A fresh network, or `cfg.init`'s weights (ValueError naming train.init when its
@@ -204,7 +237,10 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
                                       live)
     pools = cur.pools()
     k_reset, key_after = jax.random.split(key)
-    worlds = jax.eval_shape(tr.reset, k_reset, pools)
+    # compile everything once, before the clock of the budget runs (from the first tracing)
+    t0 = time.perf_counter()
+    reset_lowered = tr.lower_resets(k_reset, pools)
+    worlds = tuple(low.out_info for low in reset_lowered)
     state = {"params": params, "bc_opt": tr.bc_tx.init(params), "ppo_opt": tr.ppo_tx.init(params),
              "counters": _counters(0, 0, 0.0), "key": jax.random.key_data(key),
              "worlds": jax.eval_shape(train_state.storable, worlds), "pools": pools}
@@ -221,21 +257,35 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     pools = jax.tree.map(jnp.asarray, state["pools"])
     cur.load(pools)
 
-    # compile everything once, before the clock of the budget runs
-    t0 = time.perf_counter()
+    phases = [ph for ph, used in (("bc", cfg.bc_fraction > 0 and elapsed < cfg.bc_fraction
+                                      * cfg.budget_minutes * 60.0),
+                                  ("ppo", cfg.bc_fraction < 1)) if used]
+    resets, unrolls, updates = tr.compile(
+        params, worlds, key_after if restored is None else key, pools,
+        {p: bc_opt if p == "bc" else ppo_opt for p in phases},
+        reset_lowered if restored is None else [])
     if restored is None:
-        envs, key = tr.reset(k_reset, pools), key_after
+        keys = jax.random.split(k_reset, len(resets))
+        envs, key = tuple(r(k, p) for r, k, p in zip(resets, keys, pools, strict=True)), \
+            key_after
     else:
         envs = train_state.restored(state["worlds"], worlds)
-    args = (params, envs, key, jnp.float32(1.0), jnp.float32(0.1), jnp.bool_(False))
-    unroll = tr.unroll.lower(*args, pools=pools).compile()
-    _, traj_s, boot_s, _ = jax.eval_shape(functools.partial(tr.unroll, pools=pools), *args)
-    bc_update = tr.bc_update.lower(params, bc_opt, traj_s, boot_s, key).compile()
-    ppo_update = tr.ppo_update.lower(params, ppo_opt, traj_s, boot_s, key).compile()
     jax.block_until_ready(envs)
     compile_s = time.perf_counter() - t0
-    log(f"compiled the rollout and the updates in {compile_s:.1f} s ({cfg.num_envs} worlds, "
-        f"{cfg.unroll} steps per rollout, {tr.spec.describe()})")
+    log(f"compiled {len(unrolls)} rollout{'s' * (len(unrolls) > 1)} and the "
+        f"{' and '.join(p.upper() for p in phases)} update{'s' * (len(phases) > 1)} in "
+        f"{compile_s:.1f} s ({cfg.num_envs} worlds, {cfg.unroll} steps per rollout, "
+        f"{tr.spec.describe()})")
+
+    def unroll(params, envs, key, beta, noise, ppo, pools):
+        """Every environment's rollout (its own program), joined along the batch."""
+        outs = [u(params, (st,), jax.random.fold_in(key, i), beta, noise, ppo, pools=(pool,))
+                for i, (u, st, pool) in enumerate(zip(unrolls, envs, pools, strict=True))]
+        if len(outs) == 1:
+            return outs[0]
+        return (tuple(o[0][0] for o in outs), _join([o[1] for o in outs]),
+                _join([o[2] for o in outs]),
+                jax.tree.map(lambda *x: sum(x[1:], x[0]), *[o[3] for o in outs]))
 
     budget = cfg.budget_minutes * 60.0
     log_path = out / "train_log.jsonl"
@@ -281,10 +331,13 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
                                             jnp.float32(noise), jnp.bool_(ppo), pools=pools)
             jax.block_until_ready(traj.reward)
             t1 = time.perf_counter()
+            if phase not in updates:  # a phase the compile did not foresee (a resumed run)
+                updates[phase] = (tr.bc_update if phase == "bc" else tr.ppo_update).lower(
+                    params, bc_opt if phase == "bc" else ppo_opt, traj, boot, k_upd).compile()
             if phase == "bc":
-                params, bc_opt, m = bc_update(params, bc_opt, traj, boot, k_upd)
+                params, bc_opt, m = updates["bc"](params, bc_opt, traj, boot, k_upd)
             else:
-                params, ppo_opt, m = ppo_update(params, ppo_opt, traj, boot, k_upd)
+                params, ppo_opt, m = updates["ppo"](params, ppo_opt, traj, boot, k_upd)
             m = jax.device_get(m)
             t2 = time.perf_counter()
             it += 1
@@ -324,6 +377,23 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             else math.nan,
             "steps_per_s": float(np.median([r[1] for r in steady])) if steady else math.nan,
             "last": last}
+
+
+def _join(parts: list) -> Any:
+    """Rollout outputs of several environments joined along the worlds' axis (Transition
+    leaves [T, B_i, ...] → [T, ΣB_i, ...]; bootstrap values [B_i] → [ΣB_i])."""
+    return jax.tree.map(lambda *x: jnp.concatenate(x, axis=min(1, x[0].ndim - 1)), *parts)
+
+
+def _joined_shapes(parts: list) -> Any:
+    """The shapes `_join` gives for outputs of these shapes."""
+    def one(*x):
+        ax = min(1, x[0].ndim - 1)
+        shape = list(x[0].shape)
+        shape[ax] = sum(y.shape[ax] for y in x)
+        return jax.ShapeDtypeStruct(tuple(shape), x[0].dtype)
+
+    return jax.tree.map(one, *parts)
 
 
 def _counters(it: int, env_steps: int, elapsed: float) -> dict:
