@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -86,19 +87,28 @@ class Evaluation:
 
     def prepare(self, log=print) -> None:
         """Compile every block's program (the policy's with `compile_checkpoint`, a checkpoint
-        of the same architecture, when the trained one does not exist yet)."""
-        for b in self.blocks:
-            if b.exe is not None:
-                continue
-            run = b.run
-            if b.controller == "policy" and self.compile_checkpoint:
-                run = run_config(b.preset, "policy", self.values, self.compile_checkpoint,
-                                 self.seed)
-            t0 = time.perf_counter()
-            built, batch = self._build(b, run)
-            b.exe = built.compiled().lower(*batch.args(built.mx)).compile()
+        of the same architecture, when the trained one does not exist yet): each block is
+        built and traced in turn, and compiled in a thread of its own, so that XLA compiles
+        the blocks side by side where the machine has the cores."""
+        def compile_one(b, lowered, t0):
+            b.exe = lowered.compile()
             b.compile_s = time.perf_counter() - t0
             log(f"compiled {b.controller} on {b.preset} in {b.compile_s:.1f} s")
+
+        todo = [b for b in self.blocks if b.exe is None]
+        with ThreadPoolExecutor(max(1, len(todo))) as ex:
+            jobs = []
+            for b in todo:
+                run = b.run
+                if b.controller == "policy" and self.compile_checkpoint:
+                    run = run_config(b.preset, "policy", self.values, self.compile_checkpoint,
+                                     self.seed)
+                t0 = time.perf_counter()
+                built, batch = self._build(b, run)
+                lowered = built.compiled().lower(*batch.args(built.mx))
+                jobs.append(ex.submit(compile_one, b, lowered, t0))
+            for j in jobs:
+                j.result()
 
     def run(self, log=print) -> list[Block]:
         for b in self.blocks:
