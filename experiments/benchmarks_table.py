@@ -64,6 +64,7 @@ _SCALING = r"^sweeps\.yaml, 114 seeds = 4,104 episodes in 3 calls of 1,368 .*, "
 _MJWARP = r"^zucchini 64x64, fovy 42, shadows, one field, lane poses, "
 _PPO_CUR = r"^PPO from BC/DAgger with the adversarial curriculum"
 _EQUAL = r"^equal budget, 2,048 episodes: "
+_FIVE = r"^five crops "
 
 HEADLINES = [
     Figure("Table 3, the paper's 15 blocks × 100 episodes, empty cache", "table3",
@@ -164,6 +165,27 @@ HEADLINES = [
            "the PPO policy ÷ against SegZeros", "search", _EQUAL + r"the PPO policy .*distinct",
            GPU, unit="×", fmt="{:.2f}", goal=("<=", 0.5),
            over=Figure("", "search", _EQUAL + r"SegZeros .*distinct", GPU)),
+    Figure("policy training, five crops with the field variety (BC / DAgger, then PPO), "
+           "env-steps/s with the updates", "train_policy", _FIVE, GPU, batch=2560,
+           goal=(">=", 50000)),
+    Figure("policy training, five crops: compilation of the five rollouts and the updates, "
+           "empty cache", "train_policy", _FIVE, GPU, batch=2560, field="compile_s", unit="s",
+           goal=("<=", 90)),
+    Figure("policy training, five crops: one command (train, evaluate, ship), empty cache",
+           "train_policy", _FIVE, GPU, batch=2560, field="wall_s", unit="s wall",
+           fmt="{:.0f}", goal=("<=", 600)),
+    Figure("training environment alone, zucchini: the auto-reset step (physics, frame, "
+           "teacher)", "env_parts", r"^training env, zucchini, step, deterministic ops on",
+           GPU, batch=2048),
+    Figure("training environment step: env-steps/s with XLA's deterministic ops ÷ without",
+           "env_parts", r"^training env, zucchini, step, deterministic ops on", GPU,
+           batch=2048, unit="×", fmt="{:.2f}",
+           over=Figure("", "env_parts", r"^training env, zucchini, step, deterministic ops off",
+                       GPU, batch=2048)),
+    Figure("failure search at an equal budget (2,048 episodes): distinct failing fields against "
+           "the shipped five-crop policy ÷ against SegZeros", "search",
+           _EQUAL + r"the five-crop policy .*distinct", GPU, unit="×", fmt="{:.2f}",
+           goal=("<=", 0.5), over=Figure("", "search", _EQUAL + r"SegZeros .*distinct", GPU)),
     Figure("field generation", "fields", "", GPU, batch=1024),
 ]
 
