@@ -418,9 +418,10 @@ def read_log(path: str | Path) -> list[dict]:
 
 
 def plot_curve(log_path: str | Path, png: str | Path) -> Path:
-    """Learning curve from a train_log.jsonl: episode return, success rate and env-steps/s
-    over env steps, the BC → PPO switch marked where both phases ran (matplotlib, Agg
-    backend). The curriculum's rounds have their own figure (`curriculum.plot_rounds`)."""
+    """Learning curve from a train_log.jsonl: episode return, success rate, episode length
+    (seconds to the goal, of the episodes that reach it) and env-steps/s over env steps, the
+    BC → PPO switch marked where both phases ran (matplotlib, Agg backend). The curriculum's
+    rounds have their own figure (`curriculum.plot_rounds`)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -428,10 +429,11 @@ def plot_curve(log_path: str | Path, png: str | Path) -> Path:
 
     rows = read_log(log_path)
     png = Path(png)
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+    fig, axes = plt.subplots(1, 4, figsize=(17, 3.6))
     x = np.array([r["env_steps"] for r in rows], float) / 1e6
-    series = (("return", "episode return"), ("nav/success", "success rate"))
-    for ax, (k, title) in zip(axes[:2], series, strict=True):
+    series = (("return", "episode return"), ("nav/success", "success rate"),
+              ("nav/time", "episode length [s] (to the goal)"))
+    for ax, (k, title) in zip(axes[:3], series, strict=True):
         y = np.array([r.get(k, np.nan) for r in rows], float)
         ax.plot(x, y, ".", ms=3, alpha=0.4)
         ok = np.isfinite(y)
@@ -442,10 +444,10 @@ def plot_curve(log_path: str | Path, png: str | Path) -> Path:
                 np.ones(ok.sum()), kernel, mode="same")
             ax.plot(x[ok], mean, "-", lw=1.5)
         ax.set_title(title)
-    axes[2].plot(x, [r["rollout_steps_per_s"] for r in rows], label="rollout")
-    axes[2].plot(x, [r["steps_per_s"] for r in rows], label="with updates")
-    axes[2].set_title("env-steps/s")
-    axes[2].legend()
+    axes[3].plot(x, [r["rollout_steps_per_s"] for r in rows], label="rollout")
+    axes[3].plot(x, [r["steps_per_s"] for r in rows], label="with updates")
+    axes[3].set_title("env-steps/s")
+    axes[3].legend()
     phases = [r["phase"] for r in rows]  # the BC → PPO switch, where both phases ran
     switch = next((r["env_steps"] / 1e6 for i, r in enumerate(rows)
                    if r["phase"] == "ppo" and "bc" in phases[:i]), None)
