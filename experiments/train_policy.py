@@ -2,7 +2,7 @@
 the table: one command on one GPU.
 
     python experiments/train_policy.py --out runs/policy [--budget-minutes 5]
-        [--deadline-minutes 8.5] [--presets zucchini vineyard] [--num-envs 2048]
+        [--deadline-minutes 8.5] [--presets P ...] [--num-envs 2560]
         [--episodes 100] [--bc-fraction 0.5] [--observation rgb] [--teacher oracle]
         [--seed 0] [--iterations N] [--init CHECKPOINT] [--curriculum SEARCH.yaml]
         [--set KEY=VALUE ...] [--no-eval] [--eval-only] [--ship] [--smoke]
@@ -82,8 +82,10 @@ def parser() -> argparse.ArgumentParser:
                         "0: none)")
     p.add_argument("--eval-reserve-minutes", type=float, default=1.0,
                    help="wall time kept for running the evaluation (default 1)")
-    p.add_argument("--presets", nargs="+", default=["zucchini", "vineyard"])
-    p.add_argument("--num-envs", type=int, default=2048, help="worlds in total (default 2048)")
+    p.add_argument("--presets", nargs="+", default=["zucchini", "vineyard", "pear", "lettuce",
+                                                    "chard"], help="default: all five crops")
+    p.add_argument("--num-envs", type=int, default=2560,
+                   help="worlds in total, split evenly over the presets (default 2560)")
     p.add_argument("--unroll", type=int, default=32, help="steps per rollout (default 32)")
     p.add_argument("--bc-fraction", type=float, default=0.5,
                    help="share of the budget for BC / DAgger before PPO (default 0.5)")

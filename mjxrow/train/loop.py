@@ -51,8 +51,9 @@ from mjxrow.train import state as train_state
 class TrainConfig:
     """One training run (static)."""
 
-    presets: tuple[str, ...] = ("zucchini", "vineyard")  # crops trained together, one env each
-    num_envs: int = 2048  # worlds stepped together, split evenly over the presets
+    presets: tuple[str, ...] = ("zucchini", "vineyard", "pear", "lettuce", "chard")  # crops
+    # trained together, one environment (and one rollout program) each
+    num_envs: int = 2560  # worlds stepped together, split evenly over the presets
     unroll: int = 32  # control steps per rollout (one iteration)
     budget_minutes: float = 5.0  # training wall time over all resumed calls (compile excluded)
     bc_fraction: float = 0.5  # share of the budget for BC / DAgger before PPO (1: no PPO)
