@@ -45,6 +45,7 @@ from mjxrow.train import curriculum as train_curriculum
 from mjxrow.train import ppo as train_ppo
 from mjxrow.train import rollout
 from mjxrow.train import state as train_state
+from mjxrow.train.curve import plot_curve
 
 
 @dataclasses.dataclass(frozen=True)
@@ -409,59 +410,6 @@ def _meta(cfg: TrainConfig, tr: Trainer, it: int, env_steps: int, elapsed: float
             "bc_fraction": cfg.bc_fraction, "teacher": tr.raw[0].run.controller.name,
             "image_shape": list(tr.obs_example["image"].shape),
             "device": jax.devices()[0].device_kind}
-
-
-def read_log(path: str | Path) -> list[dict]:
-    p = Path(path)
-    if not p.is_file():
-        return []
-    return [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
-
-
-def plot_curve(log_path: str | Path, png: str | Path) -> Path:
-    """Learning curve from a train_log.jsonl: episode return, success rate, episode length
-    (seconds to the goal, of the episodes that reach it) and env-steps/s over env steps, the
-    BC → PPO switch marked where both phases ran (matplotlib, Agg backend). The curriculum's
-    rounds have their own figure (`curriculum.plot_rounds`)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    rows = read_log(log_path)
-    png = Path(png)
-    fig, axes = plt.subplots(1, 4, figsize=(17, 3.6))
-    x = np.array([r["env_steps"] for r in rows], float) / 1e6
-    series = (("return", "episode return"), ("nav/success", "success rate"),
-              ("nav/time", "episode length [s] (to the goal)"))
-    for ax, (k, title) in zip(axes[:3], series, strict=True):
-        y = np.array([r.get(k, np.nan) for r in rows], float)
-        ax.plot(x, y, ".", ms=3, alpha=0.4)
-        ok = np.isfinite(y)
-        if ok.sum() > 4:  # a centred moving mean; at the ends, over the points there are
-            w = max(1, ok.sum() // 20)
-            kernel = np.ones(w)
-            mean = np.convolve(y[ok], kernel, mode="same") / np.convolve(
-                np.ones(ok.sum()), kernel, mode="same")
-            ax.plot(x[ok], mean, "-", lw=1.5)
-        ax.set_title(title)
-    axes[3].plot(x, [r["rollout_steps_per_s"] for r in rows], label="rollout")
-    axes[3].plot(x, [r["steps_per_s"] for r in rows], label="with updates")
-    axes[3].set_title("env-steps/s")
-    axes[3].legend()
-    phases = [r["phase"] for r in rows]  # the BC → PPO switch, where both phases ran
-    switch = next((r["env_steps"] / 1e6 for i, r in enumerate(rows)
-                   if r["phase"] == "ppo" and "bc" in phases[:i]), None)
-    for ax in axes:
-        ax.set_xlabel("env steps [M]")
-        if switch is not None:
-            ax.axvline(switch, color="grey", ls="--", lw=0.8)
-    fig.suptitle("policy training" + (" (dashed: BC/DAgger → PPO)" if switch is not None
-                                      else f" ({phases[0] if phases else 'no'} iterations)"))
-    fig.tight_layout()
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
-    return png
 
 
 def initial_policy(cfg: TrainConfig, path: str | Path) -> Path | None:
