@@ -10,8 +10,9 @@ trainer's wrappers: episode, vmap, auto-reset), its parts timed as separate prog
 - `step`: the auto-reset step (advance, the resets of the worlds that ended, observe), with zero
   actions from the first state (no world ends, so no reset pass runs).
 
-Each is compiled, then timed as the median of `--repeats` calls; env-steps/s is B over it. Run it
-with `MJXROW_NONDETERMINISTIC=1` to time the same programs without XLA's deterministic ops.
+Each is timed by `mjxrow.bench.timing.time_call`: the first call (compiling) apart, then the
+median of `--repeats` calls; env-steps/s is B over it. Run it with `MJXROW_NONDETERMINISTIC=1`
+to time the same programs without XLA's deterministic ops.
 `--record` appends one row per part (stage `env_parts`) in benchmarks.jsonl's form.
 """
 
@@ -22,7 +23,6 @@ import datetime
 import json
 import os
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -44,6 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     import jax.numpy as jnp
 
     from mjxrow import crops
+    from mjxrow.bench.timing import time_call
     from mjxrow.train import loop
 
     if args.preset not in crops.names():
@@ -65,23 +66,16 @@ def main(argv: list[str] | None = None) -> int:
     det = not os.environ.get("MJXROW_NONDETERMINISTIC")
     rows = []
     for name, (fn, fargs) in parts.items():
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn(*fargs))
-        first = time.perf_counter() - t0
-        ts = []
-        for _ in range(args.repeats):
-            t0 = time.perf_counter()
-            jax.block_until_ready(fn(*fargs))
-            ts.append(time.perf_counter() - t0)
-        med = sorted(ts)[len(ts) // 2]
+        t = time_call(fn, *fargs, repeats=args.repeats)
+        med = t["median_s"]
         rows.append({"date": datetime.date.today().isoformat(),
                      "device": jax.devices()[0].device_kind, "stage": "env_parts",
                      "config": f"training env, {args.preset}, {name}, deterministic ops "
                                f"{'on' if det else 'off'}", "batch": B,
                      "value": B / med, "unit": "env-steps/s", "run_ms": 1e3 * med,
-                     "compile_s": max(first - med, 0.0),
+                     "compile_s": t["compile_s"], "runs_s": t["runs_s"],
                      "command": "python experiments/env_parts.py " + " ".join(sys.argv[1:])})
-        print(f"{name:8s} compile {rows[-1]['compile_s']:6.1f} s  run {1e3 * med:8.2f} ms  "
+        print(f"{name:8s} first call {rows[-1]['compile_s']:6.1f} s  run {1e3 * med:8.2f} ms  "
               f"{B / med:10,.0f} env-steps/s", flush=True)
     if args.record is not None:
         with args.record.open("a") as f:

@@ -125,7 +125,7 @@ class Trainer:
         self.obs_example = jax.eval_shape(self.raw[0].reset, jax.random.key(0)).obs
         self.limits = tuple(float(x) for x in np.asarray(self.raw[0].limits))
         # one rollout program per environment (crop): they compile side by side, in threads
-        self.unrolls = tuple(jax.jit(functools.partial(rollout.unroll, self.net, (e,),
+        self.unrolls = tuple(jax.jit(functools.partial(rollout.unroll, self.net, e,
                                                        length=cfg.unroll)) for e in self.envs)
         self.resets = tuple(jax.jit(e.reset) for e in self.envs)  # (key, pool) → worlds
         self.bc_tx = train_ppo.optimizer(cfg.bc.learning_rate, cfg.bc.max_grad_norm)
@@ -147,16 +147,14 @@ class Trainer:
         'ppo': its optimiser state}). Returns ([reset executables], [rollout executables],
         {phase: update executable})."""
         c = (jnp.float32(1.0), jnp.float32(0.1), jnp.bool_(False))
-        futures = {("reset", i): None for i in range(len(resets))}
         with ThreadPoolExecutor(len(resets) + len(self.unrolls) + len(opts)) as ex:
-            for i, low in enumerate(resets):
-                futures[("reset", i)] = ex.submit(low.compile)
+            futures = {("reset", i): ex.submit(low.compile) for i, low in enumerate(resets)}
             outs = []
             for i, (u, st, pool) in enumerate(zip(self.unrolls, worlds, pools, strict=True)):
-                low = u.lower(params, (st,), jax.random.fold_in(key, i), *c, pools=(pool,))
+                low = u.lower(params, st, jax.random.fold_in(key, i), *c, pool=pool)
                 outs.append(low.out_info)
                 futures[("rollout", i)] = ex.submit(low.compile)
-            traj, boot = _joined_shapes([o[1] for o in outs]), _joined_shapes([o[2] for o in outs])
+            _, traj, boot, _ = jax.eval_shape(_join, outs)
             for ph, opt in opts.items():
                 update = self.bc_update if ph == "bc" else self.ppo_update
                 low = update.lower(params, opt, traj, boot, key)
@@ -263,7 +261,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
                                       * cfg.budget_minutes * 60.0),
                                   ("ppo", cfg.bc_fraction < 1)) if used]
     resets, unrolls, updates = tr.compile(
-        params, worlds, key_after if restored is None else key, pools,
+        params, worlds, key, pools,
         {p: bc_opt if p == "bc" else ppo_opt for p in phases},
         reset_lowered if restored is None else [])
     if restored is None:
@@ -281,13 +279,9 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
 
     def unroll(params, envs, key, beta, noise, ppo, pools):
         """Every environment's rollout (its own program), joined along the batch."""
-        outs = [u(params, (st,), jax.random.fold_in(key, i), beta, noise, ppo, pools=(pool,))
-                for i, (u, st, pool) in enumerate(zip(unrolls, envs, pools, strict=True))]
-        if len(outs) == 1:
-            return outs[0]
-        return (tuple(o[0][0] for o in outs), _join([o[1] for o in outs]),
-                _join([o[2] for o in outs]),
-                jax.tree.map(lambda *x: sum(x[1:], x[0]), *[o[3] for o in outs]))
+        return _join([u(params, st, jax.random.fold_in(key, i), beta, noise, ppo, pool=pool)
+                      for i, (u, st, pool) in enumerate(zip(unrolls, envs, pools,
+                                                            strict=True))])
 
     budget = cfg.budget_minutes * 60.0
     log_path = out / "train_log.jsonl"
@@ -333,9 +327,6 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
                                             jnp.float32(noise), jnp.bool_(ppo), pools=pools)
             jax.block_until_ready(traj.reward)
             t1 = time.perf_counter()
-            if phase not in updates:  # a phase the compile did not foresee (a resumed run)
-                updates[phase] = (tr.bc_update if phase == "bc" else tr.ppo_update).lower(
-                    params, bc_opt if phase == "bc" else ppo_opt, traj, boot, k_upd).compile()
             if phase == "bc":
                 params, bc_opt, m = updates["bc"](params, bc_opt, traj, boot, k_upd)
             else:
@@ -381,21 +372,13 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             "last": last}
 
 
-def _join(parts: list) -> Any:
-    """Rollout outputs of several environments joined along the worlds' axis (Transition
-    leaves [T, B_i, ...] → [T, ΣB_i, ...]; bootstrap values [B_i] → [ΣB_i])."""
-    return jax.tree.map(lambda *x: jnp.concatenate(x, axis=min(1, x[0].ndim - 1)), *parts)
-
-
-def _joined_shapes(parts: list) -> Any:
-    """The shapes `_join` gives for outputs of these shapes."""
-    def one(*x):
-        ax = min(1, x[0].ndim - 1)
-        shape = list(x[0].shape)
-        shape[ax] = sum(y.shape[ax] for y in x)
-        return jax.ShapeDtypeStruct(tuple(shape), x[0].dtype)
-
-    return jax.tree.map(one, *parts)
+def _join(outs: list) -> tuple:
+    """`rollout.unroll`'s outputs of several environments as one: (their states as a tuple,
+    Transition [T, ΣB_i, ...], bootstrap values [ΣB_i], episode stats summed)."""
+    cat = lambda axis: lambda *x: jnp.concatenate(x, axis)  # noqa: E731
+    return (tuple(o[0] for o in outs), jax.tree.map(cat(1), *[o[1] for o in outs]),
+            jnp.concatenate([o[2] for o in outs]),
+            jax.tree.map(lambda *x: sum(x[1:], x[0]), *[o[3] for o in outs]))
 
 
 def _counters(it: int, env_steps: int, elapsed: float) -> dict:

@@ -1,6 +1,7 @@
 """Batched training rollouts shared by PPO, behaviour cloning and DAgger: `unroll` runs the
-policy network in one or more batched, auto-resetting environments (one per crop: each crop
-has its own static field shape, hence its own compiled step) for `length` control steps.
+policy network in one batched, auto-resetting environment for `length` control steps. Each crop
+has its own static field shape, hence its own environment and compiled rollout; the trainer
+runs one per crop and joins their outputs (`train.loop`).
 
 Who acts: with probability `beta` per world and step the teacher's action
 (`state.info["teacher_action"]`, BC and DAgger), otherwise the network's mean; Gaussian noise is
@@ -64,21 +65,20 @@ def _stats(state, sums: dict) -> dict:
 
 def unroll(
     net: policies_networks.PolicyNet,
-    envs: tuple,
+    env,
     params: Any,
-    states: tuple,
+    state,
     key: jax.Array,
     beta: jax.Array,
     noise_std: jax.Array,
     ppo: jax.Array,
     length: int,
-    pools: tuple | None = None,
+    pool=None,
 ):
-    """Run `length` steps in every env of `envs` (batched, auto-resetting; `states` their
-    states; `pools` one `env.randomize.Pool` per env that its resets draw a share from, or
-    None). Returns (new states, Transition [length, ΣB, ...] with the envs' worlds
-    concatenated, bootstrap values [ΣB] of the final observations, episode stats {name: (sum,
-    count)}). Pure: jit it with `envs`, `net` and `length` static (closure)."""
+    """Run `length` steps in `env` (batched, auto-resetting; `state` its state; `pool` an
+    `env.randomize.Pool` its resets draw a share from, or None). Returns (new state, Transition
+    [length, B, ...], bootstrap values [B] of the final observations, episode stats {name:
+    (sum, count)}). Pure: jit it with `env`, `net` and `length` static (closure)."""
 
     def act(st, k):
         mean, log_std, value = net.apply(params, st.obs)
@@ -91,27 +91,19 @@ def unroll(
         return a, policies_networks.log_prob(mean, log_std, a), value, teacher
 
     def body(carry, k):
-        states, sums = carry
-        out_states, trs = [], []
-        for i, (env, st) in enumerate(zip(envs, states, strict=True)):
-            a, logp, value, teacher = act(st, jax.random.fold_in(k, i))
-            nxt = env.step(st, a, None if pools is None else pools[i])
-            trs.append(Transition(obs=st.obs, action=a, log_prob=logp, value=value,
-                                  reward=nxt.reward, done=nxt.done,
-                                  truncation=nxt.info["truncation"], teacher=teacher))
-            sums = _stats(nxt, sums)
-            out_states.append(nxt)
-        tr = jax.tree.map(lambda *xs: jnp.concatenate(xs, 0), *trs) if len(trs) > 1 else trs[0]
-        return (tuple(out_states), sums), tr
+        st, sums = carry
+        a, logp, value, teacher = act(st, k)
+        nxt = env.step(st, a, pool)
+        tr = Transition(obs=st.obs, action=a, log_prob=logp, value=value, reward=nxt.reward,
+                        done=nxt.done, truncation=nxt.info["truncation"], teacher=teacher)
+        return (nxt, _stats(nxt, sums)), tr
 
-    m = states[0].metrics
+    m = state.metrics
     names = [k for k in episode_keys() if k in m] + [k for k in m if k.startswith("reward/")]
     zero = jnp.zeros((), jnp.float32)
     sums0 = {k: (zero, zero) for k in (*names, "episodes")}
-    (states, sums), traj = jax.lax.scan(body, (tuple(states), sums0),
-                                        jax.random.split(key, length))
-    boot = jnp.concatenate([net.apply(params, st.obs)[2] for st in states], 0)
-    return states, traj, boot, sums
+    (state, sums), traj = jax.lax.scan(body, (state, sums0), jax.random.split(key, length))
+    return state, traj, net.apply(params, state.obs)[2], sums
 
 
 def summarise_stats(sums: dict) -> dict[str, float]:
