@@ -2,7 +2,7 @@
 the table: one command on one GPU.
 
     python experiments/train_policy.py --out runs/policy [--budget-minutes 5]
-        [--deadline-minutes 8.5] [--presets P ...] [--num-envs 2560]
+        [--deadline-minutes 8.5] [--presets P ...] [--num-envs 10240]
         [--episodes 100] [--bc-fraction 0.5] [--observation rgb] [--teacher oracle]
         [--seed 0] [--iterations N] [--init CHECKPOINT] [--curriculum SEARCH.yaml]
         [--set KEY=VALUE ...] [--no-eval] [--eval-only] [--ship] [--smoke]
@@ -84,8 +84,8 @@ def parser() -> argparse.ArgumentParser:
                    help="wall time kept for running the evaluation (default 1)")
     p.add_argument("--presets", nargs="+", default=["zucchini", "vineyard", "pear", "lettuce",
                                                     "chard"], help="default: all five crops")
-    p.add_argument("--num-envs", type=int, default=2560,
-                   help="worlds in total, split evenly over the presets (default 2560)")
+    p.add_argument("--num-envs", type=int, default=10240,
+                   help="worlds in total, split evenly over the presets (default 10240)")
     p.add_argument("--unroll", type=int, default=32, help="steps per rollout (default 32)")
     p.add_argument("--bc-fraction", type=float, default=0.5,
                    help="share of the budget for BC / DAgger before PPO (default 0.5)")
@@ -280,7 +280,8 @@ def report(args, cfg, result, blocks, out: Path, wall: float) -> None:
                   f"training: {result['elapsed_s'] / 60:.2f} min of {cfg.budget_minutes:g} "
                   f"budgeted ({result['iterations']} iterations, "
                   f"{result['env_steps'] / 1e6:.2f} M env steps; compile "
-                  f"{result['compile_s']:.0f} s), {cfg.num_envs} worlds",
+                  f"{result['compile_s']:.0f} s, saving the training state "
+                  f"{result['save_s']:.0f} s), {cfg.num_envs} worlds",
                   f"env-steps/s during training: {result['rollout_steps_per_s']:,.0f} in the "
                   f"rollouts, {result['steps_per_s']:,.0f} with the updates (median over "
                   f"iterations, B = {cfg.num_envs})", ""]
@@ -293,7 +294,7 @@ def report(args, cfg, result, blocks, out: Path, wall: float) -> None:
                 "value": result["rollout_steps_per_s"], "unit": "env-steps/s",
                 "steps_per_s_with_updates": result["steps_per_s"],
                 "compile_s": result["compile_s"], "run_s": result["elapsed_s"],
-                "search_s": result["search_s"], "method": method,
+                "search_s": result["search_s"], "save_s": result["save_s"], "method": method,
                 "command": summary["command"]}) + "\n")
         for r in result["rounds"]:
             lines.append(f"adversary round {r['round']} (iteration {r['iteration']}): "

@@ -33,7 +33,7 @@ class PPOConfig:
     entropy_cost: float = 1e-3  # weight of the entropy bonus
     value_cost: float = 0.5  # weight of the value loss
     epochs: int = 4  # passes over each rollout
-    minibatches: int = 8  # minibatches per pass
+    minibatches: int = 32  # minibatches per pass
     max_grad_norm: float = 0.5  # global gradient-norm clip
     reward_scale: float = 1.0  # factor on the rewards before GAE
 
