@@ -26,7 +26,8 @@ from mjxrow.render import shade
 # Default ranges per preset (metres, slopes dz/dx, densities per 100 m², weeds per m²,
 # curvature 1/m): wide enough to cover the default sweep (d_rr 1.5-2.5 m, |ΔH| 0-0.5 m),
 # sweeps/slope_roughness.yaml (lateral slope 0-0.25, |ΔH| 0-0.5 m), the gap lengths of
-# sweeps/curvature_gaps.yaml (0.7-3.5 m) and the box of
+# sweeps/curvature_gaps.yaml (0.7-3.5 m), weeds up to 4 per m² and 0.25 m wide (the size of
+# sweeps/weeds.yaml's) and the box of
 # searches/*_variety.yaml (curved rows, gap runs, weeds, plant width 0.6-1.0 m) for zucchini,
 # and the same spirit around the other presets' defaults (one row per group in vineyard and
 # pear: their rows are d_RR apart).
@@ -34,7 +35,8 @@ _COMMON = {"terrain_dh": (0.0, 0.5), "slope_y": (-0.25, 0.25), "slope_x": (-0.05
            "p_missing": (0.0, 0.15), "stone_density": (0.0, 3.0), "branch_density": (0.0, 1.0),
            "plant_size_var": (0.03, 0.15), "plant_jitter": (0.0, 0.06),
            "terrain_scale": (2.0, 6.0), "row_curvature": (0.0, 0.012),
-           "gap_rate": (0.0, 1.5), "gap_length": (0.7, 3.5), "weed_density": (0.0, 2.0)}
+           "gap_rate": (0.0, 1.5), "gap_length": (0.7, 3.5), "weed_density": (0.0, 4.0),
+           "weed_size": (0.05, 0.25)}
 RANGES: dict[str, dict[str, tuple[float, float]]] = {
     "zucchini": {**_COMMON, "d_rr": (1.5, 2.5), "d_pp": (0.55, 0.9),
                  "plant_height": (0.45, 0.75), "plant_width": (0.6, 1.0)},
