@@ -395,6 +395,7 @@ def _meta(cfg: TrainConfig, tr: Trainer, it: int, env_steps: int, elapsed: float
     return {"presets": list(cfg.presets), "iterations": it, "env_steps": env_steps,
             "train_minutes": elapsed / 60.0, "num_envs": cfg.num_envs,
             "bc_fraction": cfg.bc_fraction, "teacher": tr.raw[0].run.controller.name,
+            "init": cfg.init or None,
             "image_shape": list(tr.obs_example["image"].shape),
             "device": jax.devices()[0].device_kind}
 
