@@ -51,8 +51,8 @@ _API = {
     "Built": "mjxrow.rollout.build",
     "Log": "mjxrow.rollout.metrics",
     "results_table": "mjxrow.rollout.cli",
-    "aggregate": "mjxrow.rollout.metrics",
-    "format_table": "mjxrow.rollout.metrics",
+    "aggregate": "mjxrow.rollout.aggregate",
+    "format_table": "mjxrow.rollout.aggregate",
     # a whole sweep into a folder (results.csv, summary.csv, heatmaps, report.md)
     "run_sweep": ("mjxrow.sweep.run", "run"),
     # a failure search into a folder (candidates.csv, failures.csv, figures, report.md)

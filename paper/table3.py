@@ -49,6 +49,7 @@ import yaml
 from tqdm.auto import tqdm
 
 from mjxrow import control, crops, runtime, stopwatch
+from mjxrow.rollout import aggregate as rollout_aggregate
 from mjxrow.rollout import build as rollout_build
 from mjxrow.rollout import metrics as rollout_metrics
 from mjxrow.seg import checkpoint as seg_checkpoint
@@ -156,10 +157,10 @@ def checkpoint_missing(preset: str) -> str | None:
 
 
 def block_stats(results: pd.DataFrame) -> dict[str, Any]:
-    """Per metric of COLUMNS its metrics.aggregate entry (mean, lo, hi, n), plus `episodes`
+    """Per metric of COLUMNS its rollout.aggregate entry (mean, lo, hi, n), plus `episodes`
     and `ends` (termination reason → count) of one block's per-episode results."""
     table = {m: results[m].to_numpy() for m, *_ in COLUMNS if m in results}
-    stats: dict[str, Any] = dict(rollout_metrics.aggregate(table))
+    stats: dict[str, Any] = dict(rollout_aggregate.aggregate(table))
     stats["episodes"] = len(results)
     stats["ends"] = {str(k): int(v) for k, v in results["reason"].value_counts().items()}
     return stats

@@ -15,6 +15,7 @@ from PIL import Image
 
 from mjxrow.env import core as env_core
 from mjxrow.field.lanes import straight_lane
+from mjxrow.rollout import aggregate as rollout_aggregate
 from mjxrow.rollout import metrics as rollout_metrics
 from mjxrow.sweep import config as sweep_config
 from mjxrow.sweep import figures as sweep_figures
@@ -91,7 +92,7 @@ def test_registered_metric_reaches_summarise_env_trainer_and_figures(toy):
     assert train_rollout.episode_keys()[-1] == f"nav/{toy.name}"
     assert sweep_figures.metric_info(toy.name) == ("twice the episode time", "s", "{:.2f}",
                                                    "lower")
-    agg = rollout_metrics.aggregate({toy.name: np.asarray([-1.0, 1.0, 3.0])})[toy.name]
+    agg = rollout_aggregate.aggregate({toy.name: np.asarray([-1.0, 1.0, 3.0])})[toy.name]
     assert agg["lo"] == 0.0  # clipped to the metric's bounds
 
 

@@ -9,6 +9,7 @@ import pytest
 
 from mjxrow import field as F
 from mjxrow.field.lanes import straight_lane
+from mjxrow.rollout import aggregate as A
 from mjxrow.rollout import metrics as M
 
 DT = 1.0 / 15.0
@@ -105,14 +106,14 @@ def test_batched_summary_and_reasons():
     np.testing.assert_allclose(np.asarray(s["mae"]), [0.0, 0.2], atol=1e-6)
     assert np.asarray(s["success"]).tolist() == [True, False]
     assert np.asarray(s["collision"]).tolist() == [False, True]
-    assert M.reason_counts(s["reason"]) == dict(goal=1, collision=1, timeout=0, flipped=0,
+    assert A.reason_counts(s["reason"]) == dict(goal=1, collision=1, timeout=0, flipped=0,
                                                 stuck=0, sim_error=0, off_patch=0,
                                                 missed_goal=0)
 
 
 def test_aggregate_mean_and_ci():
     x = np.array([1.0, 2.0, 3.0, 4.0])
-    agg = M.aggregate({"mae": x, "time": np.array([1.0, np.nan, 3.0]),
+    agg = A.aggregate({"mae": x, "time": np.array([1.0, np.nan, 3.0]),
                        "success": np.array([True, True, False, True]), "reason": x})
     # t_{0.975, 3} = 3.18245, s = 1.29099, √4 = 2
     half = 3.182446 * 1.290994 / 2
@@ -195,14 +196,14 @@ def test_failed_episodes_are_excluded_not_averaged():
     # the same sim_error episode, not flagged: the exploded step would be out of its metrics
     kept = summarise(exploded.replace(reason=jnp.asarray(M.TIMEOUT)), DT)
     assert float(kept["max_offset"]) == pytest.approx(0.1, abs=1e-6)
-    agg = M.aggregate(s)
+    agg = A.aggregate(s)
     assert agg["mae"]["n"] == 2 and agg["mae"]["mean"] == pytest.approx(0.15, abs=1e-6)
     assert agg["excluded"]["mean"] == pytest.approx(3 / 5)
 
 
 def test_intervals_stay_in_the_metric_range():
     """A t interval of a non-negative metric with a large spread would cross 0: clipped."""
-    agg = M.aggregate({"mse": np.array([0.0, 0.0, 0.003]), "path_ratio": np.array([1.0, 1.0, 2.0]),
+    agg = A.aggregate({"mse": np.array([0.0, 0.0, 0.003]), "path_ratio": np.array([1.0, 1.0, 2.0]),
                        "cha": np.array([3.1, -3.1, 3.1])})
     assert agg["mse"]["lo"] == 0.0 and agg["mse"]["hi"] > 0.003
     assert agg["path_ratio"]["lo"] == 1.0

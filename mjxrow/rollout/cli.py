@@ -16,6 +16,7 @@ from tqdm.auto import tqdm
 
 from mjxrow import field, runtime
 from mjxrow.files import atomic_write_text
+from mjxrow.rollout import aggregate as rollout_aggregate
 from mjxrow.rollout import build as rollout_build
 from mjxrow.rollout import metrics
 from mjxrow.rollout.config import RunConfig
@@ -92,6 +93,6 @@ def run_episodes(run: RunConfig, n: int, out: str | Path, progress: bool = True
     atomic_write_text(out / CSV, table.to_csv(index=False))
     print(f"{run.controller.name} on {run.preset}: {n} episodes, compile {t1 - t0:.1f} s, "
           f"run {t2 - t1:.1f} s ({n * built.episode.n_steps / (t2 - t1):.0f} env-steps/s)")
-    print(metrics.format_table({k: summary[k] for k in CSV_METRICS}))
+    print(rollout_aggregate.format_table({k: summary[k] for k in CSV_METRICS}))
     print(f"wrote {out / CSV}")
     return table

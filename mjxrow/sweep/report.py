@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from mjxrow.rollout import aggregate as rollout_aggregate
 from mjxrow.rollout import metrics as rollout_metrics
 from mjxrow.sweep import config
 from mjxrow.sweep.figures import fmt_tick, metric_info, surfaces
@@ -41,14 +42,14 @@ def atomic_write_text(path: Path, text: str) -> None:
 def summary_table(results: pd.DataFrame, axes: list[str], metric_names: list[str]) -> pd.DataFrame:
     """Per cell: axis values, n, and per metric its mean with the 95 % interval and the number
     of episodes it is taken over (`m`, `m_lo`, `m_hi`, `m_n`; Wilson for rates, Student t
-    otherwise, via metrics.aggregate; NaN values left out), plus the share of episodes per
+    otherwise, via rollout.aggregate; NaN values left out), plus the share of episodes per
     ending reason (`reason_<name>`)."""
     out = []
     for cell, rows in results.groupby("cell", sort=True):
         row: dict[str, Any] = {"cell": cell, **{a: rows[a].iloc[0] for a in axes},
                                "n": len(rows)}
         table = {m: rows[m].to_numpy() for m in metric_names if m != "reason"}
-        for m, agg in rollout_metrics.aggregate(table).items():
+        for m, agg in rollout_aggregate.aggregate(table).items():
             row.update({m: agg["mean"], f"{m}_lo": agg["lo"], f"{m}_hi": agg["hi"],
                         f"{m}_n": agg["n"]})
         if "reason" in rows:

@@ -187,7 +187,7 @@ def plot_rounds(log_path: str | Path, png: str | Path) -> Path | None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from mjxrow.rollout import metrics as rollout_metrics
+    from mjxrow.rollout import aggregate as rollout_aggregate
 
     p = Path(log_path)
     rows = [json.loads(x) for x in p.read_text().splitlines() if x.strip()] if p.is_file() \
@@ -199,7 +199,7 @@ def plot_rounds(log_path: str | Path, png: str | Path) -> Path | None:
     for r in rows:
         fails = np.zeros(r["episodes"], bool)
         fails[:r["failing_episodes"]] = True
-        a = rollout_metrics.aggregate({"fail": fails})["fail"]
+        a = rollout_aggregate.aggregate({"fail": fails})["fail"]
         mid.append(1000 * a["mean"])
         err.append((1000 * (a["mean"] - a["lo"]), 1000 * (a["hi"] - a["mean"])))
     fig, ax = plt.subplots(figsize=(6.4, 3.6))

@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from mjxrow.rollout import aggregate as rollout_aggregate
 from mjxrow.rollout import build as rollout_build
-from mjxrow.rollout import metrics as rollout_metrics
 from mjxrow.rollout.config import RunConfig, build_run
 
 SCENARIO = Path(__file__).resolve().parents[1] / "sweep" / "presets.yaml"  # the Table 3 scenario
@@ -122,7 +122,7 @@ class Evaluation:
             out = b.exe(*batch.args(built.mx))
             b.summary = built.summarise(out, b.n)
             b.run_s = time.perf_counter() - t0
-            a = rollout_metrics.aggregate({"success": b.summary["success"]})["success"]
+            a = rollout_aggregate.aggregate({"success": b.summary["success"]})["success"]
             log(f"{b.controller} on {b.preset}: success {a['mean']:.2f} "
                 f"[{a['lo']:.2f}, {a['hi']:.2f}] ({b.n} episodes, {b.run_s:.1f} s)")
         return self.blocks
@@ -134,7 +134,7 @@ def table(blocks: list[Block]) -> tuple[str, list[dict]]:
     rows = []
     for b in blocks:
         s = b.summary
-        agg = rollout_metrics.aggregate({k: s[k] for k in ("success", "collision", "mae", "cha",
+        agg = rollout_aggregate.aggregate({k: s[k] for k in ("success", "collision", "mae", "cha",
                                                            "omega_std")})
         rows.append(
             {
@@ -143,7 +143,7 @@ def table(blocks: list[Block]) -> tuple[str, list[dict]]:
                 "label": CONTROLLERS[b.controller][0],
                 "episodes": b.n,
                 **{f"{k}_{q}": agg[k][q] for k in agg for q in ("mean", "lo", "hi")},
-                "reasons": rollout_metrics.reason_counts(s["reason"]),
+                "reasons": rollout_aggregate.reason_counts(s["reason"]),
                 "compile_s": b.compile_s,
                 "run_s": b.run_s,
             }
