@@ -97,13 +97,10 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if min(args.batch) < 1 or args.repeats < 1 or args.spread < 2 or (
             args.max_resets is not None and args.max_resets < 1):
-        print("error: --batch, --repeats and --max-resets must be ≥ 1, --spread ≥ 2",
-              file=sys.stderr)
-        return 2
+        p.error("--batch, --repeats and --max-resets must be ≥ 1, --spread ≥ 2")  # exit 2
     bad = [x for x in args.parts if x not in PARTS]
     if bad:
-        print(f"error: --parts: {bad[0]!r} is not one of {', '.join(PARTS)}", file=sys.stderr)
-        return 2
+        p.error(f"--parts: {bad[0]!r} is not one of {', '.join(PARTS)}")
     import jax
 
     from mjxrow import crops

@@ -30,6 +30,7 @@ COMMANDS = [
     ("experiments/table1.py", ["--help"], 0),
     ("experiments/table2_segmentation.py", ["--help"], 0),
     ("experiments/table3_navigation.py", ["--help"], 0),
+    ("experiments/env_parts.py", ["--help"], 0),
     # argument errors answer as fast (argparse's usage line, exit 2)
     ("mjxrow.sweep", [], 2),
     ("mjxrow.episode", ["--n", "2"], 2),
@@ -37,6 +38,8 @@ COMMANDS = [
     ("mjxrow.bench", ["nope"], 2),
     ("mjxrow.seg.synth", ["--crop", "zucchini"], 2),
     ("experiments/table3_navigation.py", ["--controllers", "nope"], 2),
+    ("experiments/env_parts.py", ["--parts", "nope"], 2),
+    ("experiments/env_parts.py", ["--batch", "0"], 2),
 ]
 
 # runs the command in this process, then reports which heavy packages it imported
