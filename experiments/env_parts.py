@@ -58,7 +58,7 @@ def _programs(preset: str, B: int, parts, max_resets, spread: int) -> dict:
     env, e = tr.envs[0], tr.raw[0]
     vm = env.env
     key = jax.random.key(0)
-    st = jax.jit(env.reset)(key)
+    st = tr.resets[0](key)  # the trainer's reset program
     a = jnp.zeros((B, 2))
     params = tr.init_params(key)
     keys = jax.random.split(key, env.max_resets)
@@ -67,7 +67,7 @@ def _programs(preset: str, B: int, parts, max_resets, spread: int) -> dict:
         "observe": (vm.observe, (st,), B),
         "render": (lambda s: jax.vmap(lambda d: e.frame(d, d.sim, None))(s.data), (st,), B),
         "summarise": (lambda s: rollout_metrics.summarise(s.data.log, e.dt), (st,), B),
-        "network": (lambda p, o: tr.net.apply(p, o), (params, st.obs), B),
+        "network": (tr.net.apply, (params, st.obs), B),
         "reset_pass": (vm.reset_world, (keys,), env.max_resets),
         "step": (env.step, (st, a), B),
     }
@@ -75,8 +75,8 @@ def _programs(preset: str, B: int, parts, max_resets, spread: int) -> dict:
         steps = jax.random.randint(jax.random.key(1), (B,), 0, spread)
         spread_st = st.replace(info={**st.info, "steps": steps})
         c = (jnp.float32(0.5), jnp.float32(0.1), jnp.bool_(False))
-        progs["rollout"] = (lambda *x: tr.unrolls[0](*x), (params, spread_st, key, *c),
-                            B * cfg.unroll)
+        progs["rollout"] = (tr.unrolls[0], (params, spread_st, key, *c), B * cfg.unroll)
+    # jit of the trainer's jitted rollout lowers that same program
     return {p: (jax.jit(fn).lower(*args), args, n) for p, (fn, args, n) in progs.items()
             if p in parts}
 
