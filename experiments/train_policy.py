@@ -13,7 +13,10 @@ oracle's pure pursuit by default) for the first `--bc-fraction` of the budget, t
 worlds split evenly over `--presets`). The budget counts training wall time over every command
 with the same `--out` (compilation excluded): a second command resumes from the orbax state in
 OUT/state/ and trains until the budget is spent. `--deadline-minutes` bounds this command's
-whole wall time: training stops early enough for the evaluation to finish before it.
+whole wall time: training stops early enough for the evaluation to finish before it. Where
+that leaves less than the budget, the BC / PPO split is a share of the time it leaves (counted
+once everything is compiled), so PPO runs in this command; `--set ppo.start_log_std=-1.6` sets
+the policy's sampling std (e^-1.6 = 0.2, DAgger's noise) when PPO takes over.
 
 `--init shipped` (or a policy folder of the same observation and network) starts from trained
 weights, e.g. PPO (`--bc-fraction 0`) on the shipped BC / DAgger policy. `--curriculum

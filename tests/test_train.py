@@ -23,6 +23,7 @@ from mjxrow.train import TINY, BCConfig, PPOConfig, TrainConfig, train
 from mjxrow.train import bc as BC
 from mjxrow.train import config as TC
 from mjxrow.train import ppo as P
+from mjxrow.train import schedule as S
 from mjxrow.train.rollout import Transition
 
 RUN = (("field.terrain_length", 14.0), ("field.row_length", 10.0),
@@ -257,6 +258,38 @@ def test_training_sets_route_to_their_configs():
     with pytest.raises(ValueError, match="^env.observation: 'depth' is not one of"):
         TC.apply_sets(CFG, ["env.observation=depth"])
     assert Path(CK.SHIPPED).name == "policy"
+
+
+def test_a_deadline_puts_the_ppo_share_inside_the_call():
+    """The BC / PPO split is a share of the budget the call can spend: a deadline that leaves
+    less than the budget cuts it, so PPO starts before the deadline; once PPO has run, a
+    resumed call with a longer budget stays PPO."""
+    cfg = dataclasses.replace(CFG, budget_minutes=10.0, bc_fraction=0.4)
+    assert S.call_budget(cfg, 0.0, None) == 600.0
+    assert S.call_budget(cfg, 0.0, 900.0) == 600.0  # the deadline is later than the budget
+    assert S.call_budget(cfg, 60.0, 150.0) == 210.0  # resumed at 60 s, 150 s left
+    assert S.call_budget(cfg, 60.0, -5.0) == 60.0
+    budget = S.call_budget(cfg, 0.0, 200.0)  # 200 s left after compiling: split at 80 s
+    phases = [S.phase(cfg, t, budget)[0] for t in (0.0, 79.0, 81.0, 199.0)]
+    assert phases == ["bc", "bc", "ppo", "ppo"]
+    assert S.phase(cfg, 81.0, 600.0)[0] == "bc"  # without the deadline: still BC
+    assert S.phase(cfg, 81.0, 600.0, ppo_started=True)[:2] == ("ppo", 0.0)
+    pure_bc = dataclasses.replace(cfg, bc_fraction=1.0)
+    assert S.phase(pure_bc, 599.0, 600.0, ppo_started=True)[0] == "bc"
+    # the PPO optimiser's count tells whether PPO has run; start_log_std sets the log std
+    params = N.init(N.PolicyNet(TINY), CK.example_obs(E.ObsSpec("rgb", 16, 16, True)),
+                    jax.random.key(0))
+    tx = P.optimizer(1e-3, 1.0)
+    opt = tx.init(params)
+    assert not S.ppo_started(opt)
+    grads = jax.tree.map(jnp.ones_like, params)
+    assert S.ppo_started(tx.update(grads, opt, params)[1])
+    p2 = S.with_log_std(params, -1.6)
+    np.testing.assert_allclose(p2["params"]["log_std"], [-1.6, -1.6])
+    assert jax.tree.structure(p2) == jax.tree.structure(params)
+    with pytest.raises(ValueError, match="^ppo.start_log_std: must be a finite number"):
+        TC.apply_sets(CFG, ["ppo.start_log_std=abc"])
+    assert TC.apply_sets(CFG, ["ppo.start_log_std=-1.6"])[0].ppo.start_log_std == -1.6
 
 
 def test_curriculum_checks_its_search_and_fills_the_pool_of_its_preset():

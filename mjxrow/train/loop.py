@@ -10,7 +10,10 @@ curriculum also `adversary.png`, the failure rate its searches find) and `policy
 checkpoint the `policy` controller loads). The budget counts the iterations' wall time
 (compilation and the curriculum's searches excluded) over every call with the same `out`; the
 first `bc_fraction` of it is BC / DAgger, the rest PPO; `iterations` caps the iterations as
-well. A progress bar shows the budget spent and its ETA.
+well. A `deadline` that leaves less than the budget cuts it to what it leaves once everything
+is compiled (`train.schedule`), and the schedule follows the wall clock where it runs ahead of
+the budget's, so the split falls inside the call; once PPO has run it stays PPO. A progress
+bar shows the budget spent and its ETA.
 
 The training state holds everything the next iteration depends on: the network, both
 optimisers, the PRNG key, the counters, the worlds being driven (every environment's batched
@@ -44,6 +47,7 @@ from mjxrow.train import bc as train_bc
 from mjxrow.train import curriculum as train_curriculum
 from mjxrow.train import ppo as train_ppo
 from mjxrow.train import rollout
+from mjxrow.train import schedule as train_schedule
 from mjxrow.train import state as train_state
 from mjxrow.train.curve import plot_curve
 
@@ -205,15 +209,6 @@ class Trainer:
                 "state_format": STATE_FORMAT}
 
 
-def _schedule(cfg: TrainConfig, elapsed: float) -> tuple[str, float, float, bool]:
-    """(phase, beta, noise_std, ppo) at `elapsed` seconds of the budget."""
-    budget = cfg.budget_minutes * 60.0
-    split = cfg.bc_fraction * budget
-    if elapsed < split:
-        return "bc", cfg.bc.beta(elapsed / split), cfg.bc.noise_std, False
-    return "ppo", 0.0, 0.0, True
-
-
 STATE_FORMAT = 2  # what a training state holds (2: with the worlds and the pools)
 
 
@@ -258,8 +253,12 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     pools = jax.tree.map(jnp.asarray, state["pools"])
     cur.load(pools)
 
-    phases = [ph for ph, used in (("bc", cfg.bc_fraction > 0 and elapsed < cfg.bc_fraction
-                                      * cfg.budget_minutes * 60.0),
+    # the phases this call can reach (a deadline only shortens the budget, so BC's share
+    # can only come sooner)
+    ppo_started = train_schedule.ppo_started(ppo_opt)
+    phases = [ph for ph, used in (("bc", cfg.bc_fraction >= 1 or (
+                                      cfg.bc_fraction > 0 and not ppo_started
+                                      and elapsed < cfg.bc_fraction * cfg.budget_minutes * 60)),
                                   ("ppo", cfg.bc_fraction < 1)) if used]
     resets, unrolls, updates = tr.compile(
         params, worlds, key, pools,
@@ -284,7 +283,13 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
                       for i, (u, st, pool) in enumerate(zip(unrolls, envs, pools,
                                                             strict=True))])
 
-    budget = cfg.budget_minutes * 60.0
+    # with a deadline, the budget is what it leaves (`train.schedule`): PPO's share comes in time
+    budget = train_schedule.call_budget(cfg, elapsed,
+                                        None if deadline is None else deadline - time.time())
+    if budget < cfg.budget_minutes * 60.0:
+        log(f"the deadline leaves {(budget - elapsed) / 60:.1f} min of training: this call "
+            f"schedules over {budget / 60:.2f} of the {cfg.budget_minutes:g}-min budget "
+            f"(BC / DAgger up to {cfg.bc_fraction * budget / 60:.2f} min, then PPO)")
     log_path = out / "train_log.jsonl"
     bar = tqdm(total=round(budget), initial=min(round(elapsed), round(budget)), unit="s",
                desc="training", disable=not progress, dynamic_ncols=True,
@@ -319,12 +324,19 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             "worlds": train_state.storable(envs), "pools": pools}, tr.about())
         save_s += time.perf_counter() - t0
 
+    t_train, elapsed0 = time.perf_counter(), elapsed
     with bar, log_path.open("a") as logf:
         if cur.target is not None and it == 0:  # round 0: the starting policy's failure rate
             adversary_round()
         while elapsed < budget and (deadline is None or time.time() < deadline) and (
                 cfg.iterations is None or it < cfg.iterations):
-            phase, beta, noise, ppo = _schedule(cfg, elapsed)
+            # the schedule's clock: the budget's, or with a deadline the wall time of this
+            # call's training (saves, logging and searches included) where that ran ahead
+            clock = elapsed if deadline is None else max(
+                elapsed, elapsed0 + time.perf_counter() - t_train)
+            phase, beta, noise, ppo = train_schedule.phase(cfg, clock, budget, ppo_started)
+            if ppo and not ppo_started and cfg.ppo.start_log_std is not None:
+                params = train_schedule.with_log_std(params, cfg.ppo.start_log_std)
             key, k_roll, k_upd = jax.random.split(key, 3)
             t0 = time.perf_counter()
             envs, traj, boot, sums = unroll(params, envs, k_roll, jnp.float32(beta),
@@ -335,6 +347,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
                 params, bc_opt, m = updates["bc"](params, bc_opt, traj, boot, k_upd)
             else:
                 params, ppo_opt, m = updates["ppo"](params, ppo_opt, traj, boot, k_upd)
+                ppo_started = True
             m = jax.device_get(m)
             t2 = time.perf_counter()
             it += 1

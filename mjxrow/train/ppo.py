@@ -11,6 +11,7 @@ the bootstrap and truncated steps (time limits) contributing no TD error.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -36,6 +37,9 @@ class PPOConfig:
     minibatches: int = 32  # minibatches per pass
     max_grad_norm: float = 0.5  # global gradient-norm clip
     reward_scale: float = 1.0  # factor on the rewards before GAE
+    start_log_std: float | None = None  # the policy's log std (normalised actions) set when
+    # PPO takes over, from BC / DAgger or from `train.init` (BC does not train it; None: as
+    # the network holds it, NetConfig.init_log_std for a fresh one)
 
     def __post_init__(self):
         for name in ("learning_rate", "discount", "clip", "max_grad_norm", "reward_scale"):
@@ -46,6 +50,10 @@ class PPOConfig:
         for name in ("epochs", "minibatches"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"ppo.{name}: must be at least 1, got {getattr(self, name)}")
+        v = self.start_log_std
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
+                              or not math.isfinite(v)):
+            raise ValueError(f"ppo.start_log_std: must be a finite number or null, got {v!r}")
 
 
 def optimizer(learning_rate: float, max_grad_norm: float) -> optax.GradientTransformation:
