@@ -31,8 +31,8 @@ Evaluation (mjxrow.train.evaluate, through the run builder, i.e. the sweep's epi
 metrics): `--episodes` episodes per preset at its default geometry in the Table 3 scenario
 (mjxrow/sweep/presets.yaml) for the trained policy, SegZeros with the learned segmenter and the
 oracle; success with its 95 % Wilson interval. On a GPU the evaluation programs compile in a
-thread while the policy trains (the weights are traced, so the trained ones run in a program
-compiled for an untrained copy).
+thread while the policy trains, started once the trainer's programs are traced (the weights
+are traced, so the trained ones run in a program compiled for an untrained copy).
 
 Writes into OUT: policy/ (the checkpoint: `controller: {name: policy, checkpoint:
 OUT/policy}`), state/, train_log.jsonl, learning_curve.png, eval.md, eval.json, summary.json,
@@ -225,16 +225,20 @@ def _work(args, cfg, values, out: Path, t_start: float) -> int:
                 except Exception as e:  # reported after training, then compiled again
                     errors.append(e)
 
+            # started once the trainer's programs are traced: tracing holds Python's lock,
+            # so tracing both at once only delays the training
             thread = threading.Thread(target=prepare, daemon=True)
-            thread.start()
         result = None
+        if thread is not None and args.eval_only:
+            thread.start()
         if not args.eval_only:
             deadline = None
             if args.deadline_minutes > 0 and evaluation is not None:
                 deadline = t_start + 60 * (args.deadline_minutes - args.eval_reserve_minutes)
             elif args.deadline_minutes > 0:
                 deadline = t_start + 60 * args.deadline_minutes
-            result = L.train(cfg, out, progress=not args.no_progress, deadline=deadline)
+            result = L.train(cfg, out, progress=not args.no_progress, deadline=deadline,
+                             on_traced=thread.start if thread is not None else None)
         blocks = None
         if evaluation is not None:
             if thread is not None:

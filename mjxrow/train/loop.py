@@ -144,12 +144,14 @@ class Trainer:
         keys = jax.random.split(key, len(self.envs))
         return [r.lower(k, p) for r, k, p in zip(self.resets, keys, pools, strict=True)]
 
-    def compile(self, params, worlds, key, pools, opts: dict, resets: list = ()):
+    def compile(self, params, worlds, key, pools, opts: dict, resets: list = (),
+                traced=None):
         """Every program the run needs, compiled side by side (one thread each: XLA compiles
         separate programs in parallel where the machine has the cores; the tracing before it
         is Python's, one at a time): the lowered `resets`, the rollout of every environment
         (on worlds of the shapes `worlds`), and the update of every phase in `opts` ({'bc' or
-        'ppo': its optimiser state}). Returns ([reset executables], [rollout executables],
+        'ppo': its optimiser state}). `traced()`, if given, is called once every program is
+        traced, while XLA compiles them. Returns ([reset executables], [rollout executables],
         {phase: update executable})."""
         c = (jnp.float32(1.0), jnp.float32(0.1), jnp.bool_(False))
         with ThreadPoolExecutor(len(resets) + len(self.unrolls) + len(opts)) as ex:
@@ -164,6 +166,8 @@ class Trainer:
                 update = self.bc_update if ph == "bc" else self.ppo_update
                 low = update.lower(params, opt, traj, boot, key)
                 futures[("update", ph)] = ex.submit(low.compile)
+            if traced is not None:
+                traced()
             jobs = {k: f.result() for k, f in futures.items()}
         return ([jobs[("reset", i)] for i in range(len(resets))],
                 [jobs[("rollout", i)] for i in range(len(self.unrolls))],
@@ -213,9 +217,11 @@ STATE_FORMAT = 2  # what a training state holds (2: with the worlds and the pool
 
 
 def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
-          deadline: float | None = None, log=print) -> dict[str, Any]:
+          deadline: float | None = None, log=print, on_traced=None) -> dict[str, Any]:
     """Train (or resume training) into `out`; stop when the budget or `cfg.iterations` is spent
-    or at the `deadline` (a `time.time()` value, e.g. to leave room for an evaluation). Returns
+    or at the `deadline` (a `time.time()` value, e.g. to leave room for an evaluation).
+    `on_traced()`, if given, is called once the run's programs are traced (to start other
+    tracing then: Python traces one program at a time, XLA compiles side by side). Returns
     the summary: paths, iterations, env steps, elapsed, compile time, steps/s, last metrics,
     the curriculum's rounds."""
     out = Path(out)
@@ -263,7 +269,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     resets, unrolls, updates = tr.compile(
         params, worlds, key, pools,
         {p: bc_opt if p == "bc" else ppo_opt for p in phases},
-        reset_lowered if restored is None else [])
+        reset_lowered if restored is None else [], traced=on_traced)
     if restored is None:
         keys = jax.random.split(k_reset, len(resets))
         envs, key = tuple(r(k, p) for r, k, p in zip(resets, keys, pools, strict=True)), \
