@@ -65,6 +65,7 @@ _MJWARP = r"^zucchini 64x64, fovy 42, shadows, one field, lane poses, "
 _PPO_CUR = r"^PPO from BC/DAgger with the adversarial curriculum"
 _EQUAL = r"^equal budget, 2,048 episodes: "
 _FIVE = r"^five crops "
+_ONE = r"^one command from a fresh network, five crops "
 
 HEADLINES = [
     Figure("Table 3, the paper's 15 blocks × 100 episodes, empty cache", "table3",
@@ -179,6 +180,15 @@ HEADLINES = [
            "(median of four commands; the shipped policy is a chain of four from the zucchini + "
            "vineyard policy)", "train_policy", _FIVE, GPU, batch=10240, pick="median",
            field="wall_s", unit="s wall", fmt="{:.0f}", goal=("<=", 600)),
+    Figure("policy training, five crops: one command from a fresh network (train, evaluate), "
+           "empty cache: compilation", "train_policy", _ONE, GPU, batch=10240,
+           field="compile_s", unit="s", goal=("<=", 90)),
+    Figure("policy training, five crops: one command from a fresh network, wall time (its "
+           "policy: pear 0.54, the other crops 0.97–1.00)", "train_policy", _ONE, GPU,
+           batch=10240, field="wall_s", unit="s wall", fmt="{:.0f}", goal=("<=", 600)),
+    Figure("policy training, PPO from the shipped policy (five crops, 10,240 worlds): "
+           "env-steps/s with the updates", "train_policy", r"^PPO from the shipped policy, .*"
+           r"warm cache", GPU, batch=10240, goal=(">=", 50000)),
     Figure("the trainer's rollout program, zucchini alone, 512 worlds (steady resets)",
            "env_parts", r"^training env, zucchini, rollout, max_resets 32, ", GPU, batch=512),
     Figure("the trainer's rollout program, zucchini alone, 2,048 worlds (steady resets)",
