@@ -242,6 +242,8 @@ def _work(args, cfg, values, out: Path, t_start: float) -> int:
         blocks = None
         if evaluation is not None:
             if thread is not None:
+                if thread.ident is None:  # not started (the training never traced)
+                    thread.start()
                 thread.join()
                 if errors:
                     print(f"warning: compiling ahead failed ({errors[0]}); compiling now",
