@@ -91,7 +91,8 @@ def parser() -> argparse.ArgumentParser:
                    help="worlds in total, split evenly over the presets (default 10240)")
     p.add_argument("--unroll", type=int, default=32, help="steps per rollout (default 32)")
     p.add_argument("--bc-fraction", type=float, default=0.5,
-                   help="share of the budget for BC / DAgger before PPO (default 0.5)")
+                   help="share of the budget (or of the time a deadline leaves) for BC / "
+                        "DAgger before PPO (default 0.5)")
     p.add_argument("--observation", choices=("rgb", "mask", "features"), default="rgb")
     p.add_argument("--teacher", choices=("oracle", "segzeros"), default="oracle")
     p.add_argument("--episodes", type=int, default=100, help="per preset and controller")
