@@ -230,8 +230,6 @@ def _work(args, cfg, values, out: Path, t_start: float) -> int:
             # so tracing both at once only delays the training
             thread = threading.Thread(target=prepare, daemon=True)
         result = None
-        if thread is not None and args.eval_only:
-            thread.start()
         if not args.eval_only:
             deadline = None
             if args.deadline_minutes > 0 and evaluation is not None:
@@ -243,7 +241,7 @@ def _work(args, cfg, values, out: Path, t_start: float) -> int:
         blocks = None
         if evaluation is not None:
             if thread is not None:
-                if thread.ident is None:  # not started (the training never traced)
+                if thread.ident is None:  # not started (--eval-only, or no training traced)
                     thread.start()
                 thread.join()
                 if errors:

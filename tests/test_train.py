@@ -276,6 +276,12 @@ def test_a_deadline_puts_the_ppo_share_inside_the_call():
     assert S.phase(cfg, 81.0, 600.0, ppo_started=True)[:2] == ("ppo", 0.0)
     pure_bc = dataclasses.replace(cfg, bc_fraction=1.0)
     assert S.phase(pure_bc, 599.0, 600.0, ppo_started=True)[0] == "bc"
+    # the updates a call compiles: BC only while it is the phase under the whole budget
+    assert S.reachable(cfg, 0.0, False) == ["bc", "ppo"]
+    assert S.reachable(cfg, 300.0, False) == ["ppo"]  # past the split of 240 s
+    assert S.reachable(cfg, 0.0, True) == ["ppo"]
+    assert S.reachable(pure_bc, 599.0, True) == ["bc"]
+    assert S.reachable(dataclasses.replace(cfg, bc_fraction=0.0), 0.0, False) == ["ppo"]
     # the PPO optimiser's count tells whether PPO has run; start_log_std sets the log std
     params = N.init(N.PolicyNet(TINY), CK.example_obs(E.ObsSpec("rgb", 16, 16, True)),
                     jax.random.key(0))

@@ -259,13 +259,8 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     pools = jax.tree.map(jnp.asarray, state["pools"])
     cur.load(pools)
 
-    # the phases this call can reach (a deadline only shortens the budget, so BC's share
-    # can only come sooner)
     ppo_started = train_schedule.ppo_started(ppo_opt)
-    phases = [ph for ph, used in (("bc", cfg.bc_fraction >= 1 or (
-                                      cfg.bc_fraction > 0 and not ppo_started
-                                      and elapsed < cfg.bc_fraction * cfg.budget_minutes * 60)),
-                                  ("ppo", cfg.bc_fraction < 1)) if used]
+    phases = train_schedule.reachable(cfg, elapsed, ppo_started)
     resets, unrolls, updates = tr.compile(
         params, worlds, key, pools,
         {p: bc_opt if p == "bc" else ppo_opt for p in phases},

@@ -1,6 +1,7 @@
 """The training schedule: BC / DAgger for the first `bc_fraction` of the budget, then PPO
-(`phase`); the budget a call schedules over when a deadline leaves less (`call_budget`); whether
-PPO has run (`ppo_started`) and the log std PPO starts from (`with_log_std`)."""
+(`phase`); the phases a call can reach (`reachable`); the budget a call schedules over when a
+deadline leaves less (`call_budget`); whether PPO has run (`ppo_started`) and the log std PPO
+starts from (`with_log_std`)."""
 
 from __future__ import annotations
 
@@ -33,6 +34,14 @@ def phase(cfg: TrainConfig, elapsed: float, budget: float,
     if cfg.bc_fraction >= 1 or (elapsed < split and not ppo_started):
         return "bc", cfg.bc.beta(elapsed / split), cfg.bc.noise_std, False
     return "ppo", 0.0, 0.0, True
+
+
+def reachable(cfg: TrainConfig, elapsed: float, ppo_started: bool) -> list[str]:
+    """The phases a call starting at `elapsed` can reach, whose updates it compiles: BC where
+    it is the phase now under the whole budget (a deadline only cuts the budget, so the split
+    comes no later), PPO unless `bc_fraction` is 1."""
+    now = phase(cfg, elapsed, cfg.budget_minutes * 60.0, ppo_started)[0]
+    return ["bc"] * (now == "bc") + ["ppo"] * (cfg.bc_fraction < 1)
 
 
 def with_log_std(params: dict, log_std: float) -> dict:
