@@ -18,8 +18,8 @@ os.environ["MJXROW_CACHE_DIR"] = tempfile.mkdtemp(prefix="mjxrow-test-cache-")
 # XLA:CPU at optimisation level 0 and without LLVM's expensive passes, for this process and the
 # commands the tests start: the suite compiles many programs and runs each for a few tiny
 # steps, so compiling is most of its time (test_env's reset and step alone: 68 -> 46 s; a
-# renderer test that runs more than it compiles: 36 -> 35 s; the suite: 759-831 s against
-# 908-948 s without them, 24-25 against 29 CPU-minutes). The programs compute the same
+# renderer test that runs more than it compiles: 36 -> 35 s; the suite: 638-831 s against
+# 908-948 s without them, 20-25 against 29 CPU-minutes). The programs compute the same
 # operations; the tests compare results with tolerances, or runs of the same program with each
 # other.
 os.environ["XLA_FLAGS"] = " ".join(filter(None, [
