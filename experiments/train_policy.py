@@ -16,7 +16,9 @@ OUT/state/ and trains until the budget is spent. `--deadline-minutes` bounds thi
 whole wall time: training stops early enough for the evaluation to finish before it. Where
 that leaves less than the budget, the BC / PPO split is a share of the time it leaves (counted
 once everything is compiled), so PPO runs in this command; `--set ppo.start_log_std=-1.6` sets
-the policy's sampling std (e^-1.6 = 0.2, DAgger's noise) when PPO takes over.
+the policy's sampling std (e^-1.6 = 0.2, DAgger's noise) when PPO takes over, and
+`--set ppo.teacher_cost=10` keeps PPO's mean action near the teacher's (DAgger's loss as a
+term of PPO's).
 
 `--init shipped` (or a policy folder of the same observation and network) starts from trained
 weights, e.g. PPO (`--bc-fraction 0`) on the shipped BC / DAgger policy. `--curriculum
@@ -279,7 +281,10 @@ def report(args, cfg, result, blocks, out: Path, wall: float) -> None:
     if result is not None:
         summary["training"] = {k: v for k, v in result.items() if k != "last"}
         method = ("BC/DAgger" if cfg.bc_fraction >= 1 else "PPO" if cfg.bc_fraction <= 0
-                  else "BC/DAgger then PPO") + (f" from {cfg.init}" if cfg.init else "") + (
+                  else "BC/DAgger then PPO") + (
+            f" with the teacher term (ppo.teacher_cost {cfg.ppo.teacher_cost:g})"
+            if cfg.bc_fraction < 1 and cfg.ppo.teacher_cost > 0 else "") + (
+            f" from {cfg.init}" if cfg.init else "") + (
             f", adversarial curriculum ({cfg.curriculum.search}, every "
             f"{cfg.curriculum.every} iterations, share {cfg.curriculum.share:g})"
             if cfg.curriculum.on else "")

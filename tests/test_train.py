@@ -86,42 +86,77 @@ def _fixed_batch(n=128, seed=0):
     return {"image": img, "proprio": proprio}, teacher
 
 
-def test_ppo_iterations_from_bc_improve_the_objective_on_a_fixed_batch():
-    """Behaviour cloning on the teacher's actions lowers its loss; PPO epochs from that
-    network, on a fixed batch of its own sampled actions with fixed advantages, lower the
-    clipped PPO objective (the surrogate starts at 0: ratio 1, normalised advantages) and move
-    the mean ω up: every advantage favours a larger ω (above the mean: +1, below: -1)."""
+def _bc_network_and_ppo_batch():
+    """A tiny network cloned from the fixed batch's teacher (its BC loss, before and after),
+    and a PPO batch of its own sampled actions whose advantages favour a larger ω (+1 above
+    the mean, -1 below)."""
     net = N.PolicyNet(TINY)
     obs, teacher = _fixed_batch()
     n = teacher.shape[0]
     params = N.init(net, jax.tree.map(lambda x: x[0], obs), jax.random.key(0))
-    zeros = jnp.zeros(n)
-    data = {"obs": obs, "teacher": teacher, "target": zeros}
+    data = {"obs": obs, "teacher": teacher, "target": jnp.zeros(n)}
     bc_loss = BC.loss(net, value_cost=0.0)
     tx = P.optimizer(3e-3, 1.0)
     before_bc = float(bc_loss(params, data)[1]["bc_loss"])
     params, _, _ = P.sgd(params, tx.init(params), data, jax.random.key(1), bc_loss, tx,
                          epochs=40, minibatches=2)
     after_bc = float(bc_loss(params, data)[1]["bc_loss"])
-    assert after_bc < 0.5 * before_bc, (before_bc, after_bc)
-    # PPO on the BC network's own samples: advantage +1 where ω is above the mean, -1 below
     mean, log_std, value = net.apply(params, obs)
     action = mean + jnp.exp(log_std) * jax.random.normal(jax.random.key(2), mean.shape)
-    adv = jnp.sign(action[:, 1] - mean[:, 1])
     batch = {"obs": obs, "action": action, "log_prob": N.log_prob(mean, log_std, action),
-             "advantage": adv, "target": value, "teacher": teacher}
+             "advantage": jnp.sign(action[:, 1] - mean[:, 1]), "target": value,
+             "teacher": teacher}
+    return net, params, batch, (before_bc, after_bc)
+
+
+def _ppo(net, params, batch, cfg):
+    ptx = P.optimizer(cfg.learning_rate, cfg.max_grad_norm)
+    return P.sgd(params, ptx.init(params), batch, jax.random.key(3), P.loss(net, cfg), ptx,
+                 cfg.epochs, cfg.minibatches)
+
+
+def test_ppo_iterations_from_bc_improve_the_objective_on_a_fixed_batch():
+    """Behaviour cloning on the teacher's actions lowers its loss; PPO epochs from that
+    network, on a fixed batch of its own sampled actions with fixed advantages, lower the
+    clipped PPO objective (the surrogate starts at 0: ratio 1, normalised advantages) and move
+    the mean ω up: every advantage favours a larger ω (above the mean: +1, below: -1)."""
+    net, params, batch, (before_bc, after_bc) = _bc_network_and_ppo_batch()
+    assert after_bc < 0.5 * before_bc, (before_bc, after_bc)
     cfg = PPOConfig(learning_rate=1e-3, entropy_cost=0.0, epochs=4, minibatches=2)
     ppo_loss = P.loss(net, cfg)
     start = ppo_loss(params, batch)[1]
     np.testing.assert_allclose(start["policy_loss"], 0.0, atol=1e-6)
-    ptx = P.optimizer(cfg.learning_rate, cfg.max_grad_norm)
-    new, _, m = P.sgd(params, ptx.init(params), batch, jax.random.key(3), ppo_loss, ptx,
-                      cfg.epochs, cfg.minibatches)
+    new, _, m = _ppo(net, params, batch, cfg)
     end = ppo_loss(new, batch)[1]
     assert float(end["policy_loss"]) < -0.05 and float(end["loss"]) < float(start["loss"])
     assert np.isfinite(float(m["approx_kl"]))
-    moved = net.apply(new, obs)[0][:, 1] - mean[:, 1]
+    mean = net.apply(params, batch["obs"])[0]
+    moved = net.apply(new, batch["obs"])[0][:, 1] - mean[:, 1]
     assert float(jnp.mean(moved)) > 0.01  # ω moved toward the better actions
+
+
+def test_the_teacher_term_keeps_ppo_near_the_teacher():
+    """`ppo.teacher_cost` adds the mean action's squared error to the teacher's to the PPO
+    loss: at the BC network it adds exactly cost · that error, and the same PPO epochs that
+    pull ω away from the teacher (every advantage favours a larger ω) end nearer to it with
+    the term than without, while still improving the surrogate."""
+    net, params, batch, (_, after_bc) = _bc_network_and_ppo_batch()
+    plain = PPOConfig(learning_rate=1e-3, entropy_cost=0.0, epochs=4, minibatches=2)
+    anchored = dataclasses.replace(plain, teacher_cost=20.0)
+    l0, m0 = P.loss(net, plain)(params, batch)
+    l1, m1 = P.loss(net, anchored)(params, batch)
+    np.testing.assert_allclose(float(m1["teacher_loss"]), after_bc, rtol=1e-5)
+    np.testing.assert_allclose(float(l1 - l0), 20.0 * after_bc, rtol=1e-4)
+    ends = {}
+    for name, cfg in (("plain", plain), ("anchored", anchored)):
+        new = _ppo(net, params, batch, cfg)[0]
+        ends[name] = P.loss(net, cfg)(new, batch)[1]
+    drift = {k: float(v["teacher_loss"]) - after_bc for k, v in ends.items()}
+    assert drift["plain"] > 0.5 * after_bc, (drift, after_bc)
+    assert drift["anchored"] < 0.6 * drift["plain"], drift
+    assert float(ends["anchored"]["policy_loss"]) < -0.05
+    with pytest.raises(ValueError, match="ppo.teacher_cost"):
+        PPOConfig(teacher_cost=-1.0)
 
 
 # Not in the suite (-m slow, .ci/slow): on the 2-core CPU the tiny trainer's programs take 87 s

@@ -40,6 +40,10 @@ class PPOConfig:
     start_log_std: float | None = None  # the policy's log std (normalised actions) set when
     # PPO takes over, from BC / DAgger or from `train.init` (BC does not train it; None: as
     # the network holds it, NetConfig.init_log_std for a fresh one)
+    teacher_cost: float = 0.0  # weight of the imitation term: the squared error of the mean
+    # action to the teacher's on the same observations (DAgger's loss; Rajeswaran et al.
+    # 2018's demonstration-augmented policy gradient), which keeps PPO near the teacher's
+    # skill while it follows the reward (0: plain PPO)
 
     def __post_init__(self):
         for name in ("learning_rate", "discount", "clip", "max_grad_norm", "reward_scale"):
@@ -50,6 +54,10 @@ class PPOConfig:
         for name in ("epochs", "minibatches"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"ppo.{name}: must be at least 1, got {getattr(self, name)}")
+        for name in ("entropy_cost", "value_cost", "teacher_cost"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0:
+                raise ValueError(f"ppo.{name}: must be a non-negative number, got {v!r}")
         v = self.start_log_std
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
                               or not math.isfinite(v)):
@@ -80,7 +88,8 @@ def gae(traj: Transition, bootstrap: jax.Array, discount: float, lam: float,
 
 
 def loss(net: policies_networks.PolicyNet, cfg: PPOConfig):
-    """The clipped PPO loss on a minibatch dict (obs, action, log_prob, advantage, target):
+    """The clipped PPO loss on a minibatch dict (obs, action, log_prob, advantage, target,
+    teacher), plus `cfg.teacher_cost` · the mean action's squared error to the teacher's:
     `(params, batch) -> (loss, metrics)`."""
 
     def fn(params, b):
@@ -93,8 +102,11 @@ def loss(net: policies_networks.PolicyNet, cfg: PPOConfig):
                                    jnp.clip(ratio, 1 - cfg.clip, 1 + cfg.clip) * adv))
         v_loss = 0.5 * jnp.mean((b["target"] - value) ** 2)
         ent = policies_networks.entropy(log_std)
-        total = pg + cfg.value_cost * v_loss - cfg.entropy_cost * ent
+        imitation = jnp.mean(jnp.sum((mean - b["teacher"]) ** 2, -1))
+        total = (pg + cfg.value_cost * v_loss - cfg.entropy_cost * ent
+                 + cfg.teacher_cost * imitation)
         return total, {"loss": total, "policy_loss": pg, "value_loss": v_loss,
+                       "teacher_loss": imitation,
                        "entropy": ent, "approx_kl": jnp.mean(b["log_prob"] - logp),
                        "clip_frac": jnp.mean(jnp.abs(ratio - 1) > cfg.clip)}
 
