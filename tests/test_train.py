@@ -389,3 +389,24 @@ def test_init_starts_from_a_checkpoint_of_the_same_network(saved):
     with pytest.raises(ValueError, match="^train.init: .* holds network"):
         Trainer(dataclasses.replace(CFG, init=str(saved), net=other)).init_params(
             jax.random.key(0))
+
+
+def test_each_preset_success_is_logged_and_drawn(tmp_path):
+    """Several presets: `success/<preset>` from each environment's stats (NaN where no
+    episode ended) in the log row, drawn in the curve; one preset: none."""
+    from mjxrow.train import rollout as R
+    from mjxrow.train.curve import plot_curve
+
+    def stats(s, n):
+        return {"nav/success": (np.float32(s), np.float32(n)), "episodes": (n, 8.0)}
+
+    got = R.per_preset_success(("pear", "chard"), [stats(3.0, 4.0), stats(0.0, 0.0)])
+    assert got["success/pear"] == 0.75 and np.isnan(got["success/chard"])
+    assert R.per_preset_success(("pear",), [stats(3.0, 4.0)]) == {}
+    log = tmp_path / "train_log.jsonl"
+    log.write_text("".join(json.dumps({
+        "env_steps": 1000 * i, "phase": "ppo", "return": float(i), "nav/success": 0.5,
+        "success/pear": 0.4, "success/chard": 0.6, "rollout_steps_per_s": 10.0,
+        "steps_per_s": 9.0}) + "\n" for i in range(1, 9)))
+    png = plot_curve(log, tmp_path / "curve.png")
+    assert png.stat().st_size > 10_000

@@ -16,8 +16,21 @@ def read_log(path: str | Path) -> list[dict]:
     return [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
 
 
+def _smooth(ax, x, y, *style, **kw):
+    """A centred moving mean of `y` (over the finite points; at the ends, over the points
+    there are)."""
+    ok = np.isfinite(y)
+    if ok.sum() > 4:
+        w = max(1, ok.sum() // 20)
+        kernel = np.ones(w)
+        mean = np.convolve(y[ok], kernel, mode="same") / np.convolve(
+            np.ones(ok.sum()), kernel, mode="same")
+        ax.plot(x[ok], mean, *style, **kw)
+
+
 def plot_curve(log_path: str | Path, png: str | Path) -> Path:
-    """Learning curve from a train_log.jsonl: episode return, success rate, episode length
+    """Learning curve from a train_log.jsonl: episode return, success rate (and each preset's,
+    where several trained together), episode length
     (seconds to the goal, of the episodes that reach it) and env-steps/s over env steps, the
     BC → PPO switch marked where both phases ran (matplotlib, Agg backend). The curriculum's
     rounds have their own figure (`curriculum.plot_rounds`)."""
@@ -35,14 +48,14 @@ def plot_curve(log_path: str | Path, png: str | Path) -> Path:
     for ax, (k, title) in zip(axes[:3], series, strict=True):
         y = np.array([r.get(k, np.nan) for r in rows], float)
         ax.plot(x, y, ".", ms=3, alpha=0.4)
-        ok = np.isfinite(y)
-        if ok.sum() > 4:  # a centred moving mean; at the ends, over the points there are
-            w = max(1, ok.sum() // 20)
-            kernel = np.ones(w)
-            mean = np.convolve(y[ok], kernel, mode="same") / np.convolve(
-                np.ones(ok.sum()), kernel, mode="same")
-            ax.plot(x[ok], mean, "-", lw=1.5)
+        _smooth(ax, x, y, "-", lw=1.5, label="all" if k == "nav/success" else None)
         ax.set_title(title)
+    presets = [k for k in (rows[-1] if rows else {}) if k.startswith("success/")]
+    for k in presets:  # each preset's success (thin lines), where several trained together
+        _smooth(axes[1], x, np.array([r.get(k, np.nan) for r in rows], float), "-", lw=0.8,
+                label=k.split("/", 1)[1])
+    if presets:
+        axes[1].legend(fontsize=7)
     axes[3].plot(x, [r["rollout_steps_per_s"] for r in rows], label="rollout")
     axes[3].plot(x, [r["steps_per_s"] for r in rows], label="with updates")
     axes[3].set_title("env-steps/s")

@@ -5,15 +5,15 @@ auto-resetting environments (one per crop), within a wall-time budget, resumable
 
 writes into `out`: `state/` (orbax training state, resumed by the next call with the same
 `out`), `train_log.jsonl` (one line per iteration: phase, env steps, losses, episode metrics,
-steps/s), `learning_curve.png` (return, success, steps/s over env steps; with the adversarial
-curriculum also `adversary.png`, the failure rate its searches find) and `policy/` (the policy
-checkpoint the `policy` controller loads). The budget counts the iterations' wall time
-(compilation and the curriculum's searches excluded) over every call with the same `out`; the
-first `bc_fraction` of it is BC / DAgger, the rest PPO; `iterations` caps the iterations as
-well. A `deadline` that leaves less than the budget cuts it to what it leaves once everything
-is compiled (`train.schedule`), and the schedule follows the wall clock where it runs ahead of
-the budget's, so the split falls inside the call; once PPO has run it stays PPO. A progress
-bar shows the budget spent and its ETA.
+each preset's success rate, steps/s), `learning_curve.png` (return, success, steps/s over env
+steps; with the adversarial curriculum also `adversary.png`, the failure rate its searches
+find) and `policy/` (the policy checkpoint the `policy` controller loads). The budget counts
+the iterations' wall time (compilation and the curriculum's searches excluded) over every call
+with the same `out`; the first `bc_fraction` of it is BC / DAgger, the rest PPO; `iterations`
+caps the iterations as well. A `deadline` that leaves less than the budget cuts it to what it
+leaves once everything is compiled (`train.schedule`), and the schedule follows the wall clock
+where it runs ahead of the budget's, so the split falls inside the call; once PPO has run it
+stays PPO. A progress bar shows the budget spent and its ETA.
 
 The training state holds everything the next iteration depends on: the network, both
 optimisers, the PRNG key, the counters, the worlds being driven (every environment's batched
@@ -161,7 +161,7 @@ class Trainer:
                 low = u.lower(params, st, jax.random.fold_in(key, i), *c, pool=pool)
                 outs.append(low.out_info)
                 futures[("rollout", i)] = ex.submit(low.compile)
-            _, traj, boot, _ = jax.eval_shape(_join, outs)
+            _, traj, boot, _ = jax.eval_shape(rollout.join, outs)
             for ph, opt in opts.items():
                 update = self.bc_update if ph == "bc" else self.ppo_update
                 low = update.lower(params, opt, traj, boot, key)
@@ -279,10 +279,11 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
         f"{tr.spec.describe()})")
 
     def unroll(params, envs, key, beta, noise, ppo, pools):
-        """Every environment's rollout (its own program), joined along the batch."""
-        return _join([u(params, st, jax.random.fold_in(key, i), beta, noise, ppo, pool=pool)
-                      for i, (u, st, pool) in enumerate(zip(unrolls, envs, pools,
-                                                            strict=True))])
+        """Every environment's rollout (its own program), joined along the batch, and each
+        environment's episode stats."""
+        outs = [u(params, st, jax.random.fold_in(key, i), beta, noise, ppo, pool=pool)
+                for i, (u, st, pool) in enumerate(zip(unrolls, envs, pools, strict=True))]
+        return (*rollout.join(outs), [o[3] for o in outs])
 
     # with a deadline, the budget is what it leaves (`train.schedule`): PPO's share comes in time
     budget = train_schedule.call_budget(cfg, elapsed,
@@ -340,8 +341,9 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
                 params = train_schedule.with_log_std(params, cfg.ppo.start_log_std)
             key, k_roll, k_upd = jax.random.split(key, 3)
             t0 = time.perf_counter()
-            envs, traj, boot, sums = unroll(params, envs, k_roll, jnp.float32(beta),
-                                            jnp.float32(noise), jnp.bool_(ppo), pools=pools)
+            envs, traj, boot, sums, per_env = unroll(params, envs, k_roll, jnp.float32(beta),
+                                                     jnp.float32(noise), jnp.bool_(ppo),
+                                                     pools=pools)
             jax.block_until_ready(traj.reward)
             t1 = time.perf_counter()
             if phase == "bc":
@@ -359,7 +361,8 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
                    "elapsed_s": elapsed, "rollout_s": t1 - t0, "update_s": t2 - t1,
                    "rollout_steps_per_s": n / (t1 - t0), "steps_per_s": n / (t2 - t0),
                    **{k: float(v) for k, v in m.items()},
-                   **rollout.summarise_stats(jax.device_get(sums))}
+                   **rollout.summarise_stats(jax.device_get(sums)),
+                   **rollout.per_preset_success(cfg.presets, jax.device_get(per_env))}
             logf.write(json.dumps(row) + "\n")
             logf.flush()
             rates.append((row["rollout_steps_per_s"], row["steps_per_s"]))
@@ -388,15 +391,6 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             else math.nan,
             "steps_per_s": float(np.median([r[1] for r in steady])) if steady else math.nan,
             "last": last}
-
-
-def _join(outs: list) -> tuple:
-    """`rollout.unroll`'s outputs of several environments as one: (their states as a tuple,
-    Transition [T, ΣB_i, ...], bootstrap values [ΣB_i], episode stats summed)."""
-    cat = lambda axis: lambda *x: jnp.concatenate(x, axis)  # noqa: E731
-    return (tuple(o[0] for o in outs), jax.tree.map(cat(1), *[o[1] for o in outs]),
-            jnp.concatenate([o[2] for o in outs]),
-            jax.tree.map(lambda *x: sum(x[1:], x[0]), *[o[3] for o in outs]))
 
 
 def _counters(it: int, env_steps: int, elapsed: float) -> dict:

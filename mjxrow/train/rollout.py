@@ -1,7 +1,7 @@
 """Batched training rollouts shared by PPO, behaviour cloning and DAgger: `unroll` runs the
 policy network in one batched, auto-resetting environment for `length` control steps. Each crop
 has its own static field shape, hence its own environment and compiled rollout; the trainer
-runs one per crop and joins their outputs (`train.loop`).
+runs one per crop and joins their outputs (`join`).
 
 Who acts: with probability `beta` per world and step the teacher's action
 (`state.info["teacher_action"]`, BC and DAgger), otherwise the network's mean; Gaussian noise is
@@ -114,3 +114,21 @@ def summarise_stats(sums: dict) -> dict[str, float]:
         s, n = float(s), float(n)
         out[k] = s if k == "episodes" else (s / n if n > 0 else float("nan"))
     return out
+
+
+def join(outs: list) -> tuple:
+    """`unroll`'s outputs of several environments as one: (their states as a tuple,
+    Transition [T, ΣB_i, ...], bootstrap values [ΣB_i], episode stats summed)."""
+    cat = lambda axis: lambda *x: jnp.concatenate(x, axis)  # noqa: E731
+    return (tuple(o[0] for o in outs), jax.tree.map(cat(1), *[o[1] for o in outs]),
+            jnp.concatenate([o[2] for o in outs]),
+            jax.tree.map(lambda *x: sum(x[1:], x[0]), *[o[3] for o in outs]))
+
+
+def per_preset_success(presets: tuple[str, ...], stats: list) -> dict[str, float]:
+    """`success/<preset>`: the success rate of each preset's episodes that ended in the
+    iteration (NaN where none did), where several presets train together."""
+    if len(presets) < 2:
+        return {}
+    return {f"success/{p}": summarise_stats(st)["nav/success"]
+            for p, st in zip(presets, stats, strict=True) if "nav/success" in st}
