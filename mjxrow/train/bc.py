@@ -26,8 +26,8 @@ class BCConfig:
 
     learning_rate: float = 1e-3  # Adam step size
     epochs: int = 2  # passes over each rollout
-    minibatches: int = 32  # minibatches per pass (10,240 samples each at the default
-    # 10,240 worlds and 32 steps)
+    minibatches: int = 32  # minibatches per pass (15,360 samples each at the default
+    # 15,360 worlds and 32 steps)
     dagger: bool = True  # the learner acts more and more (β falls to 0); False: plain BC
     beta_until: float = 0.5  # fraction of the phase over which β falls from 1 to 0
     noise_std: float = 0.2  # std of the noise on the acting action (normalised units)
