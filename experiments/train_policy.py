@@ -38,9 +38,10 @@ thread while the policy trains, started once the trainer's programs are traced (
 are traced, so the trained ones run in a program compiled for an untrained copy).
 
 Writes into OUT: policy/ (the checkpoint: `controller: {name: policy, checkpoint:
-OUT/policy}`), state/, train_log.jsonl, learning_curve.png, eval.md, eval.json, summary.json,
-benchmarks.jsonl (the training throughput as a `train` stage line). `--ship` also copies the
-policy (float16) to mjxrow/checkpoints/policy/.
+OUT/policy}`), state/ (its last step written while the evaluation runs), train_log.jsonl,
+learning_curve.png, eval.md, eval.json, summary.json, benchmarks.jsonl (the training throughput
+as a `train` stage line). `--ship` also copies the policy (float16) to
+mjxrow/checkpoints/policy/.
 
 `--set` takes run keys for the environments and the evaluation (`camera.width=96`,
 `sim.path_length=20`) and training keys (`train.unroll=16`, `env.observation=mask`,
@@ -216,6 +217,7 @@ def _work(args, cfg, values, out: Path, t_start: float) -> int:
     from mjxrow.train import loop as L
 
     out.mkdir(parents=True, exist_ok=True)
+    result = None
     try:
         evaluation = None
         if not args.no_eval:
@@ -236,15 +238,16 @@ def _work(args, cfg, values, out: Path, t_start: float) -> int:
             # started once the trainer's programs are traced: tracing holds Python's lock,
             # so tracing both at once only delays the training
             thread = threading.Thread(target=prepare, daemon=True)
-        result = None
         if not args.eval_only:
             deadline = None
             if args.deadline_minutes > 0 and evaluation is not None:
                 deadline = t_start + 60 * (args.deadline_minutes - args.eval_reserve_minutes)
             elif args.deadline_minutes > 0:
                 deadline = t_start + 60 * args.deadline_minutes
+            # the last training state is written while the evaluation runs
             result = L.train(cfg, out, progress=not args.no_progress, deadline=deadline,
-                             on_traced=thread.start if thread is not None else None)
+                             on_traced=thread.start if thread is not None else None,
+                             background_save=True)
         blocks = None
         if evaluation is not None:
             if thread is not None:
@@ -261,6 +264,9 @@ def _work(args, cfg, values, out: Path, t_start: float) -> int:
         return 2
     except KeyboardInterrupt:
         return 130
+    finally:  # the training state on disk before the command ends (seconds waited: saving's)
+        if result is not None and "saving" in result:
+            result["save_s"] += result.pop("saving").wait()
     report(args, cfg, result, blocks, out, time.time() - t_start)
     if args.ship:
         ck = CK.load(out / "policy", key="--out")

@@ -410,3 +410,21 @@ def test_each_preset_success_is_logged_and_drawn(tmp_path):
         "steps_per_s": 9.0}) + "\n" for i in range(1, 9)))
     png = plot_curve(log, tmp_path / "curve.png")
     assert png.stat().st_size > 10_000
+
+
+def test_a_state_saved_in_the_background_restores_once_waited(tmp_path):
+    """`save_state(..., wait=False)` returns before orbax has written the state; once its
+    `wait()` returns (and again at once), the state restores to the same arrays, and a
+    second save of the same step is skipped."""
+    from mjxrow.train import state as ST
+
+    tree = {"w": np.arange(12.0, dtype=np.float32).reshape(3, 4),
+            "n": np.asarray(7, np.int64)}
+    about = {"network": "tiny"}
+    pending = ST.save_state(tmp_path / "state", 3, tree, about, wait=False)
+    assert pending.wait() >= 0.0 and pending.wait() == 0.0
+    step, got = ST.restore_state(tmp_path / "state", jax.tree.map(np.zeros_like, tree), about)
+    assert step == 3
+    np.testing.assert_array_equal(got["w"], tree["w"])
+    assert int(got["n"]) == 7
+    assert ST.save_state(tmp_path / "state", 3, tree, about, wait=False).wait() == 0.0

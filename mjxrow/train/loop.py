@@ -217,13 +217,17 @@ STATE_FORMAT = 2  # what a training state holds (2: with the worlds and the pool
 
 
 def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
-          deadline: float | None = None, log=print, on_traced=None) -> dict[str, Any]:
+          deadline: float | None = None, log=print, on_traced=None,
+          background_save: bool = False) -> dict[str, Any]:
     """Train (or resume training) into `out`; stop when the budget or `cfg.iterations` is spent
     or at the `deadline` (a `time.time()` value, e.g. to leave room for an evaluation).
     `on_traced()`, if given, is called once the run's programs are traced (to start other
     tracing then: Python traces one program at a time, XLA compiles side by side). Returns
-    the summary: paths, iterations, env steps, elapsed, compile time, steps/s, last metrics,
-    the curriculum's rounds."""
+    the summary: paths, iterations, env steps, elapsed, compile time, seconds spent saving
+    the training state, steps/s, last metrics, the curriculum's rounds. With
+    `background_save` the last training state is still being written when it returns: its
+    `train.state.PendingSave` is the summary's `saving` (call its `wait()` before the process
+    ends, e.g. after an evaluation)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
@@ -317,14 +321,15 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
                   f"{rnd['failing_per_1000']:.0f} failing episodes per 1,000, "
                   f"{rnd['failing_candidates']} failing fields, pool {rnd['pool']}")
 
-    def save():
+    def save(wait=True):
         nonlocal save_s
         t0 = time.perf_counter()
-        train_state.save_state(out / "state", it, {
+        pending = train_state.save_state(out / "state", it, {
             "params": params, "bc_opt": bc_opt, "ppo_opt": ppo_opt,
             "counters": _counters(it, env_steps, elapsed), "key": jax.random.key_data(key),
-            "worlds": train_state.storable(envs), "pools": pools}, tr.about())
+            "worlds": train_state.storable(envs), "pools": pools}, tr.about(), wait=wait)
         save_s += time.perf_counter() - t0
+        return pending
 
     t_train, elapsed0 = time.perf_counter(), elapsed
     with bar, log_path.open("a") as logf:
@@ -377,7 +382,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
                 adversary_round()
             if it % cfg.save_every == 0:
                 save()
-    save()
+    saving = save(wait=not background_save)
     policy_dir = policies_checkpoint.save(out / "policy", params, tr.spec, cfg.net, tr.limits,
                                           meta=_meta(cfg, tr, it, env_steps, elapsed))
     curve = plot_curve(log_path, out / "learning_curve.png")
@@ -390,7 +395,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             "rollout_steps_per_s": float(np.median([r[0] for r in steady])) if steady
             else math.nan,
             "steps_per_s": float(np.median([r[1] for r in steady])) if steady else math.nan,
-            "last": last}
+            "last": last, **({"saving": saving} if background_save else {})}
 
 
 def _counters(it: int, env_steps: int, elapsed: float) -> dict:

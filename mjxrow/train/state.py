@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from pathlib import Path
 from typing import Any
 
@@ -21,19 +22,49 @@ def _manager(folder: Path) -> ocp.CheckpointManager:
         max_to_keep=2, create=True))
 
 
-def save_state(folder: str | Path, step: int, tree: Any, about: dict) -> None:
+class PendingSave:
+    """A training state that orbax may still be writing (`save_state(..., wait=False)`)."""
+
+    def __init__(self, mgr: ocp.CheckpointManager | None = None):
+        self._mgr = mgr
+
+    def wait(self) -> float:
+        """Return once the state is on disk (at once the second time); seconds waited."""
+        if self._mgr is None:
+            return 0.0
+        t0 = time.perf_counter()
+        mgr, self._mgr = self._mgr, None
+        try:
+            mgr.wait_until_finished()
+        finally:
+            mgr.close()
+        return time.perf_counter() - t0
+
+
+def save_state(folder: str | Path, step: int, tree: Any, about: dict,
+               wait: bool = True) -> PendingSave:
     """Save a training state `tree` (params, opt_state, counters) as step `step`, unless that
     step is saved already (the loop's periodic save and its final one can fall on the same
     iteration); `about` (JSON: observation, network, ...) is written beside it for
-    `restore_state`'s check."""
+    `restore_state`'s check. The arrays are copied to the host before it returns; with
+    `wait=False` orbax writes them in the background until the returned save's `wait()` (a
+    state cut short is never the latest: orbax finalises a step by renaming its folder)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "train.json").write_text(json.dumps(about, indent=2, sort_keys=True) + "\n")
-    with _manager(folder) as mgr:
+    mgr = _manager(folder)
+    try:
         if step in mgr.all_steps():  # saved at this iteration already (its last save_every)
-            return
+            mgr.close()
+            return PendingSave()
         mgr.save(step, args=ocp.args.StandardSave(jax.device_get(tree)), force=True)
-        mgr.wait_until_finished()
+    except BaseException:
+        mgr.close()
+        raise
+    pending = PendingSave(mgr)
+    if wait:
+        pending.wait()
+    return pending
 
 
 def restore_state(folder: str | Path, target: Any, about: dict,
