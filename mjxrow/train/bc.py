@@ -54,13 +54,19 @@ class BCConfig:
         return float(max(0.0, 1.0 - progress / self.beta_until))
 
 
+def teacher_error(mean: jnp.ndarray, teacher: jnp.ndarray) -> jnp.ndarray:
+    """The mean over samples of the squared error of the network's mean action to the
+    teacher's (summed over the 2 normalised action dims): BC's loss, and PPO's teacher term."""
+    return jnp.mean(jnp.sum((mean - teacher) ** 2, -1))
+
+
 def loss(net: policies_networks.PolicyNet, value_cost: float):
     """`(params, batch) -> (loss, metrics)`: MSE of the mean action to the teacher's plus
     `value_cost` · the value head's squared error to the λ-return targets."""
 
     def fn(params, b):
         mean, _, value = net.apply(params, b["obs"])
-        bc = jnp.mean(jnp.sum((mean - b["teacher"]) ** 2, -1))
+        bc = teacher_error(mean, b["teacher"])
         v_loss = 0.5 * jnp.mean((b["target"] - value) ** 2)
         total = bc + value_cost * v_loss
         return total, {"loss": total, "bc_loss": bc, "value_loss": v_loss,

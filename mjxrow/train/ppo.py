@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import optax
 
 from mjxrow.policies import networks as policies_networks
+from mjxrow.train import bc as train_bc
 from mjxrow.train.rollout import Transition
 
 
@@ -102,7 +103,7 @@ def loss(net: policies_networks.PolicyNet, cfg: PPOConfig):
                                    jnp.clip(ratio, 1 - cfg.clip, 1 + cfg.clip) * adv))
         v_loss = 0.5 * jnp.mean((b["target"] - value) ** 2)
         ent = policies_networks.entropy(log_std)
-        imitation = jnp.mean(jnp.sum((mean - b["teacher"]) ** 2, -1))
+        imitation = train_bc.teacher_error(mean, b["teacher"])
         total = (pg + cfg.value_cost * v_loss - cfg.entropy_cost * ent
                  + cfg.teacher_cost * imitation)
         return total, {"loss": total, "policy_loss": pg, "value_loss": v_loss,
