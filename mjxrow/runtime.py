@@ -142,8 +142,9 @@ def cache_dir() -> Path | None:
 # deserializes it instead of tracing, and XLA's compilation loads from the cache as before.
 
 # Custom calls inside our programs that jax.export would refuse to serialize: the Pallas kernels
-# (Triton, Mosaic GPU). They are kept as compiled for this JAX version, which the key holds.
-_KERNEL_CALLS = ("triton_kernel_call", "mosaic_gpu", "mosaic_gpu_v2")
+# (Triton: `__gpu$xla.gpu.triton`, `triton_kernel_call` in older JAX; Mosaic GPU). They are
+# kept as compiled for this JAX version, which the key holds.
+_KERNEL_CALLS = ("triton_kernel_call", "__gpu$xla.gpu.triton", "mosaic_gpu", "mosaic_gpu_v2")
 _EXPORTED: dict[str, Any] = {}
 _EXPORT_WARNED = False
 
@@ -173,16 +174,34 @@ def is_key(x) -> bool:
     return dtype is not None and jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key)
 
 
+def _key_data(x):
+    """jax.random.key_data of typed keys, or of their shapes (a jax.ShapeDtypeStruct)."""
+    if isinstance(x, jax.ShapeDtypeStruct):
+        return jax.eval_shape(jax.random.key_data, x)
+    return jax.random.key_data(x)
+
+
+def _key_impl(x):
+    """jax.random.key_impl of typed keys, or of their shapes."""
+    if isinstance(x, jax.ShapeDtypeStruct):
+        impl = []
+        jax.eval_shape(lambda k: impl.append(jax.random.key_impl(k)), x)
+        return impl[0]
+    return jax.random.key_impl(x)
+
+
 class _Program:
     """A deserialized program called like the jitted function it was exported from: pytree
     arguments in (PRNG keys as their key data), the pytree result out; `lower(*args)
-    .compile()` gives the executable likewise."""
+    .compile()` gives the executable likewise, and `lower(*args).out_info` the result's
+    shapes (as a jitted function's lowering)."""
 
-    def __init__(self, call, keys: tuple[bool, ...], out_tree, exe=None):
+    def __init__(self, call, keys: tuple[bool, ...], out_tree, exe=None, out_info=None):
         self.call, self.keys, self.out_tree, self.exe = call, keys, out_tree, exe
+        self.out_info = out_info
 
     def _flat(self, args):
-        return [jax.random.key_data(x) if k else x
+        return [_key_data(x) if k else x
                 for x, k in zip(jax.tree.leaves(args), self.keys, strict=True)]
 
     def __call__(self, *args):
@@ -191,7 +210,8 @@ class _Program:
     def lower(self, *args):
         lowered = self.call.lower(*self._flat(args))
         return types.SimpleNamespace(compile=lambda: _Program(
-            self.call, self.keys, self.out_tree, lowered.compile()))
+            self.call, self.keys, self.out_tree, lowered.compile(), self.out_info),
+            out_info=self.out_info)
 
 
 def exported(fn: Any, args: tuple, key: str, out_tree: Any) -> Any | None:
@@ -210,9 +230,8 @@ def exported(fn: Any, args: tuple, key: str, out_tree: Any) -> Any | None:
         return None
     leaves, treedef = jax.tree.flatten(args)
     keys = tuple(is_key(x) for x in leaves)
-    impls = tuple(jax.random.key_impl(x) if k else None for x, k in zip(leaves, keys,
-                                                                        strict=True))
-    flat = [jax.random.key_data(x) if k else x for x, k in zip(leaves, keys, strict=True)]
+    impls = tuple(_key_impl(x) if k else None for x, k in zip(leaves, keys, strict=True))
+    flat = [_key_data(x) if k else x for x, k in zip(leaves, keys, strict=True)]
     h = hashlib.sha256()
     tree = re.sub(r" at 0x[0-9a-fA-F]+", "", str(treedef))  # no addresses (MJX's wrappers);
     # static arrays in the tree's aux data are the caller's `key`'s to describe (the model)
@@ -230,7 +249,10 @@ def exported(fn: Any, args: tuple, key: str, out_tree: Any) -> Any | None:
     path = root / "exported" / f"{digest}.bin"
 
     def wrap(exp, out_tree):
-        return _Program(jax.jit(exp.call), keys, out_tree)
+        info = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in exp.out_avals]  # as a
+        # jitted function's `out_info` (no shardings: one device)
+        return _Program(jax.jit(exp.call), keys, out_tree,
+                        out_info=jax.tree.unflatten(out_tree, info))
 
     try:
         if path.is_file():

@@ -428,3 +428,45 @@ def test_a_state_saved_in_the_background_restores_once_waited(tmp_path):
     np.testing.assert_array_equal(got["w"], tree["w"])
     assert int(got["n"]) == 7
     assert ST.save_state(tmp_path / "state", 3, tree, about, wait=False).wait() == 0.0
+
+
+def test_the_trainers_programs_are_kept_and_read_back_without_tracing(tmp_path, monkeypatch):
+    """With the compilation cache on, each environment's reset and rollout are traced once and
+    kept as data (`runtime.exported`); a new Trainer in a new process (the in-process memo
+    cleared) reads the rollout back without tracing a step, with the same result shapes, and
+    the reset without lowering it; another time limit is another program, traced afresh. The
+    rollout's result tree, which the kept program does not hold, is `out_structure`'s."""
+    from mjxrow import runtime as R
+    from mjxrow.train import loop as L
+    from mjxrow.train import rollout as RO
+
+    c = (jnp.float32(1.0), jnp.float32(0.1), jnp.bool_(False))
+    key = jax.random.key(0)
+
+    def programs(cfg):
+        tr = L.Trainer(cfg)
+        params = tr.init_params(key)
+        (low,) = tr.lower_resets(key, (None,))
+        args = (params, low.out_info, key, *c, None)
+        return tr, args, low, tr.rollout_program(0, args).lower(*args).out_info
+
+    try:
+        R.enable_cache(tmp_path / "cache")
+        tr, args, low, out = programs(CFG)
+        assert tr.keys[0] and len(list((tmp_path / "cache" / "exported").iterdir())) == 2
+        assert jax.tree.structure(jax.eval_shape(tr.unrolls[0], *args)) == \
+            RO.out_structure(args[1])
+        R._EXPORTED.clear()  # as a new process
+        real_step = E.AutoResetWrapper.step
+        monkeypatch.setattr(E.AutoResetWrapper, "step", lambda *a: pytest.fail("traced"))
+        tr2, args2, low2, out2 = programs(CFG)
+        assert type(low2).__name__ == "SimpleNamespace"  # read back, not lowered
+        assert jax.tree.structure(out2) == jax.tree.structure(out)
+        assert [(x.shape, x.dtype) for x in jax.tree.leaves(out2)] == \
+            [(x.shape, x.dtype) for x in jax.tree.leaves(out)]
+        monkeypatch.setattr(E.AutoResetWrapper, "step", real_step)
+        programs(dataclasses.replace(CFG, episode_length=7))
+        assert len(list((tmp_path / "cache" / "exported").iterdir())) == 4
+    finally:
+        R.disable_cache()
+        R._EXPORTED.clear()

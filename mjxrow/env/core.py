@@ -123,6 +123,7 @@ class Env:
         built = rollout_build.build(teacher_run(run), shape=shape,
                                     devices=[device or jax.devices()[0]])
         self.shape, self.mx, self.episode = built.shape, built.mx, built.episode
+        self._built_key = built.key
         self.intr, self.render_cfg = run.camera, run.render
         robot = run.robot_config()
         self.limits = jnp.asarray([robot.v_max, robot.omega_max], jnp.float32)
@@ -155,6 +156,22 @@ class Env:
             self.spec, f, self.seg, jnp.zeros(2), jnp.zeros(2), self.limits), frame)
 
     # -- static facts ---------------------------------------------------------------------
+
+    def program_key(self) -> str:
+        """Everything static this environment's programs close over, as text (names their
+        traced programs kept by `runtime.exported`): the teacher run's closed-loop key (the
+        MJX model, field shape, episode, crop), every value of the run and of the EnvConfig,
+        the teacher and its params. '' where that text is not the same in every process: code
+        from outside the mjxrow package, or a segmenter's weights in the observation."""
+        if not self._built_key or self.seg is not None:
+            return ""
+        try:
+            return "\n".join((self._built_key, rollout_build.stable_text(self.run),
+                              rollout_build.stable_text(self.cfg),
+                              rollout_build.stable_text(self.teacher),
+                              rollout_build.stable_text(self.teacher_params)))
+        except rollout_build.Foreign:
+            return ""
 
     @property
     def dt(self) -> float:

@@ -358,27 +358,27 @@ def _policy(reps: list[RunConfig], shape: mjxrow_field.FieldShape):
     return policy, perception.PARAMS_AXES, base, module
 
 
-class _Foreign(Exception):
+class Foreign(Exception):
     """Code from outside the mjxrow package (its source is not in runtime.code_version)."""
 
 
-def _stable(x: Any) -> str:
+def stable_text(x: Any) -> str:
     """Text of a config value that is the same in every process: dataclasses and tuples field
-    by field, functions by module and name (_Foreign when not mjxrow's), arrays by content."""
+    by field, functions by module and name (Foreign when not mjxrow's), arrays by content."""
     if dataclasses.is_dataclass(x) and not isinstance(x, type):
         return f"{type(x).__qualname__}(" + ", ".join(
-            f"{f.name}={_stable(getattr(x, f.name))}" for f in dataclasses.fields(x)) + ")"
+            f"{f.name}={stable_text(getattr(x, f.name))}" for f in dataclasses.fields(x)) + ")"
     if isinstance(x, (tuple, list)):
-        return f"{type(x).__qualname__}[" + ", ".join(_stable(v) for v in x) + "]"
+        return f"{type(x).__qualname__}[" + ", ".join(stable_text(v) for v in x) + "]"
     if isinstance(x, dict):
-        return "{" + ", ".join(f"{_stable(k)}: {_stable(v)}" for k, v in x.items()) + "}"
+        return "{" + ", ".join(f"{stable_text(k)}: {stable_text(v)}" for k, v in x.items()) + "}"
     if isinstance(x, (np.ndarray, jax.Array)):
         a = np.asarray(x)
         return f"array{a.shape}{a.dtype}:{hashlib.sha256(a.tobytes()).hexdigest()}"
     if isinstance(x, type) or callable(x):
         mod = getattr(x, "__module__", "") or ""
         if not mod.startswith("mjxrow"):
-            raise _Foreign(mod)
+            raise Foreign(mod)
         return f"{mod}.{getattr(x, '__qualname__', repr(x))}"
     return repr(x)
 
@@ -399,9 +399,9 @@ def program_key(
     runs = [run] if isinstance(run, RunConfig) else list(run)
     try:
         statics = " | ".join(repr(r.static_key()) for r in runs)
-        ctrls = " | ".join(_stable(control.get(r.controller.name)) for r in runs)
+        ctrls = " | ".join(stable_text(control.get(r.controller.name)) for r in runs)
         parts = (statics, repr(shape), repr(episode), model_xml, ctrls,
-                 _stable(crops.get(shape.crop)), repr(segmenter))
-    except _Foreign:
+                 stable_text(crops.get(shape.crop)), repr(segmenter))
+    except Foreign:
         return ""
     return "\n".join(parts)

@@ -40,6 +40,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from mjxrow import env as mjxrow_env
+from mjxrow import runtime
 from mjxrow.policies import checkpoint as policies_checkpoint
 from mjxrow.policies import networks as policies_networks
 from mjxrow.rollout.config import build_run
@@ -133,32 +134,56 @@ class Trainer:
         self.unrolls = tuple(jax.jit(functools.partial(rollout.unroll, self.net, e,
                                                        length=cfg.unroll)) for e in self.envs)
         self.resets = tuple(jax.jit(e.reset) for e in self.envs)  # (key, pool) → worlds
+        # what names each environment's traced programs kept beside the compilation cache
+        # (`runtime.exported`; '' traces them every run)
+        self.keys = tuple(_program_key(cfg, r, e) for r, e in zip(self.raw, self.envs,
+                                                                   strict=True))
         self.bc_tx = train_ppo.optimizer(cfg.bc.learning_rate, cfg.bc.max_grad_norm)
         self.ppo_tx = train_ppo.optimizer(cfg.ppo.learning_rate, cfg.ppo.max_grad_norm)
         self.bc_update = jax.jit(functools.partial(self._update, "bc"))
         self.ppo_update = jax.jit(functools.partial(self._update, "ppo"))
 
+    def kept(self, i: int, what: str, fn, args: tuple, out_tree: Any):
+        """Environment i's jitted `fn`, or the same program for `args` traced by an earlier
+        process and kept beside the compilation cache (`runtime.exported`: no tracing);
+        `what` names the program among the environment's, `out_tree` its result's tree."""
+        if not self.keys[i]:
+            return fn
+        return runtime.exported(fn, args, f"{self.keys[i]}\n{what}", out_tree) or fn
+
+    def rollout_program(self, i: int, args: tuple):
+        """Environment i's rollout for `args` (params, worlds, key, beta, noise, ppo, pool),
+        kept as `kept` keeps it."""
+        return self.kept(i, f"rollout of {self.cfg.unroll} steps, {self.cfg.net}",
+                         self.unrolls[i], args, rollout.out_structure(args[1]))
+
     def lower_resets(self, key: jax.Array, pools: tuple) -> list:
-        """Every environment's reset, lowered (traced) for `key` (split over them) and
-        `pools`; a lowered program's `out_info` is the shape of its worlds."""
+        """Every environment's reset, lowered (traced, or kept from an earlier process) for
+        `key` (split over them) and `pools`; a lowered program's `out_info` is the shape of
+        its worlds."""
         keys = jax.random.split(key, len(self.envs))
-        return [r.lower(k, p) for r, k, p in zip(self.resets, keys, pools, strict=True)]
+        out = []
+        for i, (r, k, p) in enumerate(zip(self.resets, keys, pools, strict=True)):
+            tree = jax.tree.structure(jax.eval_shape(r, k, p)) if self.keys[i] else None
+            out.append(self.kept(i, "reset", r, (k, p), tree).lower(k, p))
+        return out
 
     def compile(self, params, worlds, key, pools, opts: dict, resets: list = (),
                 traced=None):
         """Every program the run needs, compiled side by side (one thread each: XLA compiles
         separate programs in parallel where the machine has the cores; the tracing before it
-        is Python's, one at a time): the lowered `resets`, the rollout of every environment
-        (on worlds of the shapes `worlds`), and the update of every phase in `opts` ({'bc' or
-        'ppo': its optimiser state}). `traced()`, if given, is called once every program is
-        traced, while XLA compiles them. Returns ([reset executables], [rollout executables],
-        {phase: update executable})."""
+        is Python's, one at a time, and skipped for a program kept by `kept`): the lowered
+        `resets`, the rollout of every environment (on worlds of the shapes `worlds`), and the
+        update of every phase in `opts` ({'bc' or 'ppo': its optimiser state}). `traced()`,
+        if given, is called once every program is traced, while XLA compiles them. Returns
+        ([reset executables], [rollout executables], {phase: update executable})."""
         c = (jnp.float32(1.0), jnp.float32(0.1), jnp.bool_(False))
         with ThreadPoolExecutor(len(resets) + len(self.unrolls) + len(opts)) as ex:
             futures = {("reset", i): ex.submit(low.compile) for i, low in enumerate(resets)}
             outs = []
-            for i, (u, st, pool) in enumerate(zip(self.unrolls, worlds, pools, strict=True)):
-                low = u.lower(params, st, jax.random.fold_in(key, i), *c, pool=pool)
+            for i, (st, pool) in enumerate(zip(worlds, pools, strict=True)):
+                args = (params, st, jax.random.fold_in(key, i), *c, pool)
+                low = self.rollout_program(i, args).lower(*args)
                 outs.append(low.out_info)
                 futures[("rollout", i)] = ex.submit(low.compile)
             _, traj, boot, _ = jax.eval_shape(rollout.join, outs)
@@ -285,7 +310,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     def unroll(params, envs, key, beta, noise, ppo, pools):
         """Every environment's rollout (its own program), joined along the batch, and each
         environment's episode stats."""
-        outs = [u(params, st, jax.random.fold_in(key, i), beta, noise, ppo, pool=pool)
+        outs = [u(params, st, jax.random.fold_in(key, i), beta, noise, ppo, pool)
                 for i, (u, st, pool) in enumerate(zip(unrolls, envs, pools, strict=True))]
         return (*rollout.join(outs), [o[3] for o in outs])
 
@@ -396,6 +421,14 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             else math.nan,
             "steps_per_s": float(np.median([r[1] for r in steady])) if steady else math.nan,
             "last": last, **({"saving": saving} if background_save else {})}
+
+
+def _program_key(cfg: TrainConfig, raw: mjxrow_env.Env, env: Any) -> str:
+    """Everything static in one environment's training programs besides the network's and
+    the rollout's (their callers add those), as text; '' where the environment has none."""
+    key = raw.program_key()
+    return key and (f"{key}\ntraining worlds {env.batch_size}, {env.max_resets} resets a "
+                    f"pass, time limit {cfg.episode_length}")
 
 
 def _counters(it: int, env_steps: int, elapsed: float) -> dict:

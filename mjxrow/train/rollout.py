@@ -72,8 +72,9 @@ def unroll(
     beta: jax.Array,
     noise_std: jax.Array,
     ppo: jax.Array,
-    length: int,
     pool=None,
+    *,
+    length: int,
 ):
     """Run `length` steps in `env` (batched, auto-resetting; `state` its state; `pool` an
     `env.randomize.Pool` its resets draw a share from, or None). Returns (new state, Transition
@@ -98,12 +99,27 @@ def unroll(
                         done=nxt.done, truncation=nxt.info["truncation"], teacher=teacher)
         return (nxt, _stats(nxt, sums)), tr
 
+    (state, sums), traj = jax.lax.scan(body, (state, _sums0(state)),
+                                       jax.random.split(key, length))
+    return state, traj, net.apply(params, state.obs)[2], sums
+
+
+def _sums0(state) -> dict:
+    """`unroll`'s episode stats before its first step: {name: (0, 0)}."""
     m = state.metrics
     names = [k for k in episode_keys() if k in m] + [k for k in m if k.startswith("reward/")]
     zero = jnp.zeros((), jnp.float32)
-    sums0 = {k: (zero, zero) for k in (*names, "episodes")}
-    (state, sums), traj = jax.lax.scan(body, (state, sums0), jax.random.split(key, length))
-    return state, traj, net.apply(params, state.obs)[2], sums
+    return {k: (zero, zero) for k in (*names, "episodes")}
+
+
+def out_structure(state) -> Any:
+    """The tree structure of `unroll`'s result on worlds `state` (arrays or shapes), without
+    tracing it: for a traced program kept as data (`runtime.exported`), whose results come
+    back as leaves."""
+    x = jnp.zeros(())
+    tr = Transition(obs=state.obs, action=x, log_prob=x, value=x, reward=x, done=x,
+                    truncation=x, teacher=x)
+    return jax.tree.structure((state, tr, x, _sums0(state)))
 
 
 def summarise_stats(sums: dict) -> dict[str, float]:
