@@ -142,9 +142,10 @@ def cache_dir() -> Path | None:
 # deserializes it instead of tracing, and XLA's compilation loads from the cache as before.
 
 # Custom calls inside our programs that jax.export would refuse to serialize: the Pallas kernels
-# (Triton: `__gpu$xla.gpu.triton`, `triton_kernel_call` in older JAX; Mosaic GPU). They are
-# kept as compiled for this JAX version, which the key holds.
-_KERNEL_CALLS = ("triton_kernel_call", "__gpu$xla.gpu.triton", "mosaic_gpu", "mosaic_gpu_v2")
+# (Triton: `__gpu$xla.gpu.triton` or `triton_kernel_call_ffi`, `triton_kernel_call` in older
+# JAX; Mosaic GPU). They are kept as compiled for this JAX version, which the key holds.
+_KERNEL_CALLS = ("triton_kernel_call", "triton_kernel_call_ffi", "__gpu$xla.gpu.triton",
+                 "mosaic_gpu", "mosaic_gpu_v2")
 _EXPORTED: dict[str, Any] = {}
 _EXPORT_WARNED = False
 

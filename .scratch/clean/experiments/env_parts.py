@@ -1,0 +1,151 @@
+"""Where a training step's time goes: the training environment of one preset (the trainer's
+wrappers: episode, vmap, auto-reset) at one or more batches B, its parts timed as separate
+programs:
+
+    python experiments/env_parts.py [--batch 2048 ...] [--preset zucchini] [--repeats 5]
+        [--parts advance observe ...] [--max-resets K] [--spread 300] [--record FILE.jsonl]
+
+- `advance`: physics, end events, reward and the episode's log (every world, no frame);
+- `observe`: the camera frame, the teacher's action and the observation;
+- `render`: the frame alone (no sensor noise);
+- `summarise`: the navigation metrics of every world's episode log (`rollout.metrics`);
+- `network`: the policy network on every world's observation;
+- `reset_pass`: one pass of the auto-reset loop's reset: `max_resets` new worlds, unobserved;
+- `step`: the auto-reset step (advance, the resets of the worlds that ended, observe), with zero
+  actions from the first state (no world ends, so no reset pass runs);
+- `rollout`: the trainer's rollout program (`train.rollout.unroll`: network, step, transitions,
+  episode stats) for `train.unroll` steps, on worlds whose episodes end at a steady rate: each
+  world's step count starts uniform in [0, `--spread`) under a time limit of `--spread` steps,
+  so about B / spread worlds end per step (as in training, where episodes last a few hundred
+  steps). Its env-steps/s is B · unroll over a call.
+
+The programs are lowered one after another and compiled side by side (threads), then each is
+timed by `mjxrow.bench.timing.time_runs`: the median of `--repeats` calls after one untimed
+call; env-steps/s is B (B · unroll for `rollout`) over it. Run it with
+`MJXROW_NONDETERMINISTIC=1` to time the same programs without XLA's deterministic ops.
+`--record` appends one row per part and batch (stage `env_parts`) in benchmarks.jsonl's form.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import statistics
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # run from a checkout, uninstalled
+
+PARTS = ("advance", "observe", "render", "summarise", "network", "reset_pass", "step", "rollout")
+
+
+def _programs(preset: str, B: int, parts, max_resets, spread: int) -> dict:
+    """{part: (lowered program, its arguments, env steps per call)} at batch B."""
+    import jax
+    import jax.numpy as jnp
+
+    from mjxrow.rollout import metrics as rollout_metrics
+    from mjxrow.train import loop
+
+    cfg = loop.TrainConfig(presets=(preset,), num_envs=B, max_resets=max_resets,
+                           episode_length=spread if "rollout" in parts else None)
+    tr = loop.Trainer(cfg)
+    env, e = tr.envs[0], tr.raw[0]
+    vm = env.env
+    key = jax.random.key(0)
+    st = tr.resets[0](key)  # the trainer's reset program
+    a = jnp.zeros((B, 2))
+    params = tr.init_params(key)
+    keys = jax.random.split(key, env.max_resets)
+    progs = {
+        "advance": (vm.advance, (st, a), B),
+        "observe": (vm.observe, (st,), B),
+        "render": (lambda s: jax.vmap(lambda d: e.frame(d, d.sim, None))(s.data), (st,), B),
+        "summarise": (lambda s: rollout_metrics.summarise(s.data.log, e.dt), (st,), B),
+        "network": (tr.net.apply, (params, st.obs), B),
+        "reset_pass": (vm.reset_world, (keys,), env.max_resets),
+        "step": (env.step, (st, a), B),
+    }
+    if "rollout" in parts:
+        steps = jax.random.randint(jax.random.key(1), (B,), 0, spread)
+        spread_st = st.replace(info={**st.info, "steps": steps})
+        c = (jnp.float32(0.5), jnp.float32(0.1), jnp.bool_(False))
+        progs["rollout"] = (tr.unrolls[0], (params, spread_st, key, *c), B * cfg.unroll)
+    # jit of the trainer's jitted rollout lowers that same program
+    return {p: (jax.jit(fn).lower(*args), args, n) for p, (fn, args, n) in progs.items()
+            if p in parts}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python experiments/env_parts.py",
+                                description=__doc__.split("\n")[0])
+    p.add_argument("--batch", type=int, nargs="+", default=[2048])
+    p.add_argument("--preset", default="zucchini")
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--parts", nargs="+", default=list(PARTS), metavar="PART",
+                   help=f"what to time: {', '.join(PARTS)} (default: all)")
+    p.add_argument("--max-resets", type=int, default=None,
+                   help="worlds per reset pass (default: the trainer's, B / 16)")
+    p.add_argument("--spread", type=int, default=300,
+                   help="rollout: the time limit the step counts are spread over [steps]")
+    p.add_argument("--record", type=Path, default=None)
+    args = p.parse_args(argv)
+    if min(args.batch) < 1 or args.repeats < 1 or args.spread < 2 or (
+            args.max_resets is not None and args.max_resets < 1):
+        p.error("--batch, --repeats and --max-resets must be ≥ 1, --spread ≥ 2")  # exit 2
+    bad = [x for x in args.parts if x not in PARTS]
+    if bad:
+        p.error(f"--parts: {bad[0]!r} is not one of {', '.join(PARTS)}")
+    import jax
+
+    from mjxrow import crops
+    from mjxrow.bench.timing import time_runs
+
+    if args.preset not in crops.names():
+        print(f"error: --preset: {args.preset!r} is not one of {', '.join(crops.names())}",
+              file=sys.stderr)
+        return 2
+    t0 = time.perf_counter()
+    jobs = {(B, part): job for B in args.batch
+            for part, job in _programs(args.preset, B, args.parts, args.max_resets,
+                                       args.spread).items()}
+    lower_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    with ThreadPoolExecutor(len(jobs)) as ex:
+        compiled = dict(zip(jobs, ex.map(lambda j: j[0].compile(), jobs.values()), strict=True))
+    compile_s = time.perf_counter() - t0
+    print(f"{len(jobs)} programs: traced in {lower_s:.1f} s, compiled side by side in "
+          f"{compile_s:.1f} s", flush=True)
+    det = not os.environ.get("MJXROW_NONDETERMINISTIC")
+    rows = []
+    for (B, part), (_, fargs, n) in jobs.items():
+        t = time_runs(compiled[(B, part)], *fargs, repeats=args.repeats)
+        med = statistics.median(t["runs_s"])
+        k = args.max_resets or max(1, B // 16)
+        rows.append({"date": datetime.date.today().isoformat(),
+                     "device": jax.devices()[0].device_kind, "stage": "env_parts",
+                     "config": f"training env, {args.preset}, {part}, max_resets {k}"
+                               + (f", spread {args.spread}" if part == "rollout" else "")
+                               + f", deterministic ops {'on' if det else 'off'}",
+                     "batch": B, "value": n / med,
+                     "unit": "worlds/s" if part == "reset_pass" else "env-steps/s",
+                     "run_ms": 1e3 * med,
+                     "compile_s": compile_s, "runs_s": t["runs_s"],
+                     "command": "python experiments/env_parts.py " + " ".join(sys.argv[1:]),
+                     "note": "compile_s: every part's programs compiled side by side"})
+        print(f"B {B:6d} {part:10s} run {1e3 * med:9.2f} ms  {n / med:12,.0f} env-steps/s",
+              flush=True)
+    if args.record is not None:
+        with args.record.open("a") as f:
+            for r in rows:
+                f.write(json.dumps(r) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,98 @@
+"""The policy network: a small CNN torso over the image observation (plus the proprioception
+vector), a Gaussian policy head and a value head (Flax linen).
+
+    net = PolicyNet(NetConfig())
+    mean, log_std, value = net.apply(params, obs)   # obs: env.observe's dict, any batch axes
+
+mean float32 [..., 2] (the action's mean, not squashed: the environment clips to [-1, 1]),
+log_std float32 [2] (state-independent), value float32 [...]. Images: uint8 (RGB, mask) are
+scaled to [-0.5, 0.5]; float features pass as they are. Convolutions pad SAME, so any image
+size works (a 16 × 16 test image included).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+
+@dataclasses.dataclass(frozen=True)
+class NetConfig:
+    """Architecture of the policy network (static; saved with the checkpoint)."""
+
+    channels: tuple[int, ...] = (16, 32, 32)  # conv layers' output channels
+    kernels: tuple[int, ...] = (8, 4, 3)  # their square kernel sizes [px]
+    strides: tuple[int, ...] = (4, 2, 2)  # their strides
+    hidden: int = 256  # units of the dense layer after the torso
+    init_log_std: float = -1.0  # initial log std of the Gaussian policy (normalised actions)
+
+    def __post_init__(self):
+        object.__setattr__(self, "channels", tuple(int(c) for c in self.channels))
+        object.__setattr__(self, "kernels", tuple(int(k) for k in self.kernels))
+        object.__setattr__(self, "strides", tuple(int(s) for s in self.strides))
+        if not len(self.channels) == len(self.kernels) == len(self.strides):
+            raise ValueError(f"net: channels, kernels and strides need equal lengths, got "
+                             f"{self.channels}, {self.kernels}, {self.strides}")
+        if int(self.hidden) < 1:
+            raise ValueError(f"net.hidden: must be at least 1, got {self.hidden}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v)
+                for f in dataclasses.fields(self)}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> NetConfig:
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"network: unknown keys {unknown}")
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+
+TINY = NetConfig(channels=(4, 8), kernels=(4, 3), strides=(2, 2), hidden=16)
+
+
+class PolicyNet(nn.Module):
+    """obs dict → (mean [..., 2], log_std [2], value [...]); see the module doc."""
+
+    cfg: NetConfig = NetConfig()
+
+    @nn.compact
+    def __call__(self, obs: dict[str, jax.Array]) -> tuple[jax.Array, jax.Array, jax.Array]:
+        img = obs["image"]
+        batch = img.shape[:-3]
+        x = img.reshape((-1,) + img.shape[-3:])
+        x = x.astype(jnp.float32) / 255.0 - 0.5 if img.dtype == jnp.uint8 \
+            else x.astype(jnp.float32)
+        for c, k, s in zip(self.cfg.channels, self.cfg.kernels, self.cfg.strides, strict=True):
+            x = nn.relu(nn.Conv(c, (k, k), (s, s), padding="SAME")(x))
+        x = x.reshape(x.shape[0], -1)
+        if "proprio" in obs:
+            x = jnp.concatenate([x, obs["proprio"].reshape(x.shape[0], -1)], -1)
+        x = nn.relu(nn.Dense(self.cfg.hidden)(x))
+        mean = nn.Dense(2, kernel_init=nn.initializers.variance_scaling(
+            0.01, "fan_in", "truncated_normal"))(x)
+        value = nn.Dense(1)(x)[:, 0]
+        log_std = self.param("log_std", nn.initializers.constant(self.cfg.init_log_std), (2,))
+        return mean.reshape(batch + (2,)), log_std, value.reshape(batch)
+
+
+def init(net: PolicyNet, obs_example: dict[str, jax.Array], key: jax.Array) -> dict:
+    """The network's variables for observations shaped like `obs_example` (one world)."""
+    return net.init(key, jax.tree.map(lambda x: x[None], obs_example))
+
+
+def log_prob(mean: jax.Array, log_std: jax.Array, action: jax.Array) -> jax.Array:
+    """log N(action; mean, exp(log_std)²), summed over the 2 action dims: [...]."""
+    z = (action - mean) * jnp.exp(-log_std)
+    return jnp.sum(-0.5 * z * z - log_std - 0.5 * math.log(2 * math.pi), -1)
+
+
+def entropy(log_std: jax.Array) -> jax.Array:
+    """Entropy of the diagonal Gaussian [] (nats)."""
+    return jnp.sum(log_std + 0.5 * math.log(2 * math.pi * math.e))

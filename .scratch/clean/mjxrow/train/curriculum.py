@@ -1,0 +1,216 @@
+"""The adversarial curriculum: every `every` iterations the failure search (`mjxrow.search`)
+runs against the CURRENT policy, and the fields it finds failing go into a pool that a fixed
+`share` of every batch of resets of one environment draws from (`env.randomize.Pool`), so that
+training goes where the policy breaks.
+
+    cur = Curriculum(CurriculumConfig(search="searches/policy_variety.yaml", every=20),
+                     presets, ranges_of_each_env)
+    pools = cur.pools()                          # traced: one compiled rollout for every pool
+    row = cur.round(policy_dir, out / "adversary", iteration)   # the search, the new pool
+
+Round 0 runs before the first iteration (the starting policy's failure rate), round k after
+iteration k · `every`. A round is one search folder `OUT/adversary/round_<k>/` (the search's
+own outputs: candidates, failures, state), run with the search's YAML, its controller replaced
+by `policy` on the checkpoint being trained, its budget `episodes` episodes (the same every
+round, so that the failure rates compare), no baseline, seed k. Its summary row (failing
+episodes per 1,000, failing candidates, distinct failures) goes to `OUT/adversary.jsonl`: the
+failure rate the search finds against the policy over the training run, plotted in the
+learning curve.
+
+The pool holds the searched values of the box's keys for the environment of the search's
+preset; every other field value of a pooled reset is drawn as usual. The box must lie inside
+that environment's randomisation ranges (checked when the curriculum is built), so a searched
+field is a field the environment can hold.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mjxrow.env import randomize as env_randomize
+
+
+@dataclasses.dataclass(frozen=True)
+class CurriculumConfig:
+    """Settings of the adversarial curriculum (`train.curriculum.<key>`); no `search`: off."""
+
+    search: str = ""  # a search YAML (e.g. searches/policy_variety.yaml); '' for none
+    every: int = 20  # iterations between searches (the first after `every` iterations)
+    share: float = 0.25  # share of every batch of resets taken from the searched failures
+    episodes: int = 512  # the search's budget per round, in episodes (equal every round)
+    pool: int = 64  # rows in the pool: the failures of the latest rounds, newest first
+    sets: tuple[str, ...] = ()  # `--set` overrides of the search config (KEY=VALUE)
+
+    def __post_init__(self):
+        if self.every < 1:
+            raise ValueError(f"train.curriculum.every: must be at least 1, got {self.every}")
+        if not 0.0 <= self.share <= 1.0:
+            raise ValueError(f"train.curriculum.share: must lie in [0, 1], got {self.share}")
+        for name in ("episodes", "pool"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"train.curriculum.{name}: must be at least 1, got "
+                                 f"{getattr(self, name)}")
+
+    @property
+    def on(self) -> bool:
+        return bool(str(self.search).strip())
+
+
+def search_config(cfg: CurriculumConfig, checkpoint: str | Path | None, seed: int = 0):
+    """The SearchConfig of one round: the YAML's search against the `policy` controller on
+    `checkpoint` (None: the shipped one, for checks before training), `cfg.episodes`
+    episodes, no baseline, seed `seed`."""
+    from mjxrow.search import config as search_config
+
+    sets = [*cfg.sets, "controller.name=policy",
+            f"controller.checkpoint={checkpoint or 'shipped'}",
+            f"budget.episodes={cfg.episodes}", "budget.minutes=null",
+            "budget.failures=null", "baseline=none", f"seed={seed}"]
+    try:
+        return search_config.load(cfg.search, sets)
+    except (search_config.ConfigError, OSError) as e:
+        raise ValueError(f"train.curriculum.search: {cfg.search}: {e}") from None
+
+
+def pool_rows(failing: list[dict[str, Any]], ranges) -> np.ndarray:
+    """Pool rows [n, k] (NaN: drawn) of failing candidates ({dotted key: value}), in the order
+    of an environment's `ranges` ((name, lo, hi), ...)."""
+    names = [n for n, _, _ in ranges]
+    rows = np.full((len(failing), len(names)), np.nan, np.float32)
+    for i, cand in enumerate(failing):
+        for j, n in enumerate(names):
+            v = cand.get(f"field.{n}")
+            if v is not None:
+                rows[i, j] = float(v)
+    return rows
+
+
+def check_box(box, ranges, preset: str) -> None:
+    """ValueError naming the first box key that the environment of `preset` does not randomise,
+    or whose searched range reaches outside the environment's."""
+    have = {n: (lo, hi) for n, lo, hi in ranges}
+    for d in box:
+        section, _, name = d.key.partition(".")
+        if section != "field" or d.choices:
+            raise ValueError(f"train.curriculum.search: box key {d.key}: only numeric field "
+                             "keys can seed training resets")
+        if name not in have:
+            raise ValueError(f"train.curriculum.search: box key {d.key} is not randomised by "
+                             f"the {preset} environment (env.randomize.ranges)")
+        lo, hi = have[name]
+        if d.low < lo - 1e-9 or d.high > hi + 1e-9:
+            raise ValueError(f"train.curriculum.search: box key {d.key} [{d.low:g}, "
+                             f"{d.high:g}] reaches outside the {preset} environment's range "
+                             f"[{lo:g}, {hi:g}]")
+
+
+class Curriculum:
+    """The pools of a training run's environments and the rounds that fill them (module doc).
+    `presets` and `ranges` are the training environments', in order; `checkpoint` a policy of
+    the run's observation and network (None: the shipped one) to check the search against."""
+
+    def __init__(self, cfg: CurriculumConfig, presets, ranges,
+                 checkpoint: str | Path | None = None):
+        self.cfg = cfg
+        self.ranges = tuple(ranges)
+        self.rows = [np.zeros((0, len(r)), np.float32) for r in self.ranges]
+        self.target = None
+        if cfg.on:  # the search's config checked against a checkpoint of this run's network
+            scfg = search_config(cfg, checkpoint)
+            preset = scfg.scenario.preset
+            if preset not in presets:
+                raise ValueError(f"train.curriculum.search: the search's preset {preset!r} is "
+                                 f"not trained (train.presets: {', '.join(presets)})")
+            self.target = list(presets).index(preset)
+            check_box(scfg.box, self.ranges[self.target], preset)
+
+    def pools(self) -> tuple[env_randomize.Pool, ...]:
+        """One pool per environment (empty where no search feeds it)."""
+        return tuple(env_randomize.make_pool(r, self.cfg.pool, self.cfg.share)
+                     for r in self.rows)
+
+    def load(self, pools) -> None:
+        """Take the rows of saved pools (a resumed run's)."""
+        for i, pool in enumerate(pools):
+            self.rows[i] = np.asarray(pool.values, np.float32)[:int(pool.count)]
+
+    def due(self, iteration: int) -> bool:
+        return self.target is not None and iteration > 0 and iteration % self.cfg.every == 0
+
+    def add(self, failing: list[dict[str, Any]]) -> int:
+        """Put failing candidates first in their environment's pool (the oldest drop out of
+        its `pool` rows); returns the pool's size."""
+        i = self.target
+        new = pool_rows(failing, self.ranges[i])
+        self.rows[i] = np.concatenate([new, self.rows[i]], 0)[:self.cfg.pool]
+        return len(self.rows[i])
+
+    def round(self, checkpoint: str | Path, folder: str | Path, iteration: int,
+              log_path: str | Path | None = None) -> dict[str, Any]:
+        """Search against the policy at `checkpoint`, refill the pool, append the summary to
+        `log_path` (JSON lines). Returns the summary row."""
+        from mjxrow.search import run as search_run
+
+        k = iteration // self.cfg.every
+        scfg = search_config(self.cfg, checkpoint, seed=k)
+        res = search_run.run(scfg, Path(folder) / f"round_{k:03d}", progress=False,
+                             figures=False)
+        cands = res["candidates"]
+        fails = cands[cands["outcome"] == "fail"] if len(cands) else cands
+        keys = [d.key for d in scfg.box]
+        failing = [{key: r[key] for key in keys} for _, r in fails.iterrows()]
+        size = self.add(failing)
+        s = res["summary"].iloc[0]
+        row = {"iteration": iteration, "round": k, "episodes": int(s["episodes"]),
+               "failing_episodes": int(s["failing_episodes"]),
+               "failing_per_1000": float(s["failing_per_1000"]),
+               "failing_candidates": int(s["failing_candidates"]),
+               "distinct_failures": int(s["distinct_failures"]), "pool": size,
+               "search_s": round(float(res["wall_s"]), 1)}
+        if log_path is not None:
+            with Path(log_path).open("a") as f:
+                f.write(json.dumps(row) + "\n")
+        return row
+
+
+def plot_rounds(log_path: str | Path, png: str | Path) -> Path | None:
+    """The failure rate each round's search found against the policy (failing episodes per
+    1,000 with its 95 % Wilson interval) over the training iterations, from the rounds' log
+    (`OUT/adversary.jsonl`); None when there is no round (matplotlib, Agg backend)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from mjxrow.rollout import aggregate as rollout_aggregate
+
+    p = Path(log_path)
+    rows = [json.loads(x) for x in p.read_text().splitlines() if x.strip()] if p.is_file() \
+        else []
+    if not rows:
+        return None
+    it = np.array([r["iteration"] for r in rows])
+    mid, err = [], []
+    for r in rows:
+        fails = np.zeros(r["episodes"], bool)
+        fails[:r["failing_episodes"]] = True
+        a = rollout_aggregate.aggregate({"fail": fails})["fail"]
+        mid.append(1000 * a["mean"])
+        err.append((1000 * (a["mean"] - a["lo"]), 1000 * (a["hi"] - a["mean"])))
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    ax.errorbar(it, mid, yerr=np.array(err).T, fmt="o-", capsize=3)
+    ax.set_xlabel("training iteration (round 0: the starting policy)")
+    ax.set_ylabel("failing episodes per 1,000")
+    ax.set_ylim(bottom=0)
+    ax.set_title(f"the failure search against the policy ({rows[0]['episodes']} episodes a "
+                 "round, 95 % intervals)", fontsize=10)
+    fig.tight_layout()
+    png = Path(png)
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+    return png

@@ -1,0 +1,465 @@
+"""The training loop: behaviour cloning / DAgger from the teacher, then PPO, in batched
+auto-resetting environments (one per crop), within a wall-time budget, resumable.
+
+    result = train(TrainConfig(...), out="runs/policy")
+
+writes into `out`: `state/` (orbax training state, resumed by the next call with the same
+`out`), `train_log.jsonl` (one line per iteration: phase, env steps, losses, episode metrics,
+each preset's success rate, steps/s), `learning_curve.png` (return, success, steps/s over env
+steps; with the adversarial curriculum also `adversary.png`, the failure rate its searches
+find) and `policy/` (the policy checkpoint the `policy` controller loads). The budget counts
+the iterations' wall time (compilation and the curriculum's searches excluded) over every call
+with the same `out`; the first `bc_fraction` of it is BC / DAgger, the rest PPO; `iterations`
+caps the iterations as well. A `deadline` that leaves less than the budget cuts it to what it
+leaves once everything is compiled (`train.schedule`), and the schedule follows the wall clock
+where it runs ahead of the budget's, so the split falls inside the call; once PPO has run it
+stays PPO. A progress bar shows the budget spent and its ETA.
+
+The training state holds everything the next iteration depends on: the network, both
+optimisers, the PRNG key, the counters, the worlds being driven (every environment's batched
+state) and the curriculum's pools, so a run resumed from a state saved at iteration k computes
+the same iteration k + 1 as the run that went on.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import functools
+import json
+import math
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm.auto import tqdm
+
+from mjxrow import env as mjxrow_env
+from mjxrow import runtime
+from mjxrow.policies import checkpoint as policies_checkpoint
+from mjxrow.policies import networks as policies_networks
+from mjxrow.rollout.config import build_run
+from mjxrow.train import bc as train_bc
+from mjxrow.train import curriculum as train_curriculum
+from mjxrow.train import ppo as train_ppo
+from mjxrow.train import rollout
+from mjxrow.train import schedule as train_schedule
+from mjxrow.train import state as train_state
+from mjxrow.train.curve import plot_curve
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """One training run (static)."""
+
+    presets: tuple[str, ...] = ("zucchini", "vineyard", "pear", "lettuce", "chard")  # crops
+    # trained together, one environment (and one rollout program) each
+    num_envs: int = 15360  # worlds stepped together, split evenly over the presets (3,072 a
+    # crop: a GPU runs a batch of 512 barely faster than one of 2,048, and 3,072 faster still)
+    unroll: int = 32  # control steps per rollout (one iteration)
+    budget_minutes: float = 5.0  # training wall time over all resumed calls (compile excluded)
+    bc_fraction: float = 0.5  # share of the budget for BC / DAgger before PPO (1: no PPO)
+    max_resets: int | None = None  # worlds per pass of the reset loop (None: B / 16)
+    episode_length: int | None = None  # training time limit [steps] (None: the episode's)
+    seed: int = 0  # PRNG seed of the network, the worlds and the rollouts
+    save_every: int = 25  # iterations between training-state checkpoints
+    iterations: int | None = None  # stop after this many iterations in all (None: budget only)
+    init: str = ""  # a policy checkpoint ('shipped' or a folder) whose network the run starts
+    # from (its observation and network must be this run's); '' for a fresh network
+    run: tuple[tuple[str, Any], ...] = ()  # RunConfig keys of every preset's environment
+    env: mjxrow_env.EnvConfig = mjxrow_env.EnvConfig()
+    net: policies_networks.NetConfig = policies_networks.NetConfig()
+    ppo: train_ppo.PPOConfig = train_ppo.PPOConfig()
+    bc: train_bc.BCConfig = train_bc.BCConfig()
+    curriculum: train_curriculum.CurriculumConfig = train_curriculum.CurriculumConfig()
+
+    def __post_init__(self):
+        if not self.presets:
+            raise ValueError("train.presets: at least one preset")
+        if self.num_envs < len(self.presets) or self.num_envs % len(self.presets):
+            raise ValueError(f"train.num_envs: {self.num_envs} does not split evenly over "
+                             f"{len(self.presets)} presets")
+        if not 0.0 <= self.bc_fraction <= 1.0:
+            raise ValueError(f"train.bc_fraction: must lie in [0, 1], got {self.bc_fraction}")
+        if not self.budget_minutes > 0:
+            raise ValueError(f"train.budget_minutes: must be positive, got "
+                             f"{self.budget_minutes}")
+        if self.unroll < 1:
+            raise ValueError(f"train.unroll: must be at least 1, got {self.unroll}")
+        if self.iterations is not None and self.iterations < 1:
+            raise ValueError(f"train.iterations: must be at least 1, got {self.iterations}")
+
+    @property
+    def per_env(self) -> int:
+        return self.num_envs // len(self.presets)
+
+    def run_config(self, preset: str):
+        """The RunConfig of one preset's environment (the controller is the teacher)."""
+        return build_run({"preset": preset, **dict(self.run)}, seed=self.seed)
+
+
+def make_envs(cfg: TrainConfig) -> tuple[list[mjxrow_env.Env], tuple]:
+    """The raw environments and their training wrappers (episode, vmap, auto-reset)."""
+    raw = [mjxrow_env.Env(cfg.run_config(p), cfg.env) for p in cfg.presets]
+    specs = {e.spec for e in raw}
+    if len(specs) > 1:
+        raise ValueError(f"train.presets: the environments observe differently: {specs}")
+    B = cfg.per_env
+    k = cfg.max_resets or max(1, B // 16)
+    wrapped = tuple(
+        mjxrow_env.AutoResetWrapper(
+            mjxrow_env.VmapWrapper(mjxrow_env.EpisodeWrapper(e, cfg.episode_length)), B, k
+        )
+        for e in raw
+    )
+    return raw, wrapped
+
+
+class Trainer:
+    """The compiled pieces of one training run (see `train`)."""
+
+    def __init__(self, cfg: TrainConfig):
+        self.cfg = cfg
+        self.raw, self.envs = make_envs(cfg)
+        self.spec = self.raw[0].spec
+        self.net = policies_networks.PolicyNet(cfg.net)
+        self.obs_example = jax.eval_shape(self.raw[0].reset, jax.random.key(0)).obs
+        self.limits = tuple(float(x) for x in np.asarray(self.raw[0].limits))
+        # one rollout program per environment (crop): they compile side by side, in threads
+        self.unrolls = tuple(jax.jit(functools.partial(rollout.unroll, self.net, e,
+                                                       length=cfg.unroll)) for e in self.envs)
+        self.resets = tuple(jax.jit(e.reset) for e in self.envs)  # (key, pool) → worlds
+        # what names each environment's traced programs kept beside the compilation cache
+        # (`runtime.exported`; '' traces them every run)
+        self.keys = tuple(_program_key(cfg, r, e) for r, e in zip(self.raw, self.envs,
+                                                                   strict=True))
+        self.bc_tx = train_ppo.optimizer(cfg.bc.learning_rate, cfg.bc.max_grad_norm)
+        self.ppo_tx = train_ppo.optimizer(cfg.ppo.learning_rate, cfg.ppo.max_grad_norm)
+        self.bc_update = jax.jit(functools.partial(self._update, "bc"))
+        self.ppo_update = jax.jit(functools.partial(self._update, "ppo"))
+
+    def kept(self, i: int, what: str, fn, args: tuple, out_tree: Any):
+        """Environment i's jitted `fn`, or the same program for `args` traced by an earlier
+        process and kept beside the compilation cache (`runtime.exported`: no tracing);
+        `what` names the program among the environment's, `out_tree` its result's tree."""
+        if not self.keys[i]:
+            return fn
+        return runtime.exported(fn, args, f"{self.keys[i]}\n{what}", out_tree) or fn
+
+    def rollout_program(self, i: int, args: tuple):
+        """Environment i's rollout for `args` (params, worlds, key, beta, noise, ppo, pool),
+        kept as `kept` keeps it."""
+        return self.kept(i, f"rollout of {self.cfg.unroll} steps, {self.cfg.net}",
+                         self.unrolls[i], args, rollout.out_structure(args[1]))
+
+    def lower_resets(self, key: jax.Array, pools: tuple) -> list:
+        """Every environment's reset, lowered (traced, or kept from an earlier process) for
+        `key` (split over them) and `pools`; a lowered program's `out_info` is the shape of
+        its worlds."""
+        keys = jax.random.split(key, len(self.envs))
+        out = []
+        for i, (r, k, p) in enumerate(zip(self.resets, keys, pools, strict=True)):
+            tree = jax.tree.structure(jax.eval_shape(r, k, p)) if self.keys[i] else None
+            out.append(self.kept(i, "reset", r, (k, p), tree).lower(k, p))
+        return out
+
+    def compile(self, params, worlds, key, pools, opts: dict, resets: list = (),
+                traced=None):
+        """Every program the run needs, compiled side by side (one thread each: XLA compiles
+        separate programs in parallel where the machine has the cores; the tracing before it
+        is Python's, one at a time, and skipped for a program kept by `kept`): the lowered
+        `resets`, the rollout of every environment (on worlds of the shapes `worlds`), and the
+        update of every phase in `opts` ({'bc' or 'ppo': its optimiser state}). `traced()`,
+        if given, is called once every program is traced, while XLA compiles them. Returns
+        ([reset executables], [rollout executables], {phase: update executable})."""
+        c = (jnp.float32(1.0), jnp.float32(0.1), jnp.bool_(False))
+        with ThreadPoolExecutor(len(resets) + len(self.unrolls) + len(opts)) as ex:
+            futures = {("reset", i): ex.submit(low.compile) for i, low in enumerate(resets)}
+            outs = []
+            for i, (st, pool) in enumerate(zip(worlds, pools, strict=True)):
+                args = (params, st, jax.random.fold_in(key, i), *c, pool)
+                low = self.rollout_program(i, args).lower(*args)
+                outs.append(low.out_info)
+                futures[("rollout", i)] = ex.submit(low.compile)
+            _, traj, boot, _ = jax.eval_shape(rollout.join, outs)
+            for ph, opt in opts.items():
+                update = self.bc_update if ph == "bc" else self.ppo_update
+                low = update.lower(params, opt, traj, boot, key)
+                futures[("update", ph)] = ex.submit(low.compile)
+            if traced is not None:
+                traced()
+            jobs = {k: f.result() for k, f in futures.items()}
+        return ([jobs[("reset", i)] for i in range(len(resets))],
+                [jobs[("rollout", i)] for i in range(len(self.unrolls))],
+                {ph: jobs[("update", ph)] for ph in opts})
+
+    def init_params(self, key: jax.Array) -> Any:
+        """A fresh network, or `cfg.init`'s weights (ValueError naming train.init when its
+        observation or network is not this run's)."""
+        shapes = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), self.obs_example)
+        params = policies_networks.init(self.net, shapes, key)
+        if not self.cfg.init:
+            return params
+        ck = policies_checkpoint.load(self.cfg.init, dataclasses.asdict(self.spec),
+                                      key="train.init")
+        if ck.net.cfg != self.cfg.net:
+            raise ValueError(f"train.init: {ck.path} holds network {ck.net.cfg}; this run "
+                             f"trains {self.cfg.net}")
+        return jax.tree.map(lambda ref, x: jnp.asarray(x, ref.dtype), params, ck.variables)
+
+    def _update(self, phase, params, opt_state, traj, boot, key):
+        c = self.cfg.ppo
+        adv, target = train_ppo.gae(traj, boot, c.discount, c.gae_lambda, c.reward_scale)
+        data = train_ppo.batch(traj, adv, target)
+        if phase == "bc":
+            b = self.cfg.bc
+            return train_ppo.sgd(
+                params,
+                opt_state,
+                data,
+                key,
+                train_bc.loss(self.net, b.value_cost),
+                self.bc_tx,
+                b.epochs,
+                b.minibatches,
+            )
+        return train_ppo.sgd(params, opt_state, data, key, train_ppo.loss(self.net, c), self.ppo_tx,
+                             c.epochs, c.minibatches)
+
+    def about(self) -> dict:
+        """What a saved training state must match to be resumed."""
+        return {"observation": self.spec.to_dict(), "network": self.cfg.net.to_dict(),
+                "presets": list(self.cfg.presets), "num_envs": self.cfg.num_envs,
+                "state_format": STATE_FORMAT}
+
+
+STATE_FORMAT = 2  # what a training state holds (2: with the worlds and the pools)
+
+
+def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
+          deadline: float | None = None, log=print, on_traced=None,
+          background_save: bool = False) -> dict[str, Any]:
+    """Train (or resume training) into `out`; stop when the budget or `cfg.iterations` is spent
+    or at the `deadline` (a `time.time()` value, e.g. to leave room for an evaluation).
+    `on_traced()`, if given, is called once the run's programs are traced (to start other
+    tracing then: Python traces one program at a time, XLA compiles side by side). Returns
+    the summary: paths, iterations, env steps, elapsed, compile time, seconds spent saving
+    the training state, steps/s, last metrics, the curriculum's rounds. With
+    `background_save` the last training state is still being written when it returns: its
+    `train.state.PendingSave` is the summary's `saving` (call its `wait()` before the process
+    ends, e.g. after an evaluation)."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    tr = Trainer(cfg)
+    key = jax.random.key(cfg.seed)
+    k_init, key = jax.random.split(key)
+    params = tr.init_params(k_init)
+    live = None  # the policy the curriculum's searches drive (written before each round)
+    if cfg.curriculum.on:
+        live = Path(policies_checkpoint.save(out / "adversary" / "policy", params, tr.spec,
+                                             cfg.net, tr.limits)).resolve()
+    cur = train_curriculum.Curriculum(cfg.curriculum, cfg.presets, [e.ranges for e in tr.raw],
+                                      live)
+    pools = cur.pools()
+    k_reset, key_after = jax.random.split(key)
+    # compile everything once, before the clock of the budget runs (from the first tracing)
+    t0 = time.perf_counter()
+    reset_lowered = tr.lower_resets(k_reset, pools)
+    worlds = tuple(low.out_info for low in reset_lowered)
+    state = {"params": params, "bc_opt": tr.bc_tx.init(params), "ppo_opt": tr.ppo_tx.init(params),
+             "counters": _counters(0, 0, 0.0), "key": jax.random.key_data(key),
+             "worlds": jax.eval_shape(train_state.storable, worlds), "pools": pools}
+    restored = train_state.restore_state(out / "state", state, tr.about())
+    if restored is not None:
+        state = restored[1]
+        log(f"resumed from {out / 'state'}: iteration {int(state['counters']['iteration'])}, "
+            f"{float(state['counters']['elapsed']) / 60:.1f} of {cfg.budget_minutes:g} min")
+    params, bc_opt, ppo_opt = state["params"], state["bc_opt"], state["ppo_opt"]
+    it = int(state["counters"]["iteration"])
+    env_steps = int(state["counters"]["env_steps"])
+    elapsed = float(state["counters"]["elapsed"])
+    key = jax.random.wrap_key_data(jnp.asarray(state["key"]))
+    pools = jax.tree.map(jnp.asarray, state["pools"])
+    cur.load(pools)
+
+    ppo_started = train_schedule.ppo_started(ppo_opt)
+    phases = train_schedule.reachable(cfg, elapsed, ppo_started)
+    resets, unrolls, updates = tr.compile(
+        params, worlds, key, pools,
+        {p: bc_opt if p == "bc" else ppo_opt for p in phases},
+        reset_lowered if restored is None else [], traced=on_traced)
+    if restored is None:
+        keys = jax.random.split(k_reset, len(resets))
+        envs, key = tuple(r(k, p) for r, k, p in zip(resets, keys, pools, strict=True)), \
+            key_after
+    else:
+        envs = train_state.restored(state["worlds"], worlds)
+    jax.block_until_ready(envs)
+    compile_s = time.perf_counter() - t0
+    log(f"compiled {len(unrolls)} rollout{'s' * (len(unrolls) > 1)} and the "
+        f"{' and '.join(p.upper() for p in phases)} update{'s' * (len(phases) > 1)} in "
+        f"{compile_s:.1f} s ({cfg.num_envs} worlds, {cfg.unroll} steps per rollout, "
+        f"{tr.spec.describe()})")
+
+    def unroll(params, envs, key, beta, noise, ppo, pools):
+        """Every environment's rollout (its own program), joined along the batch, and each
+        environment's episode stats."""
+        outs = [u(params, st, jax.random.fold_in(key, i), beta, noise, ppo, pool)
+                for i, (u, st, pool) in enumerate(zip(unrolls, envs, pools, strict=True))]
+        return (*rollout.join(outs), [o[3] for o in outs])
+
+    # with a deadline, the budget is what it leaves (`train.schedule`): PPO's share comes in time
+    budget = train_schedule.call_budget(cfg, elapsed,
+                                        None if deadline is None else deadline - time.time())
+    if budget < cfg.budget_minutes * 60.0:
+        log(f"the deadline leaves {(budget - elapsed) / 60:.1f} min of training: this call "
+            f"schedules over {budget / 60:.2f} of the {cfg.budget_minutes:g}-min budget "
+            f"(BC / DAgger up to {cfg.bc_fraction * budget / 60:.2f} min, then PPO)")
+    log_path = out / "train_log.jsonl"
+    bar = tqdm(total=round(budget), initial=min(round(elapsed), round(budget)), unit="s",
+               desc="training", disable=not progress, dynamic_ncols=True,
+               mininterval=1.0 if sys.stderr.isatty() else 30.0,
+               bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s "
+                          "[{elapsed}<{remaining}{postfix}]")
+    last: dict[str, Any] = {}
+    rates, rounds = [], []
+    search_s = save_s = 0.0
+    window: collections.deque = collections.deque(maxlen=20)  # recent iterations' episodes
+
+    def adversary_round():
+        """A search against the current policy, its failures into the pool (the curriculum)."""
+        nonlocal pools, search_s
+        t0 = time.perf_counter()
+        policies_checkpoint.save(live, params, tr.spec, cfg.net, tr.limits,
+                                 meta=_meta(cfg, tr, it, env_steps, elapsed))
+        rnd = cur.round(live, out / "adversary", it, out / "adversary.jsonl")
+        pools = cur.pools()
+        rounds.append(rnd)
+        search_s += time.perf_counter() - t0
+        bar.write(f"adversary round {rnd['round']} at iteration {it}: "
+                  f"{rnd['failing_per_1000']:.0f} failing episodes per 1,000, "
+                  f"{rnd['failing_candidates']} failing fields, pool {rnd['pool']}")
+
+    def save(wait=True):
+        nonlocal save_s
+        t0 = time.perf_counter()
+        pending = train_state.save_state(out / "state", it, {
+            "params": params, "bc_opt": bc_opt, "ppo_opt": ppo_opt,
+            "counters": _counters(it, env_steps, elapsed), "key": jax.random.key_data(key),
+            "worlds": train_state.storable(envs), "pools": pools}, tr.about(), wait=wait)
+        save_s += time.perf_counter() - t0
+        return pending
+
+    t_train, elapsed0 = time.perf_counter(), elapsed
+    with bar, log_path.open("a") as logf:
+        if cur.target is not None and it == 0:  # round 0: the starting policy's failure rate
+            adversary_round()
+        while elapsed < budget and (deadline is None or time.time() < deadline) and (
+                cfg.iterations is None or it < cfg.iterations):
+            # the schedule's clock: the budget's, or with a deadline the wall time of this
+            # call's training (saves, logging and searches included) where that ran ahead
+            clock = elapsed if deadline is None else max(
+                elapsed, elapsed0 + time.perf_counter() - t_train)
+            phase, beta, noise, ppo = train_schedule.phase(cfg, clock, budget, ppo_started)
+            if ppo and not ppo_started and cfg.ppo.start_log_std is not None:
+                params = train_schedule.with_log_std(params, cfg.ppo.start_log_std)
+            key, k_roll, k_upd = jax.random.split(key, 3)
+            t0 = time.perf_counter()
+            envs, traj, boot, sums, per_env = unroll(params, envs, k_roll, jnp.float32(beta),
+                                                     jnp.float32(noise), jnp.bool_(ppo),
+                                                     pools=pools)
+            jax.block_until_ready(traj.reward)
+            t1 = time.perf_counter()
+            if phase == "bc":
+                params, bc_opt, m = updates["bc"](params, bc_opt, traj, boot, k_upd)
+            else:
+                params, ppo_opt, m = updates["ppo"](params, ppo_opt, traj, boot, k_upd)
+                ppo_started = True
+            m = jax.device_get(m)
+            t2 = time.perf_counter()
+            it += 1
+            n = cfg.unroll * cfg.num_envs
+            env_steps += n
+            elapsed += t2 - t0
+            row = {"iteration": it, "phase": phase, "beta": beta, "env_steps": env_steps,
+                   "elapsed_s": elapsed, "rollout_s": t1 - t0, "update_s": t2 - t1,
+                   "rollout_steps_per_s": n / (t1 - t0), "steps_per_s": n / (t2 - t0),
+                   **{k: float(v) for k, v in m.items()},
+                   **rollout.summarise_stats(jax.device_get(sums)),
+                   **rollout.per_preset_success(cfg.presets, jax.device_get(per_env))}
+            logf.write(json.dumps(row) + "\n")
+            logf.flush()
+            rates.append((row["rollout_steps_per_s"], row["steps_per_s"]))
+            last = row
+            window.append(jax.device_get(sums))
+            recent = rollout.summarise_stats(jax.tree.map(lambda *x: sum(x), *window))
+            bar.set_postfix_str(f"{phase} return {recent['return']:.2f} success "
+                                f"{recent['nav/success']:.2f} {row['steps_per_s']:,.0f} "
+                                f"env-steps/s", refresh=False)
+            bar.update(min(round(elapsed), round(budget)) - bar.n)
+            if cur.due(it):
+                adversary_round()
+            if it % cfg.save_every == 0:
+                save()
+    saving = save(wait=not background_save)
+    policy_dir = policies_checkpoint.save(out / "policy", params, tr.spec, cfg.net, tr.limits,
+                                          meta=_meta(cfg, tr, it, env_steps, elapsed))
+    curve = plot_curve(log_path, out / "learning_curve.png")
+    train_curriculum.plot_rounds(out / "adversary.jsonl", out / "adversary.png")
+    steady = rates[1:] or rates
+    return {"out": str(out), "policy": str(policy_dir), "curve": str(curve),
+            "iterations": it, "env_steps": env_steps, "elapsed_s": elapsed,
+            "compile_s": compile_s, "wall_s": time.perf_counter() - t_start,
+            "search_s": search_s, "save_s": save_s, "rounds": rounds,
+            "rollout_steps_per_s": float(np.median([r[0] for r in steady])) if steady
+            else math.nan,
+            "steps_per_s": float(np.median([r[1] for r in steady])) if steady else math.nan,
+            "last": last, **({"saving": saving} if background_save else {})}
+
+
+def _program_key(cfg: TrainConfig, raw: mjxrow_env.Env, env: Any) -> str:
+    """Everything static in one environment's training programs besides the network's and
+    the rollout's (their callers add those), as text; '' where the environment has none."""
+    key = raw.program_key()
+    return key and (f"{key}\ntraining worlds {env.batch_size}, {env.max_resets} resets a "
+                    f"pass, time limit {cfg.episode_length}")
+
+
+def _counters(it: int, env_steps: int, elapsed: float) -> dict:
+    # 0-d arrays: orbax's standard handler takes arrays, not numpy scalars
+    return {"iteration": np.asarray(it, np.int64), "env_steps": np.asarray(env_steps, np.int64),
+            "elapsed": np.asarray(elapsed, np.float64)}
+
+
+def _meta(cfg: TrainConfig, tr: Trainer, it: int, env_steps: int, elapsed: float) -> dict:
+    return {"presets": list(cfg.presets), "iterations": it, "env_steps": env_steps,
+            "train_minutes": elapsed / 60.0, "num_envs": cfg.num_envs,
+            "bc_fraction": cfg.bc_fraction, "teacher": tr.raw[0].run.controller.name,
+            "init": cfg.init or None,
+            "image_shape": list(tr.obs_example["image"].shape),
+            "device": jax.devices()[0].device_kind}
+
+
+def initial_policy(cfg: TrainConfig, path: str | Path) -> Path | None:
+    """An untrained policy checkpoint of `cfg`'s architecture and observation at `path` (for
+    compiling the evaluation before the trained weights exist); None for "features" (its
+    shape needs the segmenter)."""
+    if cfg.env.observation == "features":
+        return None
+    run = cfg.run_config(cfg.presets[0])
+    spec = mjxrow_env.ObsSpec(
+        cfg.env.observation, run.camera.height, run.camera.width, cfg.env.proprio
+    )
+    obs = policies_checkpoint.example_obs(spec)
+    robot = run.robot_config()
+    params = policies_networks.init(
+        policies_networks.PolicyNet(cfg.net), obs, jax.random.key(cfg.seed)
+    )
+    return policies_checkpoint.save(path, params, spec, cfg.net, (robot.v_max, robot.omega_max),
+                                    meta={"untrained": True})

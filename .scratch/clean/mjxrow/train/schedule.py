@@ -1,0 +1,55 @@
+"""The training schedule: BC / DAgger for the first `bc_fraction` of the budget, then PPO
+(`phase`); the phases a call can reach (`reachable`); the budget a call schedules over when a
+deadline leaves less (`call_budget`); whether PPO has run (`ppo_started`) and the log std PPO
+starts from (`with_log_std`)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import jax.numpy as jnp
+import optax
+
+if TYPE_CHECKING:
+    from mjxrow.train.loop import TrainConfig
+
+
+def call_budget(cfg: TrainConfig, elapsed: float, left: float | None) -> float:
+    """The budget [s] this call schedules over: the run's (`cfg.budget_minutes`), cut to
+    `elapsed` + `left` where a deadline leaves less (`left`: seconds to the deadline once
+    everything is compiled; None: no deadline), so the BC / DAgger share and PPO's both fall
+    inside the call."""
+    budget = cfg.budget_minutes * 60.0
+    return budget if left is None else min(budget, elapsed + max(left, 0.0))
+
+
+def phase(cfg: TrainConfig, elapsed: float, budget: float,
+          ppo_started: bool = False) -> tuple[str, float, float, bool]:
+    """(phase, beta, noise_std, ppo) at `elapsed` seconds of a `budget` [s] (`call_budget`;
+    with a deadline the loop passes the wall time of the call's training where it is larger):
+    BC / DAgger for its first `bc_fraction`, then PPO; once PPO has updated the network
+    (`ppo_started`, from the PPO optimiser's step count) it stays PPO, whatever budget a
+    resumed call has."""
+    split = cfg.bc_fraction * budget
+    if cfg.bc_fraction >= 1 or (elapsed < split and not ppo_started):
+        return "bc", cfg.bc.beta(elapsed / split), cfg.bc.noise_std, False
+    return "ppo", 0.0, 0.0, True
+
+
+def reachable(cfg: TrainConfig, elapsed: float, ppo_started: bool) -> list[str]:
+    """The phases a call starting at `elapsed` can reach, whose updates it compiles: BC where
+    it is the phase now under the whole budget (a deadline only cuts the budget, so the split
+    comes no later), PPO unless `bc_fraction` is 1."""
+    now = phase(cfg, elapsed, cfg.budget_minutes * 60.0, ppo_started)[0]
+    return ["bc"] * (now == "bc") + ["ppo"] * (cfg.bc_fraction < 1)
+
+
+def with_log_std(params: dict, log_std: float) -> dict:
+    """The network's variables with its (state-independent) log std set to `log_std`."""
+    p = params["params"]
+    return {**params, "params": {**p, "log_std": jnp.full_like(p["log_std"], log_std)}}
+
+
+def ppo_started(ppo_opt) -> bool:
+    """Whether the PPO optimiser has taken a step (its Adam count)."""
+    return int(optax.tree_utils.tree_get(ppo_opt, "count")) > 0
