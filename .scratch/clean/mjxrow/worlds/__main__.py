@@ -1,6 +1,0 @@
-import sys
-
-from mjxrow.worlds import cli
-
-if __name__ == "__main__":
-    sys.exit(cli.main())
