@@ -162,8 +162,9 @@ def test_the_teacher_term_keeps_ppo_near_the_teacher():
 # Not in the suite (-m slow, .ci/slow): on the 2-core CPU the tiny trainer's programs take 60 s
 # to compile (the `trained` fixture, which the resume test below shares: that one is in the
 # suite, 56 s more), this test another 47 s and the sweep test below 37 s; with them the suite
-# (710 s before the resume test joined it) would come too near its 15 minutes. The suite keeps the PPO
-# objective on a fixed batch, the pool's share of the resets and the curriculum's pools.
+# (710 s before the resume test joined it) would come too near its 15 minutes. The suite
+# keeps the PPO objective on a fixed batch, the pool's share of the resets and the curriculum's
+# pools.
 @pytest.mark.slow
 def test_bc_and_ppo_iterations_finite_and_resume(trained):
     out, res = trained
