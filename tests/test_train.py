@@ -160,11 +160,10 @@ def test_the_teacher_term_keeps_ppo_near_the_teacher():
 
 
 # Not in the suite (-m slow, .ci/slow): on the 2-core CPU the tiny trainer's programs take 60 s
-# to compile (the `trained` fixture, which the resume test below shares: that one is in the
-# suite, 56 s more), this test another 47 s and the sweep test below 37 s; with them the suite
-# (710 s before the resume test joined it) would come too near its 15 minutes. The suite
-# keeps the PPO objective on a fixed batch, the pool's share of the resets and the curriculum's
-# pools.
+# to compile (the `trained` fixture), this test another 47 s, the resume test below 56 s and
+# the sweep test below 37 s. With the resume test alone the suite took 846 s against 710 s
+# without it (2026-11-28), too near its 15 minutes. The suite keeps the PPO objective on a
+# fixed batch, the pool's share of the resets and the curriculum's pools.
 @pytest.mark.slow
 def test_bc_and_ppo_iterations_finite_and_resume(trained):
     out, res = trained
@@ -191,6 +190,7 @@ def test_bc_and_ppo_iterations_finite_and_resume(trained):
               out, progress=False, log=lambda m: None)
 
 
+@pytest.mark.slow  # 56 s with the trainer compiled (see above)
 def test_a_state_saved_mid_run_resumes_to_the_same_next_iteration(trained, tmp_path):
     """Three PPO iterations straight, and two then a resume for the third from the state saved
     at the second (network, optimisers, key, the worlds being driven, the pools), give the same
