@@ -471,3 +471,26 @@ def test_the_trainers_programs_are_kept_and_read_back_without_tracing(tmp_path, 
     finally:
         R.disable_cache()
         R._EXPORTED.clear()
+
+
+def test_a_policys_program_is_named_by_its_checkpoints_architecture_not_its_path(saved,
+                                                                                 tmp_path):
+    """The policy's weights are traced, so its closed-loop program (kept beside the cache by
+    `runtime.exported` under `Built.key`) is named by the checkpoint's observation, network and
+    action limits: a copy elsewhere names the same program (a warm evaluation in another
+    `--out`), a checkpoint with other limits another one (they are constants in it)."""
+    import shutil
+
+    from mjxrow.rollout import build as RB
+    from mjxrow.rollout.config import build_run
+
+    def key(ck):
+        return RB.build(build_run({"preset": "vineyard", **dict(RUN), "controller.name": "policy",
+                                   "controller.checkpoint": str(ck)}, seed=0)).key
+
+    shutil.copytree(saved, tmp_path / "elsewhere")
+    ck = CK.load(saved, {"kind": "rgb", "height": 16, "width": 16})
+    slower = CK.save(tmp_path / "slower", ck.variables, ck.spec, TINY, (0.4, 1.0))
+    here = key(saved)
+    assert here and key(tmp_path / "elsewhere") == here
+    assert key(slower) != here and "limits (0.4, 1.0)" in key(slower)

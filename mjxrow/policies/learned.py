@@ -133,13 +133,27 @@ def make_policy(run, shape) -> tuple[Policy, Any]:
                                                 run.perception.threshold, variables)
 
 
+def program_statics(run) -> tuple:
+    """The run's static values as they fix its compiled program (`rollout.build.program_key`):
+    the checkpoint's observation, network and action limits in place of its path. The weights
+    are traced, so checkpoints of one architecture and limits share a program wherever they
+    lie, and a checkpoint replaced by one with other limits is another program."""
+    ck = load(run.controller.params, None, run.base_dir)
+    return tuple(x for x in run.static_key()
+                 if not (isinstance(x, tuple) and x[0] == "controller.checkpoint")) + (
+        ("controller.checkpoint", f"{ck.spec} {ck.net.cfg} limits {ck.limits}"),)
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class ImageController(Controller):
     """A controller that renders its own camera image: `rollout.build` calls
-    `make_policy(run, shape) -> (Policy, base perception params)` instead of `as_policy`."""
+    `make_policy(run, shape) -> (Policy, base perception params)` instead of `as_policy`, and
+    `program_statics(run)` for the static values that name its program."""
 
     make_policy: Callable[[Any, Any], tuple[Policy, Any]] | None = None
+    program_statics: Callable[[Any], tuple] | None = None
 
 
 POLICY = register(ImageController("policy", PolicyConfig, make_params, lambda params: (),
-                                  _unbuilt_act, needs_mask=False, make_policy=make_policy))
+                                  _unbuilt_act, needs_mask=False, make_policy=make_policy,
+                                  program_statics=program_statics))

@@ -383,6 +383,13 @@ def stable_text(x: Any) -> str:
     return repr(x)
 
 
+def _statics(run: RunConfig) -> tuple:
+    """The run's static values as its controller says they fix the program (a learned
+    policy: its checkpoint's architecture, not its path), else `static_key()`."""
+    f = getattr(control.get(run.controller.name), "program_statics", None)
+    return run.static_key() if f is None else f(run)
+
+
 def program_key(
     run: RunConfig | Sequence[RunConfig],
     shape: mjxrow_field.FieldShape,
@@ -390,15 +397,15 @@ def program_key(
     model_xml: str,
     segmenter: Any = None,
 ) -> str:
-    """What fixes a group's closed-loop program, as text: the run's static values, the field
-    shape, the static episode config, the MJX model, the controller and the crop as
-    registered, the segmenter's architecture; for a mixed group (a list of runs, one per
+    """What fixes a group's closed-loop program, as text: the run's static values
+    (`_statics`), the field shape, the static episode config, the MJX model, the controller and
+    the crop as registered, the segmenter's architecture; for a mixed group (a list of runs, one per
     variant) every variant's static values and controller. '' when a controller is code from
     outside the mjxrow package (then the program is traced every run)."""
 
     runs = [run] if isinstance(run, RunConfig) else list(run)
     try:
-        statics = " | ".join(repr(r.static_key()) for r in runs)
+        statics = " | ".join(repr(_statics(r)) for r in runs)
         ctrls = " | ".join(stable_text(control.get(r.controller.name)) for r in runs)
         parts = (statics, repr(shape), repr(episode), model_xml, ctrls,
                  stable_text(crops.get(shape.crop)), repr(segmenter))
