@@ -50,11 +50,11 @@ def _programs(preset: str, B: int, parts, max_resets, spread: int) -> dict:
     import jax.numpy as jnp
 
     from mjxrow.rollout import metrics as rollout_metrics
-    from mjxrow.train import loop
+    from mjxrow.train import loop, programs
 
     cfg = loop.TrainConfig(presets=(preset,), num_envs=B, max_resets=max_resets,
                            episode_length=spread if "rollout" in parts else None)
-    tr = loop.Trainer(cfg)
+    tr = programs.Trainer(cfg)
     env, e = tr.envs[0], tr.raw[0]
     vm = env.env
     key = jax.random.key(0)

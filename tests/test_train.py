@@ -379,7 +379,7 @@ def test_curriculum_checks_its_search_and_fills_the_pool_of_its_preset():
 def test_init_starts_from_a_checkpoint_of_the_same_network(saved):
     """`train.init` gives the run the checkpoint's weights; another network is a one-line error
     naming train.init (another observation: `CK.load`'s check, tested above)."""
-    from mjxrow.train.loop import Trainer
+    from mjxrow.train.programs import Trainer
 
     tr = Trainer(dataclasses.replace(CFG, init=str(saved)))
     params = tr.init_params(jax.random.key(7))
@@ -438,14 +438,14 @@ def test_the_trainers_programs_are_kept_and_read_back_without_tracing(tmp_path, 
     the reset without lowering it; another time limit is another program, traced afresh. The
     rollout's result tree, which the kept program does not hold, is `out_structure`'s."""
     from mjxrow import runtime as R
-    from mjxrow.train import loop as L
+    from mjxrow.train import programs as TP
     from mjxrow.train import rollout as RO
 
     c = (jnp.float32(1.0), jnp.float32(0.1), jnp.bool_(False))
     key = jax.random.key(0)
 
     def programs(cfg):
-        tr = L.Trainer(cfg)
+        tr = TP.Trainer(cfg)
         params = tr.init_params(key)
         (low,) = tr.lower_resets(key, (None,))
         args = (params, low.out_info, key, *c, None)

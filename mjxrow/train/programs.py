@@ -1,0 +1,173 @@
+"""The compiled pieces of a training run (`Trainer`): every crop's environment with the
+trainer's wrappers (episode, vmap, auto-reset), its reset and rollout programs (traced, or read
+back from the ones an earlier process kept beside the compilation cache: `runtime.exported`),
+the BC and PPO updates, and what a saved training state must match. `train.loop` drives them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from concurrent.futures import ThreadPoolExecutor
+from typing import TYPE_CHECKING, Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjxrow import env as mjxrow_env
+from mjxrow import runtime
+from mjxrow.policies import checkpoint as policies_checkpoint
+from mjxrow.policies import networks as policies_networks
+from mjxrow.train import bc as train_bc
+from mjxrow.train import ppo as train_ppo
+from mjxrow.train import rollout
+
+if TYPE_CHECKING:
+    from mjxrow.train.loop import TrainConfig
+
+
+def make_envs(cfg: TrainConfig) -> tuple[list[mjxrow_env.Env], tuple]:
+    """The raw environments and their training wrappers (episode, vmap, auto-reset)."""
+    raw = [mjxrow_env.Env(cfg.run_config(p), cfg.env) for p in cfg.presets]
+    specs = {e.spec for e in raw}
+    if len(specs) > 1:
+        raise ValueError(f"train.presets: the environments observe differently: {specs}")
+    B = cfg.per_env
+    k = cfg.max_resets or max(1, B // 16)
+    wrapped = tuple(
+        mjxrow_env.AutoResetWrapper(
+            mjxrow_env.VmapWrapper(mjxrow_env.EpisodeWrapper(e, cfg.episode_length)), B, k
+        )
+        for e in raw
+    )
+    return raw, wrapped
+
+
+class Trainer:
+    """The compiled pieces of one training run (see `train`)."""
+
+    def __init__(self, cfg: TrainConfig):
+        self.cfg = cfg
+        self.raw, self.envs = make_envs(cfg)
+        self.spec = self.raw[0].spec
+        self.net = policies_networks.PolicyNet(cfg.net)
+        self.obs_example = jax.eval_shape(self.raw[0].reset, jax.random.key(0)).obs
+        self.limits = tuple(float(x) for x in np.asarray(self.raw[0].limits))
+        # one rollout program per environment (crop): they compile side by side, in threads
+        self.unrolls = tuple(jax.jit(functools.partial(rollout.unroll, self.net, e,
+                                                       length=cfg.unroll)) for e in self.envs)
+        self.resets = tuple(jax.jit(e.reset) for e in self.envs)  # (key, pool) → worlds
+        # what names each environment's traced programs kept beside the compilation cache
+        # (`runtime.exported`; '' traces them every run)
+        self.keys = tuple(_program_key(cfg, r, e) for r, e in zip(self.raw, self.envs,
+                                                                   strict=True))
+        self.bc_tx = train_ppo.optimizer(cfg.bc.learning_rate, cfg.bc.max_grad_norm)
+        self.ppo_tx = train_ppo.optimizer(cfg.ppo.learning_rate, cfg.ppo.max_grad_norm)
+        self.bc_update = jax.jit(functools.partial(self._update, "bc"))
+        self.ppo_update = jax.jit(functools.partial(self._update, "ppo"))
+
+    def kept(self, i: int, what: str, fn, args: tuple, out_tree: Any):
+        """Environment i's jitted `fn`, or the same program for `args` traced by an earlier
+        process and kept beside the compilation cache (`runtime.exported`: no tracing);
+        `what` names the program among the environment's, `out_tree` its result's tree."""
+        if not self.keys[i]:
+            return fn
+        return runtime.exported(fn, args, f"{self.keys[i]}\n{what}", out_tree) or fn
+
+    def rollout_program(self, i: int, args: tuple):
+        """Environment i's rollout for `args` (params, worlds, key, beta, noise, ppo, pool),
+        kept as `kept` keeps it."""
+        return self.kept(i, f"rollout of {self.cfg.unroll} steps, {self.cfg.net}",
+                         self.unrolls[i], args, rollout.out_structure(args[1]))
+
+    def lower_resets(self, key: jax.Array, pools: tuple) -> list:
+        """Every environment's reset, lowered (traced, or kept from an earlier process) for
+        `key` (split over them) and `pools`; a lowered program's `out_info` is the shape of
+        its worlds."""
+        keys = jax.random.split(key, len(self.envs))
+        out = []
+        for i, (r, k, p) in enumerate(zip(self.resets, keys, pools, strict=True)):
+            tree = jax.tree.structure(jax.eval_shape(r, k, p)) if self.keys[i] else None
+            out.append(self.kept(i, "reset", r, (k, p), tree).lower(k, p))
+        return out
+
+    def compile(self, params, worlds, key, pools, opts: dict, resets: list = (),
+                traced=None):
+        """Every program the run needs, compiled side by side (one thread each: XLA compiles
+        separate programs in parallel where the machine has the cores; the tracing before it
+        is Python's, one at a time, and skipped for a program kept by `kept`): the lowered
+        `resets`, the rollout of every environment (on worlds of the shapes `worlds`), and the
+        update of every phase in `opts` ({'bc' or 'ppo': its optimiser state}). `traced()`,
+        if given, is called once every program is traced, while XLA compiles them. Returns
+        ([reset executables], [rollout executables], {phase: update executable})."""
+        c = (jnp.float32(1.0), jnp.float32(0.1), jnp.bool_(False))
+        with ThreadPoolExecutor(len(resets) + len(self.unrolls) + len(opts)) as ex:
+            futures = {("reset", i): ex.submit(low.compile) for i, low in enumerate(resets)}
+            outs = []
+            for i, (st, pool) in enumerate(zip(worlds, pools, strict=True)):
+                args = (params, st, jax.random.fold_in(key, i), *c, pool)
+                low = self.rollout_program(i, args).lower(*args)
+                outs.append(low.out_info)
+                futures[("rollout", i)] = ex.submit(low.compile)
+            _, traj, boot, _ = jax.eval_shape(rollout.join, outs)
+            for ph, opt in opts.items():
+                update = self.bc_update if ph == "bc" else self.ppo_update
+                low = update.lower(params, opt, traj, boot, key)
+                futures[("update", ph)] = ex.submit(low.compile)
+            if traced is not None:
+                traced()
+            jobs = {k: f.result() for k, f in futures.items()}
+        return ([jobs[("reset", i)] for i in range(len(resets))],
+                [jobs[("rollout", i)] for i in range(len(self.unrolls))],
+                {ph: jobs[("update", ph)] for ph in opts})
+
+    def init_params(self, key: jax.Array) -> Any:
+        """A fresh network, or `cfg.init`'s weights (ValueError naming train.init when its
+        observation or network is not this run's)."""
+        shapes = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), self.obs_example)
+        params = policies_networks.init(self.net, shapes, key)
+        if not self.cfg.init:
+            return params
+        ck = policies_checkpoint.load(self.cfg.init, dataclasses.asdict(self.spec),
+                                      key="train.init")
+        if ck.net.cfg != self.cfg.net:
+            raise ValueError(f"train.init: {ck.path} holds network {ck.net.cfg}; this run "
+                             f"trains {self.cfg.net}")
+        return jax.tree.map(lambda ref, x: jnp.asarray(x, ref.dtype), params, ck.variables)
+
+    def _update(self, phase, params, opt_state, traj, boot, key):
+        c = self.cfg.ppo
+        adv, target = train_ppo.gae(traj, boot, c.discount, c.gae_lambda, c.reward_scale)
+        data = train_ppo.batch(traj, adv, target)
+        if phase == "bc":
+            b = self.cfg.bc
+            return train_ppo.sgd(
+                params,
+                opt_state,
+                data,
+                key,
+                train_bc.loss(self.net, b.value_cost),
+                self.bc_tx,
+                b.epochs,
+                b.minibatches,
+            )
+        return train_ppo.sgd(params, opt_state, data, key, train_ppo.loss(self.net, c), self.ppo_tx,
+                             c.epochs, c.minibatches)
+
+    def about(self) -> dict:
+        """What a saved training state must match to be resumed."""
+        return {"observation": self.spec.to_dict(), "network": self.cfg.net.to_dict(),
+                "presets": list(self.cfg.presets), "num_envs": self.cfg.num_envs,
+                "state_format": STATE_FORMAT}
+
+
+STATE_FORMAT = 2  # what a training state holds (2: with the worlds and the pools)
+
+
+def _program_key(cfg: TrainConfig, raw: mjxrow_env.Env, env: Any) -> str:
+    """Everything static in one environment's training programs besides the network's and
+    the rollout's (their callers add those), as text; '' where the environment has none."""
+    key = raw.program_key()
+    return key and (f"{key}\ntraining worlds {env.batch_size}, {env.max_resets} resets a "
+                    f"pass, time limit {cfg.episode_length}")
