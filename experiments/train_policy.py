@@ -293,6 +293,8 @@ def report(args, cfg, result, blocks, out: Path, wall: float) -> None:
         summary["training"] = {k: v for k, v in result.items() if k != "last"}
         method = ("BC/DAgger" if cfg.bc_fraction >= 1 else "PPO" if cfg.bc_fraction <= 0
                   else "BC/DAgger then PPO") + (
+            f" (β floor {cfg.bc.beta_floor:g})"
+            if cfg.bc_fraction > 0 and cfg.bc.dagger and cfg.bc.beta_floor > 0 else "") + (
             f" with the teacher term (ppo.teacher_cost {cfg.ppo.teacher_cost:g})"
             if cfg.bc_fraction < 1 and cfg.ppo.teacher_cost > 0 else "") + (
             f" from {cfg.init}" if cfg.init else "") + (
@@ -317,7 +319,8 @@ def report(args, cfg, result, blocks, out: Path, wall: float) -> None:
                           f" px, unroll {cfg.unroll}", "batch": cfg.num_envs,
                 "value": result["rollout_steps_per_s"], "unit": "env-steps/s",
                 "steps_per_s_with_updates": result["steps_per_s"],
-                "compile_s": result["compile_s"], "run_s": result["elapsed_s"],
+                "compile_s": result["compile_s"],
+                "trace_s": result["compile_parts"]["trace_s"], "run_s": result["elapsed_s"],
                 "search_s": result["search_s"], "save_s": result["save_s"], "method": method,
                 "command": summary["command"]}) + "\n")
         for r in result["rounds"]:

@@ -296,6 +296,22 @@ def test_training_sets_route_to_their_configs():
     assert Path(CK.SHIPPED).name == "policy"
 
 
+def test_dagger_beta_falls_linearly_to_its_floor():
+    """β: 1 at the start, linear to `beta_floor` by `beta_until` of the phase, then the floor;
+    a floor outside [0, 1) is refused by name."""
+    plain = BCConfig(beta_until=0.5)
+    assert plain.beta(0.0) == 1.0 and plain.beta(0.25) == pytest.approx(0.5)
+    assert plain.beta(0.5) == 0.0 and plain.beta(0.9) == 0.0
+    floored = BCConfig(beta_until=0.5, beta_floor=0.3)
+    assert floored.beta(0.25) == pytest.approx(0.5) and floored.beta(0.4) == pytest.approx(0.3)
+    assert floored.beta(0.9) == pytest.approx(0.3)
+    cfg, _ = TC.apply_sets(CFG, ["bc.beta_floor=0.3"])
+    assert cfg.bc.beta(1.0) == pytest.approx(0.3)
+    for bad in (-0.1, 1.0):
+        with pytest.raises(ValueError, match="^bc.beta_floor: must lie in"):
+            BCConfig(beta_floor=bad)
+
+
 def test_a_deadline_puts_the_ppo_share_inside_the_call():
     """The BC / PPO split is a share of the budget the call can spend: a deadline that leaves
     less than the budget cuts it, so PPO starts before the deadline; once PPO has run, a

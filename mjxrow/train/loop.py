@@ -162,10 +162,13 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
         envs = train_state.restored(state["worlds"], worlds)
     jax.block_until_ready(envs)
     compile_s = time.perf_counter() - t0
+    parts = compile_parts(tr.compile_times, t0)
     log(f"compiled {len(unrolls)} rollout{'s' * (len(unrolls) > 1)} and the "
         f"{' and '.join(p.upper() for p in phases)} update{'s' * (len(phases) > 1)} in "
         f"{compile_s:.1f} s ({cfg.num_envs} worlds, {cfg.unroll} steps per rollout, "
-        f"{tr.spec.describe()})")
+        f"{tr.spec.describe()}): tracing {parts['trace_s']:.1f} s, then XLA "
+        f"{parts['xla_after_trace_s']:.1f} s; each program's XLA compilation "
+        + ", ".join(f"{k} {v:.1f} s" for k, v in parts["xla_s"].items()))
 
     def unroll(params, envs, key, beta, noise, ppo, pools):
         """Every environment's rollout (its own program), joined along the batch, and each
@@ -275,12 +278,25 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     steady = rates[1:] or rates
     return {"out": str(out), "policy": str(policy_dir), "curve": str(curve),
             "iterations": it, "env_steps": env_steps, "elapsed_s": elapsed,
-            "compile_s": compile_s, "wall_s": time.perf_counter() - t_start,
+            "compile_s": compile_s, "compile_parts": parts,
+            "wall_s": time.perf_counter() - t_start,
             "search_s": search_s, "save_s": save_s, "rounds": rounds,
             "rollout_steps_per_s": float(np.median([r[0] for r in steady])) if steady
             else math.nan,
             "steps_per_s": float(np.median([r[1] for r in steady])) if steady else math.nan,
             "last": last, **({"saving": saving} if background_save else {})}
+
+
+def compile_parts(times: dict, t0: float) -> dict:
+    """Where a compilation's time went, from `Trainer.compile_times` and its start `t0`:
+    `trace_s` (until every program was traced or read back: Python, one program at a time),
+    `xla_after_trace_s` (the XLA compilations still running after that) and `xla_s` (each
+    program's XLA compilation, side by side with the others and the tracing)."""
+    jobs = {k: v for k, v in times.items() if k != "traced"}
+    traced = times.get("traced", t0)
+    end = max((e for _, e in jobs.values()), default=traced)
+    return {"trace_s": traced - t0, "xla_after_trace_s": max(0.0, end - traced),
+            "xla_s": {k: e - s for k, (s, e) in jobs.items()}}
 
 
 def _counters(it: int, env_steps: int, elapsed: float) -> dict:

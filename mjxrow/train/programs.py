@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
@@ -66,6 +67,9 @@ class Trainer:
         self.ppo_tx = train_ppo.optimizer(cfg.ppo.learning_rate, cfg.ppo.max_grad_norm)
         self.bc_update = jax.jit(functools.partial(self._update, "bc"))
         self.ppo_update = jax.jit(functools.partial(self._update, "ppo"))
+        # where `compile`'s time went (time.perf_counter values): 'traced' (every program
+        # traced or read back), and each XLA compilation's (start, end) by program
+        self.compile_times: dict[str, Any] = {}
 
     def kept(self, i: int, what: str, fn, args: tuple, out_tree: Any):
         """Environment i's jitted `fn`, or the same program for `args` traced by an earlier
@@ -100,24 +104,31 @@ class Trainer:
         `resets`, the rollout of every environment (on worlds of the shapes `worlds`), and the
         update of every phase in `opts` ({'bc' or 'ppo': its optimiser state}). `traced()`,
         if given, is called once every program is traced, while XLA compiles them. Returns
-        ([reset executables], [rollout executables], {phase: update executable})."""
+        ([reset executables], [rollout executables], {phase: update executable}); the times
+        are in `compile_times`."""
         c = (jnp.float32(1.0), jnp.float32(0.1), jnp.bool_(False))
         with ThreadPoolExecutor(len(resets) + len(self.unrolls) + len(opts)) as ex:
-            futures = {("reset", i): ex.submit(low.compile) for i, low in enumerate(resets)}
+            futures = {("reset", i): ex.submit(_timed, low.compile)
+                       for i, low in enumerate(resets)}
             outs = []
             for i, (st, pool) in enumerate(zip(worlds, pools, strict=True)):
                 args = (params, st, jax.random.fold_in(key, i), *c, pool)
                 low = self.rollout_program(i, args).lower(*args)
                 outs.append(low.out_info)
-                futures[("rollout", i)] = ex.submit(low.compile)
+                futures[("rollout", i)] = ex.submit(_timed, low.compile)
             _, traj, boot, _ = jax.eval_shape(rollout.join, outs)
             for ph, opt in opts.items():
                 update = self.bc_update if ph == "bc" else self.ppo_update
                 low = update.lower(params, opt, traj, boot, key)
-                futures[("update", ph)] = ex.submit(low.compile)
+                futures[("update", ph)] = ex.submit(_timed, low.compile)
+            t_traced = time.perf_counter()
             if traced is not None:
                 traced()
-            jobs = {k: f.result() for k, f in futures.items()}
+            done = {k: f.result() for k, f in futures.items()}
+        jobs = {k: v[0] for k, v in done.items()}
+        self.compile_times = {"traced": t_traced, **{
+            f"{k[0]} {self.cfg.presets[k[1]] if k[0] != 'update' else k[1]}": v[1:]
+            for k, v in done.items()}}
         return ([jobs[("reset", i)] for i in range(len(resets))],
                 [jobs[("rollout", i)] for i in range(len(self.unrolls))],
                 {ph: jobs[("update", ph)] for ph in opts})
@@ -160,6 +171,12 @@ class Trainer:
         return {"observation": self.spec.to_dict(), "network": self.cfg.net.to_dict(),
                 "presets": list(self.cfg.presets), "num_envs": self.cfg.num_envs,
                 "state_format": STATE_FORMAT}
+
+
+def _timed(fn):
+    """(fn(), start, end): perf_counter values around the call."""
+    t = time.perf_counter()
+    return fn(), t, time.perf_counter()
 
 
 STATE_FORMAT = 2  # what a training state holds (2: with the worlds and the pools)
