@@ -622,6 +622,7 @@ set_train_policy() {  # train.log, policy.tgz, learning_curve.png, logs.tgz (tra
   [ ${#logs[@]} -gt 0 ] && tar -czf "$out/logs.tgz" -C "$work" "${logs[@]}"
   # the checkpoints as one file: a device machine returns few files and no deep folders
   parts=(); [ -d "$work/policy" ] && parts+=(-C "$work" policy)
+  [ -d "$work/policy_last" ] && parts+=(-C "$work" policy_last)
   if [ -d mjxrow/checkpoints/policy ]; then
     rm -rf "$work/shipped_policy" && cp -r mjxrow/checkpoints/policy "$work/shipped_policy"
     parts+=(-C "$work" shipped_policy)

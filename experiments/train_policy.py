@@ -259,6 +259,10 @@ def _work(args, cfg, values, out: Path, t_start: float) -> int:
                           file=sys.stderr)
             CK.resolve(out / "policy", key="--out")
             blocks = evaluation.run(log=lambda m: print(m, flush=True))
+            if result is not None and result.get("policy_last"):  # beside the average
+                blocks += evaluation.run_checkpoint(result["policy_last"],
+                                                    "learned policy, last weights",
+                                                    log=lambda m: print(m, flush=True))
     except ValueError as e:
         print(f"error: {str(e).splitlines()[0]}", file=sys.stderr)
         return 2
@@ -293,14 +297,14 @@ def report(args, cfg, result, blocks, out: Path, wall: float) -> None:
         summary["training"] = {k: v for k, v in result.items() if k != "last"}
         method = ("BC/DAgger" if cfg.bc_fraction >= 1 else "PPO" if cfg.bc_fraction <= 0
                   else "BC/DAgger then PPO") + (
-            f" (β floor {cfg.bc.beta_floor:g})"
-            if cfg.bc_fraction > 0 and cfg.bc.dagger and cfg.bc.beta_floor > 0 else "") + (
             f" with the teacher term (ppo.teacher_cost {cfg.ppo.teacher_cost:g})"
             if cfg.bc_fraction < 1 and cfg.ppo.teacher_cost > 0 else "") + (
             f" from {cfg.init}" if cfg.init else "") + (
             f", adversarial curriculum ({cfg.curriculum.search}, every "
             f"{cfg.curriculum.every} iterations, share {cfg.curriculum.share:g})"
-            if cfg.curriculum.on else "")
+            if cfg.curriculum.on else "") + (
+            f", the weights' moving average (decay {cfg.average:g} an iteration)"
+            if cfg.average > 0 else "")
         summary["method"] = method
         lines += [f"method: {method}",
                   f"training: {result['elapsed_s'] / 60:.2f} min of {cfg.budget_minutes:g} "

@@ -194,10 +194,11 @@ def test_bc_and_ppo_iterations_finite_and_resume(trained):
 def test_a_state_saved_mid_run_resumes_to_the_same_next_iteration(trained, tmp_path):
     """Three PPO iterations straight, and two then a resume for the third from the state saved
     at the second (network, optimisers, key, the worlds being driven, the pools), give the same
-    third iteration: the same losses and episode numbers, the same weights. Pure PPO
+    third iteration: the same losses and episode numbers, the same weights, last and averaged
+    (`average`: `policy/` holds the moving average, `policy_last/` the last). Pure PPO
     (`bc_fraction` 0), so the schedule does not depend on the wall time."""
     cfg = dataclasses.replace(CFG, bc_fraction=0.0, budget_minutes=30.0, save_every=2,
-                              iterations=3)
+                              iterations=3, average=0.5)
     quiet = {"progress": False, "log": lambda m: None}
     straight = train(cfg, tmp_path / "straight", **quiet)
     assert straight["iterations"] == 3
@@ -211,10 +212,15 @@ def test_a_state_saved_mid_run_resumes_to_the_same_next_iteration(trained, tmp_p
     assert a["iteration"] == b["iteration"] == 3
     for k in ("policy_loss", "value_loss", "entropy", "return", "reward/progress"):
         assert a[k] == b[k] or (np.isnan(a[k]) and np.isnan(b[k])), (k, a[k], b[k])
-    pa = CK.load(tmp_path / "straight" / "policy").variables
-    pb = CK.load(tmp_path / "split" / "policy").variables
-    for x, y in zip(jax.tree.leaves(pa), jax.tree.leaves(pb), strict=True):
-        np.testing.assert_array_equal(x, y)
+    for name in ("policy", "policy_last"):
+        pa = CK.load(tmp_path / "straight" / name).variables
+        pb = CK.load(tmp_path / "split" / name).variables
+        for x, y in zip(jax.tree.leaves(pa), jax.tree.leaves(pb), strict=True):
+            np.testing.assert_array_equal(x, y)
+    # the average is not the last weights
+    avg, last = (jax.tree.leaves(CK.load(tmp_path / "straight" / n).variables)
+                 for n in ("policy", "policy_last"))
+    assert any(not np.array_equal(x, y) for x, y in zip(avg, last, strict=True))
 
 
 def test_checkpoint_roundtrip_and_mismatch(tmp_path):
@@ -289,27 +295,14 @@ def test_training_sets_route_to_their_configs():
     assert cfg.env.randomize.start_progress == 0.5 and cfg.ppo.learning_rate == 1e-4
     assert cfg.bc.dagger is False and cfg.bc.beta(0.9) == 1.0
     assert run == {"camera.width": 32, "field.d_rr": [1.5, 2.5]}
+    with pytest.raises(ValueError, match="^train.average: must lie in"):
+        TC.apply_sets(CFG, ["train.average=1"])
+    assert TC.apply_sets(CFG, ["train.average=0.8"])[0].average == 0.8
     with pytest.raises(ValueError, match="^ppo.learning_rat: unknown key"):
         TC.apply_sets(CFG, ["ppo.learning_rat=1"])
     with pytest.raises(ValueError, match="^env.observation: 'depth' is not one of"):
         TC.apply_sets(CFG, ["env.observation=depth"])
     assert Path(CK.SHIPPED).name == "policy"
-
-
-def test_dagger_beta_falls_linearly_to_its_floor():
-    """β: 1 at the start, linear to `beta_floor` by `beta_until` of the phase, then the floor;
-    a floor outside [0, 1) is refused by name."""
-    plain = BCConfig(beta_until=0.5)
-    assert plain.beta(0.0) == 1.0 and plain.beta(0.25) == pytest.approx(0.5)
-    assert plain.beta(0.5) == 0.0 and plain.beta(0.9) == 0.0
-    floored = BCConfig(beta_until=0.5, beta_floor=0.3)
-    assert floored.beta(0.25) == pytest.approx(0.5) and floored.beta(0.4) == pytest.approx(0.3)
-    assert floored.beta(0.9) == pytest.approx(0.3)
-    cfg, _ = TC.apply_sets(CFG, ["bc.beta_floor=0.3"])
-    assert cfg.bc.beta(1.0) == pytest.approx(0.3)
-    for bad in (-0.1, 1.0):
-        with pytest.raises(ValueError, match="^bc.beta_floor: must lie in"):
-            BCConfig(beta_floor=bad)
 
 
 def test_a_deadline_puts_the_ppo_share_inside_the_call():

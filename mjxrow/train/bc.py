@@ -7,11 +7,8 @@ the network otherwise, noise of std `noise_std` on either (states off the teache
 regresses the network's mean on the teacher's action at every visited observation (mean
 squared error over the 2 normalised action dims). With `dagger` β falls linearly from 1 to 0
 over the first `beta_until` of the phase (the learner visits its own states, the teacher labels
-them), to `beta_floor` and no lower; without it β stays 1 (plain behaviour cloning). A floor
-keeps the teacher in a share of the steps: trained on its own states alone (β = 0, the last
-rollout's data only), the network drifts, and its success on the training fields falls. The
-value head learns the λ-returns of the same rollouts, so PPO can start from this network with
-a trained critic.
+them); without it β stays 1 (plain behaviour cloning). The value head learns the λ-returns of
+the same rollouts, so PPO can start from this network with a trained critic.
 """
 
 from __future__ import annotations
@@ -33,7 +30,6 @@ class BCConfig:
     # 15,360 worlds and 32 steps)
     dagger: bool = True  # the learner acts more and more (β falls to 0); False: plain BC
     beta_until: float = 0.5  # fraction of the phase over which β falls from 1 to 0
-    beta_floor: float = 0.0  # the least β (the teacher's share once it has fallen)
     noise_std: float = 0.2  # std of the noise on the acting action (normalised units)
     value_cost: float = 0.5  # weight of the value loss
     max_grad_norm: float = 1.0  # global gradient-norm clip
@@ -47,8 +43,6 @@ class BCConfig:
                 raise ValueError(f"bc.{name}: must be non-negative, got {getattr(self, name)}")
         if not 0 < self.beta_until <= 1:
             raise ValueError(f"bc.beta_until: must lie in (0, 1], got {self.beta_until}")
-        if not 0 <= self.beta_floor < 1:
-            raise ValueError(f"bc.beta_floor: must lie in [0, 1), got {self.beta_floor}")
         for name in ("epochs", "minibatches"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"bc.{name}: must be at least 1, got {getattr(self, name)}")
@@ -57,7 +51,7 @@ class BCConfig:
         """Probability that the teacher acts at `progress` ∈ [0, 1] of the phase."""
         if not self.dagger:
             return 1.0
-        return float(max(self.beta_floor, 1.0 - progress / self.beta_until))
+        return float(max(0.0, 1.0 - progress / self.beta_until))
 
 
 def teacher_error(mean: jnp.ndarray, teacher: jnp.ndarray) -> jnp.ndarray:

@@ -67,6 +67,7 @@ class Block:
     compile_s: float = 0.0
     run_s: float = 0.0
     summary: dict | None = None
+    label: str | None = None  # the table's name for the controller (None: its usual name)
 
 
 class Evaluation:
@@ -128,6 +129,27 @@ class Evaluation:
                 f"[{a['lo']:.2f}, {a['hi']:.2f}] ({b.n} episodes, {b.run_s:.1f} s)")
         return self.blocks
 
+    def run_checkpoint(self, checkpoint: str, label: str, log=print) -> list[Block]:
+        """The policy's blocks again with another checkpoint of the same architecture (e.g. the
+        last weights beside their moving average), in the programs `run` compiled (the weights
+        are traced): new blocks named `label` in the table."""
+        extra = []
+        for b in self.blocks:
+            if b.controller != "policy" or b.exe is None:
+                continue
+            e = Block(b.preset, "policy", run_config(b.preset, "policy", self.values,
+                                                     checkpoint, self.seed), b.n, exe=b.exe,
+                      label=label)
+            t0 = time.perf_counter()
+            built, batch = self._build(e, e.run)
+            e.summary = built.summarise(e.exe(*batch.args(built.mx)), e.n)
+            e.run_s = time.perf_counter() - t0
+            a = rollout_aggregate.aggregate({"success": e.summary["success"]})["success"]
+            log(f"{label} on {e.preset}: success {a['mean']:.2f} [{a['lo']:.2f}, "
+                f"{a['hi']:.2f}] ({e.n} episodes, {e.run_s:.1f} s)")
+            extra.append(e)
+        return extra
+
 
 def table(blocks: list[Block]) -> tuple[str, list[dict]]:
     """A markdown table (success [95 % Wilson CI], collisions, MAE, CHA, ω std per block) and
@@ -141,7 +163,7 @@ def table(blocks: list[Block]) -> tuple[str, list[dict]]:
             {
                 "preset": b.preset,
                 "controller": b.controller,
-                "label": CONTROLLERS[b.controller][0],
+                "label": b.label or CONTROLLERS[b.controller][0],
                 "episodes": b.n,
                 **{f"{k}_{q}": agg[k][q] for k in agg for q in ("mean", "lo", "hi")},
                 "reasons": rollout_aggregate.reason_counts(s["reason"]),

@@ -7,18 +7,19 @@ writes into `out`: `state/` (orbax training state, resumed by the next call with
 `out`), `train_log.jsonl` (one line per iteration: phase, env steps, losses, episode metrics,
 each preset's success rate, steps/s), `learning_curve.png` (return, success, steps/s over env
 steps; with the adversarial curriculum also `adversary.png`, the failure rate its searches
-find) and `policy/` (the policy checkpoint the `policy` controller loads). The budget counts
-the iterations' wall time (compilation and the curriculum's searches excluded) over every call
-with the same `out`; the first `bc_fraction` of it is BC / DAgger, the rest PPO; `iterations`
-caps the iterations as well. A `deadline` that leaves less than the budget cuts it to what it
-leaves once everything is compiled (`train.schedule`), and the schedule follows the wall clock
-where it runs ahead of the budget's, so the split falls inside the call; once PPO has run it
-stays PPO. A progress bar shows the budget spent and its ETA.
+find) and `policy/` (the policy checkpoint the `policy` controller loads: the last weights, or
+with `average` their moving average over the iterations, the last then in `policy_last/`). The
+budget counts the iterations' wall time (compilation and the curriculum's searches excluded)
+over every call with the same `out`; the first `bc_fraction` of it is BC / DAgger, the rest
+PPO; `iterations` caps the iterations as well. A `deadline` that leaves less than the budget
+cuts it to what it leaves once everything is compiled (`train.schedule`), and the schedule
+follows the wall clock where it runs ahead of the budget's, so the split falls inside the call;
+once PPO has run it stays PPO. A progress bar shows the budget spent and its ETA.
 
 The training state holds everything the next iteration depends on: the network, both
 optimisers, the PRNG key, the counters, the worlds being driven (every environment's batched
-state) and the curriculum's pools, so a run resumed from a state saved at iteration k computes
-the same iteration k + 1 as the run that went on.
+state), the curriculum's pools and the weights' moving average, so a run resumed from a state
+saved at iteration k computes the same iteration k + 1 as the run that went on.
 """
 
 from __future__ import annotations
@@ -66,6 +67,8 @@ class TrainConfig:
     episode_length: int | None = None  # training time limit [steps] (None: the episode's)
     seed: int = 0  # PRNG seed of the network, the worlds and the rollouts
     save_every: int = 25  # iterations between training-state checkpoints
+    average: float = 0.0  # per-iteration decay of the moving average of the weights that
+    # `policy/` holds (0: the last weights; e.g. 0.8 weighs about the last five iterations)
     iterations: int | None = None  # stop after this many iterations in all (None: budget only)
     init: str = ""  # a policy checkpoint ('shipped' or a folder) whose network the run starts
     # from (its observation and network must be this run's); '' for a fresh network
@@ -89,6 +92,8 @@ class TrainConfig:
                              f"{self.budget_minutes}")
         if self.unroll < 1:
             raise ValueError(f"train.unroll: must be at least 1, got {self.unroll}")
+        if not 0.0 <= self.average < 1.0:
+            raise ValueError(f"train.average: must lie in [0, 1), got {self.average}")
         if self.iterations is not None and self.iterations < 1:
             raise ValueError(f"train.iterations: must be at least 1, got {self.iterations}")
 
@@ -134,13 +139,15 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     worlds = tuple(low.out_info for low in reset_lowered)
     state = {"params": params, "bc_opt": tr.bc_tx.init(params), "ppo_opt": tr.ppo_tx.init(params),
              "counters": _counters(0, 0, 0.0), "key": jax.random.key_data(key),
-             "worlds": jax.eval_shape(train_state.storable, worlds), "pools": pools}
+             "worlds": jax.eval_shape(train_state.storable, worlds), "pools": pools,
+             "average": params}
     restored = train_state.restore_state(out / "state", state, tr.about())
     if restored is not None:
         state = restored[1]
         log(f"resumed from {out / 'state'}: iteration {int(state['counters']['iteration'])}, "
             f"{float(state['counters']['elapsed']) / 60:.1f} of {cfg.budget_minutes:g} min")
     params, bc_opt, ppo_opt = state["params"], state["bc_opt"], state["ppo_opt"]
+    average = state["average"]
     it = int(state["counters"]["iteration"])
     env_steps = int(state["counters"]["env_steps"])
     elapsed = float(state["counters"]["elapsed"])
@@ -215,7 +222,8 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
         pending = train_state.save_state(out / "state", it, {
             "params": params, "bc_opt": bc_opt, "ppo_opt": ppo_opt,
             "counters": _counters(it, env_steps, elapsed), "key": jax.random.key_data(key),
-            "worlds": train_state.storable(envs), "pools": pools}, tr.about(), wait=wait)
+            "worlds": train_state.storable(envs), "pools": pools, "average": average},
+            tr.about(), wait=wait)
         save_s += time.perf_counter() - t0
         return pending
 
@@ -244,6 +252,8 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             else:
                 params, ppo_opt, m = updates["ppo"](params, ppo_opt, traj, boot, k_upd)
                 ppo_started = True
+            if cfg.average > 0:
+                average = tr.average(average, params)
             m = jax.device_get(m)
             t2 = time.perf_counter()
             it += 1
@@ -271,12 +281,17 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             if it % cfg.save_every == 0:
                 save()
     saving = save(wait=not background_save)
-    policy_dir = policies_checkpoint.save(out / "policy", params, tr.spec, cfg.net, tr.limits,
-                                          meta=_meta(cfg, tr, it, env_steps, elapsed))
+    meta = _meta(cfg, tr, it, env_steps, elapsed)
+    policy_dir = policies_checkpoint.save(out / "policy", average if cfg.average > 0 else params,
+                                          tr.spec, cfg.net, tr.limits,
+                                          meta={**meta, "average": cfg.average})
+    last_dir = policies_checkpoint.save(out / "policy_last", params, tr.spec, cfg.net, tr.limits,
+                                        meta=meta) if cfg.average > 0 else None
     curve = plot_curve(log_path, out / "learning_curve.png")
     train_curriculum.plot_rounds(out / "adversary.jsonl", out / "adversary.png")
     steady = rates[1:] or rates
-    return {"out": str(out), "policy": str(policy_dir), "curve": str(curve),
+    return {"out": str(out), "policy": str(policy_dir),
+            **({"policy_last": str(last_dir)} if last_dir else {}), "curve": str(curve),
             "iterations": it, "env_steps": env_steps, "elapsed_s": elapsed,
             "compile_s": compile_s, "compile_parts": parts,
             "wall_s": time.perf_counter() - t_start,

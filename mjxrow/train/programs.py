@@ -67,6 +67,9 @@ class Trainer:
         self.ppo_tx = train_ppo.optimizer(cfg.ppo.learning_rate, cfg.ppo.max_grad_norm)
         self.bc_update = jax.jit(functools.partial(self._update, "bc"))
         self.ppo_update = jax.jit(functools.partial(self._update, "ppo"))
+        d = cfg.average  # the weights' moving average, one step an iteration
+        self.average = jax.jit(lambda avg, p: jax.tree.map(lambda a, x: d * a + (1 - d) * x,
+                                                           avg, p))
         # where `compile`'s time went (time.perf_counter values): 'traced' (every program
         # traced or read back), and each XLA compilation's (start, end) by program
         self.compile_times: dict[str, Any] = {}
@@ -179,7 +182,8 @@ def _timed(fn):
     return fn(), t, time.perf_counter()
 
 
-STATE_FORMAT = 2  # what a training state holds (2: with the worlds and the pools)
+STATE_FORMAT = 3  # what a training state holds (2: with the worlds and the pools; 3: and the
+# weights' moving average)
 
 
 def _program_key(cfg: TrainConfig, raw: mjxrow_env.Env, env: Any) -> str:
