@@ -5,7 +5,7 @@ the table: one command on one GPU.
         [--deadline-minutes 8.5] [--presets P ...] [--num-envs 15360]
         [--episodes 100] [--bc-fraction 0.5] [--observation rgb] [--teacher oracle]
         [--seed 0] [--iterations N] [--init CHECKPOINT] [--curriculum SEARCH.yaml]
-        [--set KEY=VALUE ...] [--no-eval] [--eval-only] [--ship] [--smoke]
+        [--set KEY=VALUE ...] [--no-eval] [--eval-only] [--eval-last] [--ship] [--smoke]
 
 Training (mjxrow.train.loop): behaviour cloning / DAgger from the teacher (`--teacher`, the
 oracle's pure pursuit by default) for the first `--bc-fraction` of the budget, then PPO, in
@@ -38,7 +38,9 @@ thread while the policy trains, started once the trainer's programs are traced (
 are traced, so the trained ones run in a program compiled for an untrained copy).
 
 Writes into OUT: policy/ (the checkpoint: `controller: {name: policy, checkpoint:
-OUT/policy}`), state/ (its last step written while the evaluation runs), train_log.jsonl,
+OUT/policy}`; the weights' moving average over the iterations, `train.average`, default 0.8
+an iteration), policy_last/ (the last weights, which `--eval-last` evaluates beside it in the
+same programs), state/ (its last step written while the evaluation runs), train_log.jsonl,
 learning_curve.png, eval.md, eval.json, summary.json, benchmarks.jsonl (the training throughput
 as a `train` stage line). `--ship` also copies the policy (float16) to
 mjxrow/checkpoints/policy/.
@@ -117,6 +119,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     p.add_argument("--no-eval", action="store_true", help="train only")
     p.add_argument("--eval-only", action="store_true", help="evaluate OUT/policy only")
+    p.add_argument("--eval-last", action="store_true",
+                   help="also evaluate OUT/policy_last (the last weights, beside their moving "
+                        "average in OUT/policy)")
     p.add_argument("--overlap", choices=("auto", "on", "off"), default="auto",
                    help="compile the evaluation while training (auto: on a GPU)")
     p.add_argument("--ship", action="store_true",
@@ -259,8 +264,8 @@ def _work(args, cfg, values, out: Path, t_start: float) -> int:
                           file=sys.stderr)
             CK.resolve(out / "policy", key="--out")
             blocks = evaluation.run(log=lambda m: print(m, flush=True))
-            if result is not None and result.get("policy_last"):  # beside the average
-                blocks += evaluation.run_checkpoint(result["policy_last"],
+            if args.eval_last and (out / "policy_last").is_dir():  # beside the average
+                blocks += evaluation.run_checkpoint(str(out / "policy_last"),
                                                     "learned policy, last weights",
                                                     log=lambda m: print(m, flush=True))
     except ValueError as e:

@@ -67,8 +67,8 @@ class TrainConfig:
     episode_length: int | None = None  # training time limit [steps] (None: the episode's)
     seed: int = 0  # PRNG seed of the network, the worlds and the rollouts
     save_every: int = 25  # iterations between training-state checkpoints
-    average: float = 0.0  # per-iteration decay of the moving average of the weights that
-    # `policy/` holds (0: the last weights; e.g. 0.8 weighs about the last five iterations)
+    average: float = 0.8  # per-iteration decay of the moving average of the weights that
+    # `policy/` holds (about the last five iterations; 0: the last weights alone)
     iterations: int | None = None  # stop after this many iterations in all (None: budget only)
     init: str = ""  # a policy checkpoint ('shipped' or a folder) whose network the run starts
     # from (its observation and network must be this run's); '' for a fresh network
