@@ -67,6 +67,7 @@ _EQUAL = r"^equal budget, 2,048 episodes: "
 _FIVE = r"^five crops "
 _PPO_TEACHER = r"^PPO with the teacher term from the shipped policy, five crops "
 _KEPT = r"^one command from a fresh network, programs kept, five crops "
+_SIDE = r"^one command from a fresh network on one GPU and 16 cores of a 2-GPU host"
 
 HEADLINES = [
     Figure("Table 3, the paper's 15 blocks × 100 episodes, empty cache", "table3",
@@ -198,6 +199,15 @@ HEADLINES = [
            "to a checkpoint, wall time (its policy: zucchini 0.98, vineyard 0.99, pear 0.98, "
            "lettuce 1.00, chard 0.99)", "train_policy", _KEPT + r".*empty cache", GPU,
            batch=15360, field="wall_s", unit="s wall", fmt="{:.0f}", goal=("<=", 600)),
+    Figure("policy training, five crops: compilation from an empty cache, one GPU and 16 "
+           "cores (median of six commands)", "train_policy", _SIDE, GPU, batch=15360,
+           pick="median", field="compile_s", unit="s", goal=("<=", 90)),
+    Figure("policy training, five crops: of that compilation, the tracing (Python, one program "
+           "at a time; XLA compiles side by side) (median of six commands)", "train_policy",
+           _SIDE, GPU, batch=15360, pick="median", field="trace_s", unit="s"),
+    Figure("policy training, five crops, one GPU and 16 cores: env-steps/s with the updates "
+           "(median of six commands)", "train_policy", _SIDE, GPU, batch=15360, pick="median",
+           goal=(">=", 50000)),
     Figure("policy training, PPO with the teacher term from the shipped policy (five crops, "
            "10,240 worlds): env-steps/s with the updates (median of three commands)",
            "train_policy", _PPO_TEACHER, GPU, batch=10240, pick="median", goal=(">=", 50000)),
