@@ -48,7 +48,8 @@ mjxrow/checkpoints/policy/.
 `--set` takes run keys for the environments and the evaluation (`camera.width=96`,
 `sim.path_length=20`) and training keys (`train.unroll=16`, `env.observation=mask`,
 `env.randomize.start_progress=0.5`, `env.reward.w_lateral=2`, `net.hidden=128`,
-`ppo.learning_rate=1e-4`, `bc.dagger=false`).
+`ppo.learning_rate=1e-4`, `bc.dagger=false`, `bc.replay=8`: BC also on earlier rollouts,
+`train.average=0`: policy/ holds the last weights).
 
 `--smoke`: a CPU check in a few minutes: a tiny vineyard field, 16 × 16 images, 4 worlds, a
 tiny network, 20 s of training, 2 episodes per controller (SegZeros on the ground-truth mask).
@@ -308,6 +309,8 @@ def report(args, cfg, result, blocks, out: Path, wall: float) -> None:
             f", adversarial curriculum ({cfg.curriculum.search}, every "
             f"{cfg.curriculum.every} iterations, share {cfg.curriculum.share:g})"
             if cfg.curriculum.on else "") + (
+            f", DAgger's data aggregated over {cfg.bc.replay} rollouts (bc.replay)"
+            if cfg.bc.replay and cfg.bc_fraction > 0 else "") + (
             f", the weights' moving average (decay {cfg.average:g} an iteration)"
             if cfg.average > 0 else "")
         summary["method"] = method

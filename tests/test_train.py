@@ -191,14 +191,21 @@ def test_bc_and_ppo_iterations_finite_and_resume(trained):
 
 
 @pytest.mark.slow  # 56 s with the trainer compiled (see above)
-def test_a_state_saved_mid_run_resumes_to_the_same_next_iteration(trained, tmp_path):
-    """Three PPO iterations straight, and two then a resume for the third from the state saved
-    at the second (network, optimisers, key, the worlds being driven, the pools), give the same
-    third iteration: the same losses and episode numbers, the same weights, last and averaged
-    (`average`: `policy/` holds the moving average, `policy_last/` the last). Pure PPO
-    (`bc_fraction` 0), so the schedule does not depend on the wall time."""
+@pytest.mark.parametrize("phase", ["ppo", "bc_replay"])
+def test_a_state_saved_mid_run_resumes_to_the_same_next_iteration(trained, tmp_path, phase):
+    """Three iterations straight, and two then a resume for the third from the state saved at
+    the second (network, optimisers, key, the worlds being driven, the pools, BC's replay
+    buffer), give the same third iteration: the same losses and episode numbers, the same
+    weights, last and averaged (`average`: `policy/` holds the moving average, `policy_last/`
+    the last). Pure PPO (`bc_fraction` 0), or BC with the teacher always acting (`dagger`
+    off) and `bc.replay`, so the schedule does not depend on the wall time."""
     cfg = dataclasses.replace(CFG, bc_fraction=0.0, budget_minutes=30.0, save_every=2,
                               iterations=3, average=0.5)
+    keys = ("policy_loss", "value_loss", "entropy", "return", "reward/progress")
+    if phase == "bc_replay":
+        cfg = dataclasses.replace(cfg, bc_fraction=1.0,
+                                  bc=BCConfig(minibatches=2, dagger=False, replay=2))
+        keys = ("bc_loss", "value_loss", "return", "reward/progress")
     quiet = {"progress": False, "log": lambda m: None}
     straight = train(cfg, tmp_path / "straight", **quiet)
     assert straight["iterations"] == 3
@@ -210,7 +217,8 @@ def test_a_state_saved_mid_run_resumes_to_the_same_next_iteration(trained, tmp_p
                    .splitlines()] for name in ("straight", "split")}
     a, b = rows["straight"][2], rows["split"][2]
     assert a["iteration"] == b["iteration"] == 3
-    for k in ("policy_loss", "value_loss", "entropy", "return", "reward/progress"):
+    assert a["phase"] == {"ppo": "ppo", "bc_replay": "bc"}[phase]
+    for k in keys:
         assert a[k] == b[k] or (np.isnan(a[k]) and np.isnan(b[k])), (k, a[k], b[k])
     for name in ("policy", "policy_last"):
         pa = CK.load(tmp_path / "straight" / name).variables
@@ -303,6 +311,39 @@ def test_training_sets_route_to_their_configs():
     with pytest.raises(ValueError, match="^env.observation: 'depth' is not one of"):
         TC.apply_sets(CFG, ["env.observation=depth"])
     assert Path(CK.SHIPPED).name == "policy"
+
+
+def test_replay_keeps_one_rollout_of_samples_and_writes_a_share_of_each_new_one():
+    """DAgger's aggregated data (`bc.replay`): the first rollout fills the buffer whole; each
+    later one writes N // R of its samples over the next slot, in turn; the update trains on the
+    current rollout followed by the buffer as it was (2N samples)."""
+    n, spans = 8, 4
+    batch = lambda v: {"obs": {"image": jnp.full((n, 2, 2, 3), v, jnp.uint8)},  # noqa: E731
+                       "teacher": jnp.full((n, 2), v, jnp.float32),
+                       "target": jnp.arange(n, dtype=jnp.float32) + 100 * v, "action": None}
+    buf = BC.replay_buffer(batch(0))
+    assert not bool(buf["filled"]) and buf["teacher"].shape == (n, 2)
+    mix = jax.jit(BC.replay_mix, static_argnums=3)
+    data, buf = mix(buf, batch(1), jax.random.key(0), spans)
+    assert data["teacher"].shape == (2 * n, 2) and set(data) == set(BC.REPLAYED)
+    assert np.all(np.asarray(data["teacher"]) == 1)  # the first rollout, and itself shuffled
+    assert sorted(np.asarray(data["target"][n:]).tolist()) == list(range(100, 100 + n))
+    assert bool(buf["filled"]) and int(buf["pos"]) == 1
+    for v, slot in ((2, 1), (3, 2), (4, 3), (5, 0)):
+        data, after = mix(buf, batch(v), jax.random.key(v), spans)
+        np.testing.assert_array_equal(data["target"][n:], buf["target"])  # the buffer as it was
+        np.testing.assert_array_equal(data["target"][:n], batch(v)["target"])
+        t = np.asarray(after["teacher"][:, 0])
+        lo = slot * (n // spans)
+        assert np.all(t[lo:lo + n // spans] == v)  # this slot: the new rollout's samples
+        assert np.sum(t == v) == n // spans
+        assert len(set(np.asarray(after["target"][lo:lo + n // spans]).tolist())) == n // spans
+        assert int(after["pos"]) == (slot + 1) % spans
+        buf = after
+    assert sorted(set(np.asarray(buf["teacher"][:, 0]).tolist())) == [2, 3, 4, 5]
+    with pytest.raises(ValueError, match="^bc.replay: must be a whole number"):
+        BCConfig(replay=-1)
+    assert TC.apply_sets(CFG, ["bc.replay=8"])[0].bc.replay == 8
 
 
 def test_a_deadline_puts_the_ppo_share_inside_the_call():

@@ -9,12 +9,20 @@ squared error over the 2 normalised action dims). With `dagger` β falls linearl
 over the first `beta_until` of the phase (the learner visits its own states, the teacher labels
 them); without it β stays 1 (plain behaviour cloning). The value head learns the λ-returns of
 the same rollouts, so PPO can start from this network with a trained critic.
+
+With `replay` R > 0 the updates also see earlier rollouts (DAgger's aggregated data set, held to
+one rollout's size): a buffer of N samples (N = a rollout's, T · B) holding the first rollout
+whole, then 1/R of every later rollout in turn, chosen at random, written over the oldest
+(`replay_mix`). Each BC update trains on the current rollout and the buffer as it was (2N
+samples, in the same number of minibatches), so the network keeps the states it reached R
+rollouts ago while it learns its own newest ones.
 """
 
 from __future__ import annotations
 
 import dataclasses
 
+import jax
 import jax.numpy as jnp
 
 from mjxrow.policies import networks as policies_networks
@@ -34,6 +42,8 @@ class BCConfig:
     noise_std: float = 0.2  # std of the noise on the acting action (normalised units)
     value_cost: float = 0.5  # weight of the value loss
     max_grad_norm: float = 1.0  # global gradient-norm clip
+    replay: int = 0  # earlier rollouts the updates also see, 1/replay of each (0: the current
+    # rollout alone; a buffer of one rollout's samples, ~6 GB of 64 × 64 images at 15,360 worlds)
 
     def __post_init__(self):
         for name in ("learning_rate", "max_grad_norm"):
@@ -47,12 +57,52 @@ class BCConfig:
         for name in ("epochs", "minibatches"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"bc.{name}: must be at least 1, got {getattr(self, name)}")
+        if isinstance(self.replay, bool) or int(self.replay) != self.replay or self.replay < 0:
+            raise ValueError(f"bc.replay: must be a whole number ≥ 0, got {self.replay!r}")
 
     def beta(self, progress: float) -> float:
         """Probability that the teacher acts at `progress` ∈ [0, 1] of the phase."""
         if not self.dagger:
             return 1.0
         return float(max(0.0, 1.0 - progress / self.beta_until))
+
+
+REPLAYED = ("obs", "teacher", "target")  # what the buffer keeps of a training batch
+
+
+def replay_buffer(batch: dict) -> dict:
+    """An empty buffer for training batches like `batch` (a dict of [N, ...] arrays or their
+    shapes): zeros of the `REPLAYED` entries, `pos` 0 (the next slot to write), `filled`
+    False (the first `replay_mix` writes the whole of its rollout)."""
+    zeros = lambda x: jnp.zeros(x.shape, x.dtype)  # noqa: E731
+    return {**{k: jax.tree.map(zeros, batch[k]) for k in REPLAYED},
+            "pos": jnp.int32(0), "filled": jnp.bool_(False)}
+
+
+def replay_mix(buffer: dict, batch: dict, key: jax.Array, spans: int) -> tuple[dict, dict]:
+    """(training data, the buffer after): the `REPLAYED` entries of `batch` ([N, ...]) followed
+    by the buffer's (2N samples), and the buffer with 1/`spans` of `batch` (N // spans samples
+    at random) written over its slot `pos` (slots of N // spans samples, in turn); an empty
+    buffer (`filled` False) first takes the whole batch, shuffled."""
+    n = jax.tree.leaves(batch["teacher"])[0].shape[0]
+    k = max(1, n // spans)
+    cur = {name: batch[name] for name in REPLAYED}
+    k_fill, k_pick = jax.random.split(key)
+    old = jax.lax.cond(buffer["filled"],
+                       lambda: {name: buffer[name] for name in REPLAYED},
+                       lambda: jax.tree.map(lambda x: x[jax.random.permutation(k_fill, n)], cur))
+    data = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), cur, old)
+    pick = jax.random.permutation(k_pick, n)[:k]
+    start = buffer["pos"] * k
+
+    def write(dst, src):
+        part = src[pick]
+        return jax.lax.dynamic_update_slice(dst, part, (start,) + (0,) * (dst.ndim - 1))
+
+    slots = n // k
+    after = {**jax.tree.map(write, old, cur), "pos": (buffer["pos"] + 1) % slots,
+             "filled": jnp.bool_(True)}
+    return data, after
 
 
 def teacher_error(mean: jnp.ndarray, teacher: jnp.ndarray) -> jnp.ndarray:

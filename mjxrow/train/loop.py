@@ -18,8 +18,9 @@ once PPO has run it stays PPO. A progress bar shows the budget spent and its ETA
 
 The training state holds everything the next iteration depends on: the network, both
 optimisers, the PRNG key, the counters, the worlds being driven (every environment's batched
-state), the curriculum's pools and the weights' moving average, so a run resumed from a state
-saved at iteration k computes the same iteration k + 1 as the run that went on.
+state), the curriculum's pools, the weights' moving average and BC's replay buffer
+(`bc.replay`), so a run resumed from a state saved at iteration k computes the same iteration
+k + 1 as the run that went on.
 """
 
 from __future__ import annotations
@@ -141,6 +142,9 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
              "counters": _counters(0, 0, 0.0), "key": jax.random.key_data(key),
              "worlds": jax.eval_shape(train_state.storable, worlds), "pools": pools,
              "average": params}
+    replay = tr.replay_buffer()  # BC's earlier rollouts (bc.replay), or None
+    if replay is not None:
+        state["replay"] = replay
     restored = train_state.restore_state(out / "state", state, tr.about())
     if restored is not None:
         state = restored[1]
@@ -148,6 +152,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             f"{float(state['counters']['elapsed']) / 60:.1f} of {cfg.budget_minutes:g} min")
     params, bc_opt, ppo_opt = state["params"], state["bc_opt"], state["ppo_opt"]
     average = state["average"]
+    replay = None if "replay" not in state else jax.tree.map(jnp.asarray, state["replay"])
     it = int(state["counters"]["iteration"])
     env_steps = int(state["counters"]["env_steps"])
     elapsed = float(state["counters"]["elapsed"])
@@ -160,7 +165,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     resets, unrolls, updates = tr.compile(
         params, worlds, key, pools,
         {p: bc_opt if p == "bc" else ppo_opt for p in phases},
-        reset_lowered if restored is None else [], traced=on_traced)
+        reset_lowered if restored is None else [], traced=on_traced, replay=replay)
     if restored is None:
         keys = jax.random.split(k_reset, len(resets))
         envs, key = tuple(r(k, p) for r, k, p in zip(resets, keys, pools, strict=True)), \
@@ -216,14 +221,19 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
                   f"{rnd['failing_per_1000']:.0f} failing episodes per 1,000, "
                   f"{rnd['failing_candidates']} failing fields, pool {rnd['pool']}")
 
+    writing = train_state.PendingSave()  # a periodic save orbax may still be writing
+
     def save(wait=True):
+        """Save the training state (after the one still being written, if any: one save at a
+        time into the folder); with `wait=False` orbax writes it while training goes on."""
         nonlocal save_s
         t0 = time.perf_counter()
+        writing.wait()
         pending = train_state.save_state(out / "state", it, {
             "params": params, "bc_opt": bc_opt, "ppo_opt": ppo_opt,
             "counters": _counters(it, env_steps, elapsed), "key": jax.random.key_data(key),
-            "worlds": train_state.storable(envs), "pools": pools, "average": average},
-            tr.about(), wait=wait)
+            "worlds": train_state.storable(envs), "pools": pools, "average": average,
+            **({} if replay is None else {"replay": replay})}, tr.about(), wait=wait)
         save_s += time.perf_counter() - t0
         return pending
 
@@ -248,7 +258,11 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             jax.block_until_ready(traj.reward)
             t1 = time.perf_counter()
             if phase == "bc":
-                params, bc_opt, m = updates["bc"](params, bc_opt, traj, boot, k_upd)
+                if replay is None:
+                    params, bc_opt, m = updates["bc"](params, bc_opt, traj, boot, k_upd)
+                else:
+                    params, bc_opt, m, replay = updates["bc"](params, bc_opt, traj, boot, k_upd,
+                                                              replay)
             else:
                 params, ppo_opt, m = updates["ppo"](params, ppo_opt, traj, boot, k_upd)
                 ppo_started = True
@@ -279,7 +293,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             if cur.due(it):
                 adversary_round()
             if it % cfg.save_every == 0:
-                save()
+                writing = save(wait=False)
     saving = save(wait=not background_save)
     meta = _meta(cfg, tr, it, env_steps, elapsed)
     policy_dir = policies_checkpoint.save(out / "policy", average if cfg.average > 0 else params,

@@ -100,12 +100,13 @@ class Trainer:
         return out
 
     def compile(self, params, worlds, key, pools, opts: dict, resets: list = (),
-                traced=None):
+                traced=None, replay=None):
         """Every program the run needs, compiled side by side (one thread each: XLA compiles
         separate programs in parallel where the machine has the cores; the tracing before it
         is Python's, one at a time, and skipped for a program kept by `kept`): the lowered
         `resets`, the rollout of every environment (on worlds of the shapes `worlds`), and the
-        update of every phase in `opts` ({'bc' or 'ppo': its optimiser state}). `traced()`,
+        update of every phase in `opts` ({'bc' or 'ppo': its optimiser state}; BC's with the
+        `replay` buffer where given: `train.bc.replay_mix`). `traced()`,
         if given, is called once every program is traced, while XLA compiles them. Returns
         ([reset executables], [rollout executables], {phase: update executable}); the times
         are in `compile_times`."""
@@ -122,7 +123,8 @@ class Trainer:
             _, traj, boot, _ = jax.eval_shape(rollout.join, outs)
             for ph, opt in opts.items():
                 update = self.bc_update if ph == "bc" else self.ppo_update
-                low = update.lower(params, opt, traj, boot, key)
+                extra = (replay,) if ph == "bc" and replay is not None else ()
+                low = update.lower(params, opt, traj, boot, key, *extra)
                 futures[("update", ph)] = ex.submit(_timed, low.compile)
             t_traced = time.perf_counter()
             if traced is not None:
@@ -150,13 +152,31 @@ class Trainer:
                              f"trains {self.cfg.net}")
         return jax.tree.map(lambda ref, x: jnp.asarray(x, ref.dtype), params, ck.variables)
 
-    def _update(self, phase, params, opt_state, traj, boot, key):
+    def replay_buffer(self):
+        """BC's empty replay buffer for this run's rollouts (`train.bc.replay_buffer`), or None
+        without `bc.replay` (or without a BC phase)."""
+        cfg = self.cfg
+        if not cfg.bc.replay or cfg.bc_fraction <= 0:
+            return None
+        n = cfg.unroll * cfg.num_envs
+        shape = lambda x: jax.ShapeDtypeStruct((n, *x.shape), x.dtype)  # noqa: E731
+        return train_bc.replay_buffer({
+            "obs": jax.tree.map(shape, self.obs_example),
+            "teacher": jax.ShapeDtypeStruct((n, 2), jnp.float32),
+            "target": jax.ShapeDtypeStruct((n,), jnp.float32)})
+
+    def _update(self, phase, params, opt_state, traj, boot, key, replay=None):
+        """One phase's update on a rollout: (params, opt_state, metrics), and BC's replay buffer
+        after it where one is given."""
         c = self.cfg.ppo
         adv, target = train_ppo.gae(traj, boot, c.discount, c.gae_lambda, c.reward_scale)
         data = train_ppo.batch(traj, adv, target)
         if phase == "bc":
             b = self.cfg.bc
-            return train_ppo.sgd(
+            if replay is not None:
+                key, k_mix = jax.random.split(key)
+                data, replay = train_bc.replay_mix(replay, data, k_mix, b.replay)
+            out = train_ppo.sgd(
                 params,
                 opt_state,
                 data,
@@ -166,6 +186,7 @@ class Trainer:
                 b.epochs,
                 b.minibatches,
             )
+            return out if replay is None else (*out, replay)
         return train_ppo.sgd(params, opt_state, data, key, train_ppo.loss(self.net, c), self.ppo_tx,
                              c.epochs, c.minibatches)
 
@@ -173,6 +194,7 @@ class Trainer:
         """What a saved training state must match to be resumed."""
         return {"observation": self.spec.to_dict(), "network": self.cfg.net.to_dict(),
                 "presets": list(self.cfg.presets), "num_envs": self.cfg.num_envs,
+                "replay": self.cfg.bc.replay if self.cfg.bc_fraction > 0 else 0,
                 "state_format": STATE_FORMAT}
 
 
