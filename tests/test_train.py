@@ -523,6 +523,39 @@ def test_the_trainers_programs_are_kept_and_read_back_without_tracing(tmp_path, 
         R._EXPORTED.clear()
 
 
+def test_the_crops_programs_are_traced_in_processes_side_by_side(tmp_path, monkeypatch):
+    """With the cache on and several crops, each crop's reset and rollout are traced in a
+    process of its own and kept; this process then reads every one back without tracing a step
+    (the same keys and argument shapes as `Trainer.compile`'s), and a second Trainer of the
+    same run does not start the processes again. (`force`: a run does it only with two cores
+    per crop, which this CPU lacks.)"""
+    from mjxrow import runtime as R
+    from mjxrow.train import curriculum as TCU
+    from mjxrow.train import programs as TP
+
+    cfg = dataclasses.replace(CFG, presets=("vineyard", "lettuce"), num_envs=8)
+    key = jax.random.key(3)
+    try:
+        R.enable_cache(tmp_path / "cache")
+        tr = TP.Trainer(cfg)
+        assert tr.trace_in_processes(log=lambda m: None, force=True) > 0
+        kept = tmp_path / "cache" / "exported"
+        assert len(list(kept.glob("*.bin"))) == 4 and len(list(kept.glob("*.traced"))) == 1
+        R._EXPORTED.clear()
+        monkeypatch.setattr(E.AutoResetWrapper, "step", lambda *a: pytest.fail("traced"))
+        params = tr.init_params(key)
+        pools = TCU.Curriculum(cfg.curriculum, cfg.presets, [e.ranges for e in tr.raw]).pools()
+        lows = tr.lower_resets(key, pools)  # as `train` calls them
+        assert [type(low).__name__ for low in lows] == ["SimpleNamespace"] * 2  # read back
+        for i, (low, pool) in enumerate(zip(lows, pools, strict=True)):
+            args = TP.rollout_args(params, low.out_info, key, i, pool)
+            assert type(tr.rollout_program(i, args)).__name__ == "_Program"
+        assert TP.Trainer(cfg).trace_in_processes(log=lambda m: None, force=True) == 0.0
+    finally:
+        R.disable_cache()
+        R._EXPORTED.clear()
+
+
 def test_a_policys_program_is_named_by_its_checkpoints_architecture_not_its_path(saved,
                                                                                  tmp_path):
     """The policy's weights are traced, so its closed-loop program (kept beside the cache by

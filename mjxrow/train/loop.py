@@ -136,6 +136,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     k_reset, key_after = jax.random.split(key)
     # compile everything once, before the clock of the budget runs (from the first tracing)
     t0 = time.perf_counter()
+    tr.trace_in_processes(log=log)
     reset_lowered = tr.lower_resets(k_reset, pools)
     worlds = tuple(low.out_info for low in reset_lowered)
     state = {"params": params, "bc_opt": tr.bc_tx.init(params), "ppo_opt": tr.ppo_tx.init(params),

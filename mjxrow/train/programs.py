@@ -1,15 +1,20 @@
 """The compiled pieces of a training run (`Trainer`): every crop's environment with the
 trainer's wrappers (episode, vmap, auto-reset), its reset and rollout programs (traced, or read
-back from the ones an earlier process kept beside the compilation cache: `runtime.exported`),
-the BC and PPO updates, and what a saved training state must match. `train.loop` drives them.
+back from the ones an earlier process kept beside the compilation cache: `runtime.exported`;
+`trace_in_processes` traces every crop's in a process of its own, side by side), the BC and
+PPO updates, and what a saved training state must match. `train.loop` drives them.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
+import multiprocessing
+import os
+import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 import jax
@@ -21,6 +26,7 @@ from mjxrow import runtime
 from mjxrow.policies import checkpoint as policies_checkpoint
 from mjxrow.policies import networks as policies_networks
 from mjxrow.train import bc as train_bc
+from mjxrow.train import curriculum as train_curriculum
 from mjxrow.train import ppo as train_ppo
 from mjxrow.train import rollout
 
@@ -82,6 +88,56 @@ class Trainer:
             return fn
         return runtime.exported(fn, args, f"{self.keys[i]}\n{what}", out_tree) or fn
 
+    def trace_in_processes(self, log=print, force: bool = False) -> float:
+        """Trace every environment's reset and rollout in a process of its own, side by side,
+        and keep them beside the compilation cache (`runtime.exported`), so that `lower_resets`
+        and `rollout_program` read them back instead of tracing them one after another (Python
+        traces one program at a time in a process). Only where the cache is on, several
+        environments have kept programs, the curriculum is off, this set of programs was not
+        traced so before (a marker in the cache's `exported/`), and the machine has two cores
+        per environment or `force` (each process first spends seconds importing and tracing
+        once: on a 2-core CPU three tiny crops took 39 s so, 29-41 s in one). The processes
+        do not compile: XLA compiles here, side by side, as before. A failed process is a
+        one-line note, and what it did not keep is traced here. Returns the seconds taken."""
+        root = runtime.cache_dir()
+        cfg = self.cfg
+        if (root is None or len(self.envs) < 2 or not all(self.keys) or cfg.curriculum.on
+                or jax.process_count() > 1
+                or not (force or (os.cpu_count() or 1) >= 2 * len(self.envs))):
+            return 0.0
+        h = hashlib.sha256(runtime.code_version().encode())
+        for part in (*self.keys, str(cfg.net), str(cfg.unroll), str(cfg.seed),
+                     jax.default_backend()):
+            h.update(part.encode() + b"\0")
+        marker = root / "exported" / f"{h.hexdigest()}.traced"
+        if marker.is_file():
+            return 0.0
+        t0 = time.perf_counter()
+        log(f"tracing the {len(self.envs)} crops' programs in {len(self.envs)} processes")
+        # the processes get little GPU memory: they trace, and this process holds the worlds
+        env = {"XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
+        saved = {k: os.environ.get(k) for k in env}
+        os.environ.update(env)
+        try:
+            with ProcessPoolExecutor(len(self.envs),
+                                     mp_context=multiprocessing.get_context("spawn")) as ex:
+                jobs = [ex.submit(_trace_one, cfg, i, str(root)) for i in range(len(self.envs))]
+                errors = [e for e in (j.exception() for j in jobs) if e is not None]
+        finally:
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
+        if errors:
+            print(f"note: tracing in processes failed ({type(errors[0]).__name__}: "
+                  f"{str(errors[0]).splitlines()[0][:160] if str(errors[0]) else ''}); tracing "
+                  "here", file=sys.stderr)
+        else:
+            marker.parent.mkdir(parents=True, exist_ok=True)
+            marker.write_text("traced\n")
+        return time.perf_counter() - t0
+
     def rollout_program(self, i: int, args: tuple):
         """Environment i's rollout for `args` (params, worlds, key, beta, noise, ppo, pool),
         kept as `kept` keeps it."""
@@ -110,13 +166,12 @@ class Trainer:
         if given, is called once every program is traced, while XLA compiles them. Returns
         ([reset executables], [rollout executables], {phase: update executable}); the times
         are in `compile_times`."""
-        c = (jnp.float32(1.0), jnp.float32(0.1), jnp.bool_(False))
         with ThreadPoolExecutor(len(resets) + len(self.unrolls) + len(opts)) as ex:
             futures = {("reset", i): ex.submit(_timed, low.compile)
                        for i, low in enumerate(resets)}
             outs = []
             for i, (st, pool) in enumerate(zip(worlds, pools, strict=True)):
-                args = (params, st, jax.random.fold_in(key, i), *c, pool)
+                args = rollout_args(params, st, key, i, pool)
                 low = self.rollout_program(i, args).lower(*args)
                 outs.append(low.out_info)
                 futures[("rollout", i)] = ex.submit(_timed, low.compile)
@@ -196,6 +251,30 @@ class Trainer:
                 "presets": list(self.cfg.presets), "num_envs": self.cfg.num_envs,
                 "replay": self.cfg.bc.replay if self.cfg.bc_fraction > 0 else 0,
                 "state_format": STATE_FORMAT}
+
+
+def rollout_args(params, worlds, key: jax.Array, i: int, pool) -> tuple:
+    """The arguments environment i's rollout is compiled for (the values of β, noise and the
+    PPO switch are data; these only fix their dtypes)."""
+    return (params, worlds, jax.random.fold_in(key, i), jnp.float32(1.0), jnp.float32(0.1),
+            jnp.bool_(False), pool)
+
+
+def _trace_one(cfg: TrainConfig, i: int, cache: str) -> None:
+    """In a process of its own: trace environment i's reset and rollout of the run `cfg` as
+    `Trainer.compile` would (the same keys and argument shapes), keeping them beside the
+    compilation cache `cache` (`Trainer.trace_in_processes`)."""
+    runtime.enable_cache(cache)
+    one = dataclasses.replace(cfg, presets=(cfg.presets[i],), num_envs=cfg.per_env)
+    tr = Trainer(one)
+    key = jax.random.key(cfg.seed)
+    shapes = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), tr.obs_example)
+    params = policies_networks.init(tr.net, shapes, key)
+    pools = train_curriculum.Curriculum(one.curriculum, one.presets,
+                                        [e.ranges for e in tr.raw]).pools()  # as `train`'s
+    (low,) = tr.lower_resets(key, pools)
+    args = rollout_args(params, low.out_info, key, i, pools[0])
+    tr.rollout_program(0, args).lower(*args)
 
 
 def _timed(fn):
