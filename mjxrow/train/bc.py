@@ -38,7 +38,7 @@ class BCConfig:
     # 15,360 worlds and 32 steps)
     dagger: bool = True  # the learner acts more and more (β falls to 0); False: plain BC
     beta_until: float = 1.0  # fraction of the phase over which β falls from 1 to 0 (the
-    # network alone, β = 0, drifts from the teacher: docs/training.md, sixth round)
+    # network alone, β = 0, drifts from the teacher: docs/training.md, fifth round)
     noise_std: float = 0.2  # std of the noise on the acting action (normalised units)
     value_cost: float = 0.5  # weight of the value loss
     max_grad_norm: float = 1.0  # global gradient-norm clip

@@ -119,15 +119,18 @@ class Evaluation:
                 built, batch = self._build(b, b.run)
                 b.exe = built.executable(batch.args(built.mx))
                 b.compile_s = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            built, batch = self._build(b, b.run)
-            out = b.exe(*batch.args(built.mx))
-            b.summary = built.summarise(out, b.n)
-            b.run_s = time.perf_counter() - t0
-            a = rollout_aggregate.aggregate({"success": b.summary["success"]})["success"]
-            log(f"{b.controller} on {b.preset}: success {a['mean']:.2f} "
-                f"[{a['lo']:.2f}, {a['hi']:.2f}] ({b.n} episodes, {b.run_s:.1f} s)")
+            self._run_one(b, b.controller, log)
         return self.blocks
+
+    def _run_one(self, b: Block, name: str, log) -> None:
+        """Run block `b`'s episodes in its compiled program; log its success as `name`'s."""
+        t0 = time.perf_counter()
+        built, batch = self._build(b, b.run)
+        b.summary = built.summarise(b.exe(*batch.args(built.mx)), b.n)
+        b.run_s = time.perf_counter() - t0
+        a = rollout_aggregate.aggregate({"success": b.summary["success"]})["success"]
+        log(f"{name} on {b.preset}: success {a['mean']:.2f} [{a['lo']:.2f}, {a['hi']:.2f}] "
+            f"({b.n} episodes, {b.run_s:.1f} s)")
 
     def run_checkpoint(self, checkpoint: str, label: str, log=print) -> list[Block]:
         """The policy's blocks again with another checkpoint of the same architecture (e.g. the
@@ -140,13 +143,7 @@ class Evaluation:
             e = Block(b.preset, "policy", run_config(b.preset, "policy", self.values,
                                                      checkpoint, self.seed), b.n, exe=b.exe,
                       label=label)
-            t0 = time.perf_counter()
-            built, batch = self._build(e, e.run)
-            e.summary = built.summarise(e.exe(*batch.args(built.mx)), e.n)
-            e.run_s = time.perf_counter() - t0
-            a = rollout_aggregate.aggregate({"success": e.summary["success"]})["success"]
-            log(f"{label} on {e.preset}: success {a['mean']:.2f} [{a['lo']:.2f}, "
-                f"{a['hi']:.2f}] ({e.n} episodes, {e.run_s:.1f} s)")
+            self._run_one(e, label, log)
             extra.append(e)
         return extra
 

@@ -259,11 +259,8 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             jax.block_until_ready(traj.reward)
             t1 = time.perf_counter()
             if phase == "bc":
-                if replay is None:
-                    params, bc_opt, m = updates["bc"](params, bc_opt, traj, boot, k_upd)
-                else:
-                    params, bc_opt, m, replay = updates["bc"](params, bc_opt, traj, boot, k_upd,
-                                                              replay)
+                params, bc_opt, m, replay = updates["bc"](params, bc_opt, traj, boot, k_upd,
+                                                          replay)
             else:
                 params, ppo_opt, m = updates["ppo"](params, ppo_opt, traj, boot, k_upd)
                 ppo_started = True

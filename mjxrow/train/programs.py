@@ -114,21 +114,10 @@ class Trainer:
             return 0.0
         t0 = time.perf_counter()
         log(f"tracing the {len(self.envs)} crops' programs in {len(self.envs)} processes")
-        # the processes get little GPU memory: they trace, and this process holds the worlds
-        env = {"XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
-        saved = {k: os.environ.get(k) for k in env}
-        os.environ.update(env)
-        try:
-            with ProcessPoolExecutor(len(self.envs),
-                                     mp_context=multiprocessing.get_context("spawn")) as ex:
-                jobs = [ex.submit(_trace_one, cfg, i, str(root)) for i in range(len(self.envs))]
-                errors = [e for e in (j.exception() for j in jobs) if e is not None]
-        finally:
-            for k, v in saved.items():
-                if v is None:
-                    os.environ.pop(k, None)
-                else:
-                    os.environ[k] = v
+        with ProcessPoolExecutor(len(self.envs), mp_context=multiprocessing.get_context("spawn"),
+                                 initializer=_little_gpu_memory) as ex:
+            jobs = [ex.submit(_trace_one, cfg, i, str(root)) for i in range(len(self.envs))]
+            errors = [e for e in (j.exception() for j in jobs) if e is not None]
         if errors:
             print(f"note: tracing in processes failed ({type(errors[0]).__name__}: "
                   f"{str(errors[0]).splitlines()[0][:160] if str(errors[0]) else ''}); tracing "
@@ -162,8 +151,8 @@ class Trainer:
         is Python's, one at a time, and skipped for a program kept by `kept`): the lowered
         `resets`, the rollout of every environment (on worlds of the shapes `worlds`), and the
         update of every phase in `opts` ({'bc' or 'ppo': its optimiser state}; BC's with the
-        `replay` buffer where given: `train.bc.replay_mix`). `traced()`,
-        if given, is called once every program is traced, while XLA compiles them. Returns
+        `replay` buffer, or None: `train.bc.replay_mix`). `traced()`, if given, is called
+        once every program is traced, while XLA compiles them. Returns
         ([reset executables], [rollout executables], {phase: update executable}); the times
         are in `compile_times`."""
         with ThreadPoolExecutor(len(resets) + len(self.unrolls) + len(opts)) as ex:
@@ -177,9 +166,10 @@ class Trainer:
                 futures[("rollout", i)] = ex.submit(_timed, low.compile)
             _, traj, boot, _ = jax.eval_shape(rollout.join, outs)
             for ph, opt in opts.items():
-                update = self.bc_update if ph == "bc" else self.ppo_update
-                extra = (replay,) if ph == "bc" and replay is not None else ()
-                low = update.lower(params, opt, traj, boot, key, *extra)
+                if ph == "bc":
+                    low = self.bc_update.lower(params, opt, traj, boot, key, replay)
+                else:
+                    low = self.ppo_update.lower(params, opt, traj, boot, key)
                 futures[("update", ph)] = ex.submit(_timed, low.compile)
             t_traced = time.perf_counter()
             if traced is not None:
@@ -193,11 +183,15 @@ class Trainer:
                 [jobs[("rollout", i)] for i in range(len(self.unrolls))],
                 {ph: jobs[("update", ph)] for ph in opts})
 
+    def fresh_params(self, key: jax.Array) -> Any:
+        """A fresh network's weights."""
+        shapes = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), self.obs_example)
+        return policies_networks.init(self.net, shapes, key)
+
     def init_params(self, key: jax.Array) -> Any:
         """A fresh network, or `cfg.init`'s weights (ValueError naming train.init when its
         observation or network is not this run's)."""
-        shapes = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), self.obs_example)
-        params = policies_networks.init(self.net, shapes, key)
+        params = self.fresh_params(key)
         if not self.cfg.init:
             return params
         ck = policies_checkpoint.load(self.cfg.init, dataclasses.asdict(self.spec),
@@ -221,8 +215,8 @@ class Trainer:
             "target": jax.ShapeDtypeStruct((n,), jnp.float32)})
 
     def _update(self, phase, params, opt_state, traj, boot, key, replay=None):
-        """One phase's update on a rollout: (params, opt_state, metrics), and BC's replay buffer
-        after it where one is given."""
+        """One phase's update on a rollout: (params, opt_state, metrics), and for BC also its
+        replay buffer after it (None without `bc.replay`)."""
         c = self.cfg.ppo
         adv, target = train_ppo.gae(traj, boot, c.discount, c.gae_lambda, c.reward_scale)
         data = train_ppo.batch(traj, adv, target)
@@ -241,7 +235,7 @@ class Trainer:
                 b.epochs,
                 b.minibatches,
             )
-            return out if replay is None else (*out, replay)
+            return (*out, replay)
         return train_ppo.sgd(params, opt_state, data, key, train_ppo.loss(self.net, c), self.ppo_tx,
                              c.epochs, c.minibatches)
 
@@ -260,6 +254,12 @@ def rollout_args(params, worlds, key: jax.Array, i: int, pool) -> tuple:
             jnp.bool_(False), pool)
 
 
+def _little_gpu_memory() -> None:
+    """In a tracing process, before JAX starts its backend: take GPU memory as needed, not
+    JAX's default share (they only trace; the command's own process holds the worlds)."""
+    os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
+
+
 def _trace_one(cfg: TrainConfig, i: int, cache: str) -> None:
     """In a process of its own: trace environment i's reset and rollout of the run `cfg` as
     `Trainer.compile` would (the same keys and argument shapes), keeping them beside the
@@ -268,8 +268,7 @@ def _trace_one(cfg: TrainConfig, i: int, cache: str) -> None:
     one = dataclasses.replace(cfg, presets=(cfg.presets[i],), num_envs=cfg.per_env)
     tr = Trainer(one)
     key = jax.random.key(cfg.seed)
-    shapes = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), tr.obs_example)
-    params = policies_networks.init(tr.net, shapes, key)
+    params = tr.fresh_params(key)  # the shapes of `train`'s (the values are not traced)
     pools = train_curriculum.Curriculum(one.curriculum, one.presets,
                                         [e.ranges for e in tr.raw]).pools()  # as `train`'s
     (low,) = tr.lower_resets(key, pools)
