@@ -58,7 +58,7 @@ def _programs(preset: str, B: int, parts, max_resets, spread: int) -> dict:
     env, e = tr.envs[0], tr.raw[0]
     vm = env.env
     key = jax.random.key(0)
-    st = tr.resets[0](key)  # the trainer's reset program
+    st = jax.jit(env.reset)(key)  # the trainer's worlds, reset
     a = jnp.zeros((B, 2))
     params = tr.init_params(key)
     keys = jax.random.split(key, env.max_resets)

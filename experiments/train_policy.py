@@ -34,7 +34,7 @@ Evaluation (mjxrow.train.evaluate, through the run builder, i.e. the sweep's epi
 metrics): `--episodes` episodes per preset at its default geometry in the Table 3 scenario
 (mjxrow/sweep/presets.yaml) for the trained policy, SegZeros with the learned segmenter and the
 oracle; success with its 95 % Wilson interval. On a GPU the evaluation programs compile in a
-thread while the policy trains, started once the trainer's programs are traced (the weights
+thread while the policy trains, started once the trainer's programs are compiled (the weights
 are traced, so the trained ones run in a program compiled for an untrained copy).
 
 Writes into OUT: policy/ (the checkpoint: `controller: {name: policy, checkpoint:
@@ -241,8 +241,9 @@ def _work(args, cfg, values, out: Path, t_start: float) -> int:
                 except Exception as e:  # reported after training, then compiled again
                     errors.append(e)
 
-            # started once the trainer's programs are traced: tracing holds Python's lock,
-            # so tracing both at once only delays the training
+            # started once the trainer's programs are compiled: its XLA compilations would
+            # otherwise compete with the trainer's for the cores (and its tracing for Python's
+            # lock), delaying the training; it is ready long before the training ends
             thread = threading.Thread(target=prepare, daemon=True)
         if not args.eval_only:
             deadline = None
@@ -252,12 +253,12 @@ def _work(args, cfg, values, out: Path, t_start: float) -> int:
                 deadline = t_start + 60 * args.deadline_minutes
             # the last training state is written while the evaluation runs
             result = L.train(cfg, out, progress=not args.no_progress, deadline=deadline,
-                             on_traced=thread.start if thread is not None else None,
+                             on_compiled=thread.start if thread is not None else None,
                              background_save=True)
         blocks = None
         if evaluation is not None:
             if thread is not None:
-                if thread.ident is None:  # not started (--eval-only, or no training traced)
+                if thread.ident is None:  # not started (--eval-only, or no training compiled)
                     thread.start()
                 thread.join()
                 if errors:

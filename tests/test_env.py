@@ -210,6 +210,9 @@ class _Toy:
         return state.replace(data={**state.data, "x": x}, reward=action[0], done=done,
                              metrics={"x": x})
 
+    def expired(self, state):
+        return state.replace(data={**state.data, "x": jnp.full_like(state.data["x"], 3.0)})
+
     def step(self, state, action):
         return self.observe(self.advance(state, action))
 
@@ -238,6 +241,44 @@ def test_wrappers_truncate_and_reset_to_new_worlds(max_resets):
     done5, trunc5, _, _ = seen[4]
     np.testing.assert_array_equal(done5, [0, 0, 1, 1])
     np.testing.assert_array_equal(trunc5, [0, 0, 1, 1])  # time limit: truncation
+
+
+@pytest.mark.parametrize("max_resets", [None, 1])
+def test_a_first_step_replaces_every_blank_world(max_resets):
+    """`blank` has `reset`'s tree and shapes, zeros but for the clock and the keys; the first
+    step ends every blank episode and resets every world to a new one (observed after the
+    resets, steps 0), in one pass or several; the next step goes on as after `reset`."""
+    B = 3
+    env = E.AutoResetWrapper(E.VmapWrapper(E.EpisodeWrapper(_Toy(), episode_length=5)), B,
+                             max_resets)
+    key = jax.random.key(1)
+    b = jax.jit(env.blank)(key)
+    r = jax.eval_shape(env.reset, key)
+    assert jax.tree.structure(b) == jax.tree.structure(r)
+    assert [(x.shape, x.dtype) for x in jax.tree.leaves(b)] == \
+        [(x.shape, x.dtype) for x in jax.tree.leaves(r)]
+    np.testing.assert_array_equal(b.obs["x"], 0.0)
+    s = jax.jit(env.step)(b, jnp.zeros((B, 2)))
+    np.testing.assert_array_equal(s.done, 1.0)
+    np.testing.assert_array_equal(s.info["steps"], 0)
+    x0 = np.asarray(s.data["x0"])
+    assert np.all((x0 > 0) & (x0 < 1)) and len(set(x0.tolist())) == B  # new worlds, each its own
+    np.testing.assert_array_equal(s.obs["x"], x0)
+    s2 = jax.jit(env.step)(s, jnp.full((B, 2), 0.5))
+    np.testing.assert_array_equal(s2.done, 0.0)
+    np.testing.assert_array_equal(s2.info["steps"], 1)
+    np.testing.assert_allclose(s2.data["x"], x0 + 0.5)
+
+
+def test_an_expired_world_ends_at_its_next_step(tiny):
+    """`Env.expired` sets the episode clock to its time limit: the next step ends each episode
+    (the blank worlds a trainer's first rollout replaces rely on it, whatever they hold)."""
+    env, reset, step = tiny
+    s = env.expired(reset(jax.random.split(jax.random.key(0), 2)))
+    np.testing.assert_array_equal(s.data.t, env.n_steps)
+    s = step(s, jnp.zeros((2, 2)))
+    np.testing.assert_array_equal(s.done, 1.0)
+    np.testing.assert_array_equal(s.data.log.reason, M.TIMEOUT)
 
 
 FRACTIONS = jnp.array([[1.0, 0.125], [1.0, 0.125], [1.0, -0.125], [1.0, -0.125]], jnp.float32)

@@ -482,11 +482,11 @@ def test_a_state_saved_in_the_background_restores_once_waited(tmp_path):
 
 
 def test_the_trainers_programs_are_kept_and_read_back_without_tracing(tmp_path, monkeypatch):
-    """With the compilation cache on, each environment's reset and rollout are traced once and
-    kept as data (`runtime.exported`); a new Trainer in a new process (the in-process memo
-    cleared) reads the rollout back without tracing a step, with the same result shapes, and
-    the reset without lowering it; another time limit is another program, traced afresh. The
-    rollout's result tree, which the kept program does not hold, is `out_structure`'s."""
+    """With the compilation cache on, each environment's rollout is traced once and kept as
+    data (`runtime.exported`); a new Trainer in a new process (the in-process memo cleared)
+    reads it back without tracing a step, with the same result shapes; another time limit is
+    another program, traced afresh. The rollout's result tree, which the kept program does not
+    hold, is `out_structure`'s; its worlds' shapes are the blank worlds' (no reset program)."""
     from mjxrow import runtime as R
     from mjxrow.train import programs as TP
     from mjxrow.train import rollout as RO
@@ -497,38 +497,38 @@ def test_the_trainers_programs_are_kept_and_read_back_without_tracing(tmp_path, 
     def programs(cfg):
         tr = TP.Trainer(cfg)
         params = tr.init_params(key)
-        (low,) = tr.lower_resets(key, (None,))
+        (low,) = tr.lower_blanks(key)
         args = (params, low.out_info, key, *c, None)
-        return tr, args, low, tr.rollout_program(0, args).lower(*args).out_info
+        return tr, args, tr.rollout_program(0, args).lower(*args).out_info
 
     try:
         R.enable_cache(tmp_path / "cache")
-        tr, args, low, out = programs(CFG)
-        assert tr.keys[0] and len(list((tmp_path / "cache" / "exported").iterdir())) == 2
+        tr, args, out = programs(CFG)
+        assert tr.keys[0] and len(list((tmp_path / "cache" / "exported").iterdir())) == 1
         assert jax.tree.structure(jax.eval_shape(tr.unrolls[0], *args)) == \
             RO.out_structure(args[1])
         R._EXPORTED.clear()  # as a new process
         real_step = E.AutoResetWrapper.step
         monkeypatch.setattr(E.AutoResetWrapper, "step", lambda *a: pytest.fail("traced"))
-        tr2, args2, low2, out2 = programs(CFG)
-        assert type(low2).__name__ == "SimpleNamespace"  # read back, not lowered
+        tr2, args2, out2 = programs(CFG)
         assert jax.tree.structure(out2) == jax.tree.structure(out)
         assert [(x.shape, x.dtype) for x in jax.tree.leaves(out2)] == \
             [(x.shape, x.dtype) for x in jax.tree.leaves(out)]
         monkeypatch.setattr(E.AutoResetWrapper, "step", real_step)
         programs(dataclasses.replace(CFG, episode_length=7))
-        assert len(list((tmp_path / "cache" / "exported").iterdir())) == 4
+        assert len(list((tmp_path / "cache" / "exported").iterdir())) == 2
     finally:
         R.disable_cache()
         R._EXPORTED.clear()
 
 
 def test_the_crops_programs_are_traced_in_processes_side_by_side(tmp_path, monkeypatch):
-    """With the cache on and several crops, each crop's reset and rollout are traced in a
-    process of its own and kept; this process then reads every one back without tracing a step
-    (the same keys and argument shapes as `Trainer.compile`'s), and a second Trainer of the
-    same run does not start the processes again. (`force`: a run does it only with two cores
-    per crop, which this CPU lacks.)"""
+    """With the cache on and several crops, each crop's rollout is traced in a process of its
+    own and kept, while this process lowers the blank worlds (`meanwhile`); it then reads every
+    rollout back without tracing a step (the same keys and argument shapes as
+    `Trainer.compile`'s), and a second Trainer of the same run does not start the processes
+    again but still calls `meanwhile`. (`force`: a run does it only with two cores per crop,
+    which this CPU lacks.)"""
     from mjxrow import runtime as R
     from mjxrow.train import curriculum as TCU
     from mjxrow.train import programs as TP
@@ -538,19 +538,23 @@ def test_the_crops_programs_are_traced_in_processes_side_by_side(tmp_path, monke
     try:
         R.enable_cache(tmp_path / "cache")
         tr = TP.Trainer(cfg)
-        assert tr.trace_in_processes(log=lambda m: None, force=True) > 0
+        lows = []
+        assert tr.trace_in_processes(log=lambda m: None, force=True,
+                                     meanwhile=lambda: lows.extend(tr.lower_blanks(key))) > 0
         kept = tmp_path / "cache" / "exported"
-        assert len(list(kept.glob("*.bin"))) == 4 and len(list(kept.glob("*.traced"))) == 1
+        assert len(list(kept.glob("*.bin"))) == 2 and len(list(kept.glob("*.traced"))) == 1
+        assert len(lows) == 2
         R._EXPORTED.clear()
         monkeypatch.setattr(E.AutoResetWrapper, "step", lambda *a: pytest.fail("traced"))
         params = tr.init_params(key)
         pools = TCU.Curriculum(cfg.curriculum, cfg.presets, [e.ranges for e in tr.raw]).pools()
-        lows = tr.lower_resets(key, pools)  # as `train` calls them
-        assert [type(low).__name__ for low in lows] == ["SimpleNamespace"] * 2  # read back
         for i, (low, pool) in enumerate(zip(lows, pools, strict=True)):
             args = TP.rollout_args(params, low.out_info, key, i, pool)
             assert type(tr.rollout_program(i, args)).__name__ == "_Program"
-        assert TP.Trainer(cfg).trace_in_processes(log=lambda m: None, force=True) == 0.0
+        called = []
+        assert TP.Trainer(cfg).trace_in_processes(log=lambda m: None, force=True,
+                                                  meanwhile=lambda: called.append(1)) == 0.0
+        assert called == [1]
     finally:
         R.disable_cache()
         R._EXPORTED.clear()

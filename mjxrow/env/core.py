@@ -190,6 +190,10 @@ class Env:
     def observation_shapes(self) -> dict[str, tuple[int, ...]]:
         return {k: tuple(v.shape) for k, v in self._obs_shapes.items()}
 
+    def observation_structs(self) -> dict[str, jax.ShapeDtypeStruct]:
+        """One world's observation: shapes and dtypes (nothing traced)."""
+        return dict(self._obs_shapes)
+
     # -- pieces -----------------------------------------------------------------------------
 
     def model(self, world: dict):
@@ -297,6 +301,13 @@ class Env:
         return State(data=d, obs=obs, reward=zero, done=zero,
                      metrics=self._metrics(parts, d.log, zero),
                      info={"teacher_action": jnp.zeros(2), "truncation": zero})
+
+    def expired(self, state: State) -> State:
+        """`state` (one world or a batch) with its episode clock at the time limit: the next
+        `advance` ends each episode (a timeout at least), whatever the world holds (the
+        auto-reset wrapper's `blank`)."""
+        d = state.data
+        return state.replace(data=d.replace(t=jnp.full(d.t.shape, self.n_steps, d.t.dtype)))
 
     def observe(self, state: State) -> State:
         """The camera frame of the state's world → `obs`, and the teacher's action on it."""

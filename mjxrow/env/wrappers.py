@@ -17,7 +17,8 @@
   rendered once per step, after the resets, so the compiled step holds one renderer.
   `info["rng"]` holds each world's next key. `reset` and `step` take an optional
   `randomize.Pool` (traced): a share of every batch of resets takes fields from it (the
-  adversarial curriculum's searched failures) instead of the uniform draw.
+  adversarial curriculum's searched failures) instead of the uniform draw. `blank` makes a
+  batch for a first `step` to replace whole, without a reset program of its own.
 
 The environment provides `reset = observe ∘ reset_world` and `step = observe ∘ advance`; the
 wrappers pass the parts through.
@@ -30,6 +31,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from mjxrow import runtime
 from mjxrow.env.core import State
 from mjxrow.env.randomize import Pool, pool_draws
 
@@ -165,6 +167,28 @@ class AutoResetWrapper(Wrapper):
         keys = jax.random.split(rng, self.batch_size)
         given = None if pool is None else pool_draws(pool, keys, jnp.ones(len(keys), bool))
         state = self.env.reset(keys, given)
+        nxt = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
+        return state.replace(info={**state.info, "rng": nxt})
+
+    def blank(self, rng: jax.Array) -> State:
+        """A batch of worlds that the next `step` replaces, every one (pure; jit it): zeros of
+        `reset`'s shapes, each world's episode clock at its time limit (`Env.expired`: the
+        step ends every episode, then resets each world) and its key as `reset` gives it. A
+        first rollout can start from it instead of `reset`'s worlds, so a trainer needs no
+        reset program (its step holds one); the transition of that first step belongs to no
+        episode (its observation is zeros, its reward, done and metrics the blank's): drop
+        it."""
+        keys = jax.random.split(rng, self.batch_size)
+        shapes = jax.eval_shape(self.env.reset_world, keys)  # no frame: reset's own shapes
+
+        def zeros(s):
+            if runtime.is_key(s):
+                data = jax.eval_shape(jax.random.key_data, s)
+                return jax.random.wrap_key_data(jnp.zeros(data.shape, data.dtype),
+                                                impl=jax.random.key_impl(rng))
+            return jnp.zeros(s.shape, s.dtype)
+
+        state = self.env.expired(jax.tree.map(zeros, shapes))
         nxt = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
         return state.replace(info={**state.info, "rng": nxt})
 

@@ -108,12 +108,12 @@ class TrainConfig:
 
 
 def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
-          deadline: float | None = None, log=print, on_traced=None,
+          deadline: float | None = None, log=print, on_compiled=None,
           background_save: bool = False) -> dict[str, Any]:
     """Train (or resume training) into `out`; stop when the budget or `cfg.iterations` is spent
     or at the `deadline` (a `time.time()` value, e.g. to leave room for an evaluation).
-    `on_traced()`, if given, is called once the run's programs are traced (to start other
-    tracing then: Python traces one program at a time, XLA compiles side by side). Returns
+    `on_compiled()`, if given, is called once the run's programs are compiled (to start other
+    compilations then, e.g. an evaluation's, rather than compete with these). Returns
     the summary: paths, iterations, env steps, elapsed, compile time, seconds spent saving
     the training state, steps/s, last metrics, the curriculum's rounds. With
     `background_save` the last training state is still being written when it returns: its
@@ -136,9 +136,10 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     k_reset, key_after = jax.random.split(key)
     # compile everything once, before the clock of the budget runs (from the first tracing)
     t0 = time.perf_counter()
-    tr.trace_in_processes(log=log)
-    reset_lowered = tr.lower_resets(k_reset, pools)
-    worlds = tuple(low.out_info for low in reset_lowered)
+    lowered = []  # the blank worlds' programs (their shapes are the rollouts' arguments),
+    # traced here while other processes trace the rollouts, if they do
+    tr.trace_in_processes(log=log, meanwhile=lambda: lowered.extend(tr.lower_blanks(k_reset)))
+    worlds = tuple(low.out_info for low in lowered)
     state = {"params": params, "bc_opt": tr.bc_tx.init(params), "ppo_opt": tr.ppo_tx.init(params),
              "counters": _counters(0, 0, 0.0), "key": jax.random.key_data(key),
              "worlds": jax.eval_shape(train_state.storable, worlds), "pools": pools,
@@ -163,25 +164,36 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
 
     ppo_started = train_schedule.ppo_started(ppo_opt)
     phases = train_schedule.reachable(cfg, elapsed, ppo_started)
-    resets, unrolls, updates = tr.compile(
+    blanks, unrolls, updates = tr.compile(
         params, worlds, key, pools,
         {p: bc_opt if p == "bc" else ppo_opt for p in phases},
-        reset_lowered if restored is None else [], traced=on_traced, replay=replay)
+        lowered if restored is None else [], replay=replay)
+    compile_s = time.perf_counter() - t0
+    if on_compiled is not None:
+        on_compiled()
+    t1 = time.perf_counter()
     if restored is None:
-        keys = jax.random.split(k_reset, len(resets))
-        envs, key = tuple(r(k, p) for r, k, p in zip(resets, keys, pools, strict=True)), \
-            key_after
+        # the first rollout resets every blank world at its first step (a new field each, as
+        # the rollout's own resets draw them) and is not trained on
+        k_first, key = jax.random.split(key_after)
+        envs = tuple(u(params, b(k), jax.random.fold_in(k_first, i), jnp.float32(1.0),
+                       jnp.float32(0.0), jnp.bool_(False), p)[0]
+                     for i, (u, b, k, p) in enumerate(zip(
+                         unrolls, blanks, jax.random.split(k_reset, len(blanks)), pools,
+                         strict=True)))
     else:
         envs = train_state.restored(state["worlds"], worlds)
     jax.block_until_ready(envs)
-    compile_s = time.perf_counter() - t0
+    first_s = time.perf_counter() - t1
     parts = compile_parts(tr.compile_times, t0)
     log(f"compiled {len(unrolls)} rollout{'s' * (len(unrolls) > 1)} and the "
         f"{' and '.join(p.upper() for p in phases)} update{'s' * (len(phases) > 1)} in "
         f"{compile_s:.1f} s ({cfg.num_envs} worlds, {cfg.unroll} steps per rollout, "
         f"{tr.spec.describe()}): tracing {parts['trace_s']:.1f} s, then XLA "
         f"{parts['xla_after_trace_s']:.1f} s; each program's XLA compilation "
-        + ", ".join(f"{k} {v:.1f} s" for k, v in parts["xla_s"].items()))
+        + ", ".join(f"{k} {v:.1f} s" for k, v in parts["xla_s"].items())
+        + ("" if restored is not None else
+           f"; the first worlds (a rollout from blank ones, not trained on) {first_s:.1f} s"))
 
     def unroll(params, envs, key, beta, noise, ppo, pools):
         """Every environment's rollout (its own program), joined along the batch, and each
@@ -305,7 +317,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     return {"out": str(out), "policy": str(policy_dir),
             **({"policy_last": str(last_dir)} if last_dir else {}), "curve": str(curve),
             "iterations": it, "env_steps": env_steps, "elapsed_s": elapsed,
-            "compile_s": compile_s, "compile_parts": parts,
+            "compile_s": compile_s, "compile_parts": parts, "first_s": first_s,
             "wall_s": time.perf_counter() - t_start,
             "search_s": search_s, "save_s": save_s, "rounds": rounds,
             "rollout_steps_per_s": float(np.median([r[0] for r in steady])) if steady

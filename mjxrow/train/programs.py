@@ -1,8 +1,14 @@
 """The compiled pieces of a training run (`Trainer`): every crop's environment with the
-trainer's wrappers (episode, vmap, auto-reset), its reset and rollout programs (traced, or read
-back from the ones an earlier process kept beside the compilation cache: `runtime.exported`;
-`trace_in_processes` traces every crop's in a process of its own, side by side), the BC and
-PPO updates, and what a saved training state must match. `train.loop` drives them.
+trainer's wrappers (episode, vmap, auto-reset), its rollout program (traced, or read back from
+the one an earlier process kept beside the compilation cache: `runtime.exported`;
+`trace_in_processes` traces every crop's in a process of its own, side by side) and its blank
+worlds, the BC and PPO updates, and what a saved training state must match. `train.loop`
+drives them.
+
+There is no reset program: a run's first rollout starts from blank worlds
+(`AutoResetWrapper.blank`, zeros made by a program of broadcasts) whose first step resets every
+one in the rollout's own reset, and is not trained on. A reset program (a field, a plant table,
+a frame) cost about as much XLA time as a rollout, one per crop.
 """
 
 from __future__ import annotations
@@ -59,12 +65,12 @@ class Trainer:
         self.raw, self.envs = make_envs(cfg)
         self.spec = self.raw[0].spec
         self.net = policies_networks.PolicyNet(cfg.net)
-        self.obs_example = jax.eval_shape(self.raw[0].reset, jax.random.key(0)).obs
+        self.obs_example = self.raw[0].observation_structs()
         self.limits = tuple(float(x) for x in np.asarray(self.raw[0].limits))
         # one rollout program per environment (crop): they compile side by side, in threads
         self.unrolls = tuple(jax.jit(functools.partial(rollout.unroll, self.net, e,
                                                        length=cfg.unroll)) for e in self.envs)
-        self.resets = tuple(jax.jit(e.reset) for e in self.envs)  # (key, pool) → worlds
+        self.blanks = tuple(jax.jit(e.blank) for e in self.envs)  # key → worlds to replace
         # what names each environment's traced programs kept beside the compilation cache
         # (`runtime.exported`; '' traces them every run)
         self.keys = tuple(_program_key(cfg, r, e) for r, e in zip(self.raw, self.envs,
@@ -88,22 +94,25 @@ class Trainer:
             return fn
         return runtime.exported(fn, args, f"{self.keys[i]}\n{what}", out_tree) or fn
 
-    def trace_in_processes(self, log=print, force: bool = False) -> float:
-        """Trace every environment's reset and rollout in a process of its own, side by side,
-        and keep them beside the compilation cache (`runtime.exported`), so that `lower_resets`
-        and `rollout_program` read them back instead of tracing them one after another (Python
-        traces one program at a time in a process). Only where the cache is on, several
-        environments have kept programs, the curriculum is off, this set of programs was not
-        traced so before (a marker in the cache's `exported/`), and the machine has two cores
-        per environment or `force` (each process first spends seconds importing and tracing
-        once: on a 2-core CPU three tiny crops took 39 s so, 29-41 s in one). The processes
-        do not compile: XLA compiles here, side by side, as before. A failed process is a
-        one-line note, and what it did not keep is traced here. Returns the seconds taken."""
+    def trace_in_processes(self, log=print, force: bool = False, meanwhile=None) -> float:
+        """Trace every environment's rollout in a process of its own, side by side, and keep
+        them beside the compilation cache (`runtime.exported`), so that `rollout_program` reads
+        them back instead of tracing them one after another (Python traces one program at a
+        time in a process). `meanwhile()`, if given, is called once in any case: here while
+        the processes trace. Only where the cache is on, several environments have kept
+        programs, the curriculum is off, this set of programs was not traced so before (a
+        marker in the cache's `exported/`), and the machine has two cores per environment or
+        `force` (each process first spends seconds importing and tracing once: on a 2-core CPU
+        three tiny crops took 39 s so, 29-41 s in one). The processes do not compile: XLA
+        compiles here, side by side, as before. A failed process is a one-line note, and what
+        it did not keep is traced here. Returns the seconds the processes took."""
+        meanwhile = meanwhile or (lambda: None)
         root = runtime.cache_dir()
         cfg = self.cfg
         if (root is None or len(self.envs) < 2 or not all(self.keys) or cfg.curriculum.on
                 or jax.process_count() > 1
                 or not (force or (os.cpu_count() or 1) >= 2 * len(self.envs))):
+            meanwhile()
             return 0.0
         h = hashlib.sha256(runtime.code_version().encode())
         for part in (*self.keys, str(cfg.net), str(cfg.unroll), str(cfg.seed),
@@ -111,12 +120,14 @@ class Trainer:
             h.update(part.encode() + b"\0")
         marker = root / "exported" / f"{h.hexdigest()}.traced"
         if marker.is_file():
+            meanwhile()
             return 0.0
         t0 = time.perf_counter()
         log(f"tracing the {len(self.envs)} crops' programs in {len(self.envs)} processes")
         with ProcessPoolExecutor(len(self.envs), mp_context=multiprocessing.get_context("spawn"),
                                  initializer=_little_gpu_memory) as ex:
             jobs = [ex.submit(_trace_one, cfg, i, str(root)) for i in range(len(self.envs))]
+            meanwhile()
             errors = [e for e in (j.exception() for j in jobs) if e is not None]
         if errors:
             print(f"note: tracing in processes failed ({type(errors[0]).__name__}: "
@@ -133,31 +144,26 @@ class Trainer:
         return self.kept(i, f"rollout of {self.cfg.unroll} steps, {self.cfg.net}",
                          self.unrolls[i], args, rollout.out_structure(args[1]))
 
-    def lower_resets(self, key: jax.Array, pools: tuple) -> list:
-        """Every environment's reset, lowered (traced, or kept from an earlier process) for
-        `key` (split over them) and `pools`; a lowered program's `out_info` is the shape of
-        its worlds."""
+    def lower_blanks(self, key: jax.Array) -> list:
+        """Every environment's blank worlds (`AutoResetWrapper.blank`), lowered for `key`
+        (split over them): a lowered program's `out_info` is the shape of its worlds. Tracing
+        one traces the environment's `reset_world` for its shapes (not its frame)."""
         keys = jax.random.split(key, len(self.envs))
-        out = []
-        for i, (r, k, p) in enumerate(zip(self.resets, keys, pools, strict=True)):
-            tree = jax.tree.structure(jax.eval_shape(r, k, p)) if self.keys[i] else None
-            out.append(self.kept(i, "reset", r, (k, p), tree).lower(k, p))
-        return out
+        return [b.lower(k) for b, k in zip(self.blanks, keys, strict=True)]
 
-    def compile(self, params, worlds, key, pools, opts: dict, resets: list = (),
-                traced=None, replay=None):
+    def compile(self, params, worlds, key, pools, opts: dict, blanks: list = (),
+                replay=None):
         """Every program the run needs, compiled side by side (one thread each: XLA compiles
         separate programs in parallel where the machine has the cores; the tracing before it
         is Python's, one at a time, and skipped for a program kept by `kept`): the lowered
-        `resets`, the rollout of every environment (on worlds of the shapes `worlds`), and the
+        `blanks`, the rollout of every environment (on worlds of the shapes `worlds`), and the
         update of every phase in `opts` ({'bc' or 'ppo': its optimiser state}; BC's with the
-        `replay` buffer, or None: `train.bc.replay_mix`). `traced()`, if given, is called
-        once every program is traced, while XLA compiles them. Returns
-        ([reset executables], [rollout executables], {phase: update executable}); the times
-        are in `compile_times`."""
-        with ThreadPoolExecutor(len(resets) + len(self.unrolls) + len(opts)) as ex:
-            futures = {("reset", i): ex.submit(_timed, low.compile)
-                       for i, low in enumerate(resets)}
+        `replay` buffer, or None: `train.bc.replay_mix`). Returns ([blank executables],
+        [rollout executables], {phase: update executable}); the times are in
+        `compile_times`."""
+        with ThreadPoolExecutor(len(blanks) + len(self.unrolls) + len(opts)) as ex:
+            futures = {("blank", i): ex.submit(_timed, low.compile)
+                       for i, low in enumerate(blanks)}
             outs = []
             for i, (st, pool) in enumerate(zip(worlds, pools, strict=True)):
                 args = rollout_args(params, st, key, i, pool)
@@ -172,14 +178,12 @@ class Trainer:
                     low = self.ppo_update.lower(params, opt, traj, boot, key)
                 futures[("update", ph)] = ex.submit(_timed, low.compile)
             t_traced = time.perf_counter()
-            if traced is not None:
-                traced()
             done = {k: f.result() for k, f in futures.items()}
         jobs = {k: v[0] for k, v in done.items()}
         self.compile_times = {"traced": t_traced, **{
             f"{k[0]} {self.cfg.presets[k[1]] if k[0] != 'update' else k[1]}": v[1:]
             for k, v in done.items()}}
-        return ([jobs[("reset", i)] for i in range(len(resets))],
+        return ([jobs[("blank", i)] for i in range(len(blanks))],
                 [jobs[("rollout", i)] for i in range(len(self.unrolls))],
                 {ph: jobs[("update", ph)] for ph in opts})
 
@@ -261,8 +265,8 @@ def _little_gpu_memory() -> None:
 
 
 def _trace_one(cfg: TrainConfig, i: int, cache: str) -> None:
-    """In a process of its own: trace environment i's reset and rollout of the run `cfg` as
-    `Trainer.compile` would (the same keys and argument shapes), keeping them beside the
+    """In a process of its own: trace environment i's rollout of the run `cfg` as
+    `Trainer.compile` would (the same keys and argument shapes), keeping it beside the
     compilation cache `cache` (`Trainer.trace_in_processes`)."""
     runtime.enable_cache(cache)
     one = dataclasses.replace(cfg, presets=(cfg.presets[i],), num_envs=cfg.per_env)
@@ -271,8 +275,8 @@ def _trace_one(cfg: TrainConfig, i: int, cache: str) -> None:
     params = tr.fresh_params(key)  # the shapes of `train`'s (the values are not traced)
     pools = train_curriculum.Curriculum(one.curriculum, one.presets,
                                         [e.ranges for e in tr.raw]).pools()  # as `train`'s
-    (low,) = tr.lower_resets(key, pools)
-    args = rollout_args(params, low.out_info, key, i, pools[0])
+    worlds = jax.eval_shape(tr.blanks[0], key)
+    args = rollout_args(params, worlds, key, i, pools[0])
     tr.rollout_program(0, args).lower(*args)
 
 
