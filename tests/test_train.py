@@ -13,6 +13,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 import yaml
 
@@ -133,6 +134,32 @@ def test_ppo_iterations_from_bc_improve_the_objective_on_a_fixed_batch():
     mean = net.apply(params, batch["obs"])[0]
     moved = net.apply(new, batch["obs"])[0][:, 1] - mean[:, 1]
     assert float(jnp.mean(moved)) > 0.01  # ω moved toward the better actions
+
+
+def test_bc_lr_end_scales_the_steps_linearly_over_the_phase():
+    """`bc.lr_end`: the step size falls linearly from learning_rate to lr_end of it over the
+    phase (1: constant); the scale multiplies every optax step (0: the weights stay; 0.5 of an
+    SGD step moves them half as far)."""
+    assert BCConfig().lr_scale(0.7) == 1.0
+    b = BCConfig(lr_end=0.1)
+    assert [round(b.lr_scale(p), 6) for p in (0.0, 0.5, 1.0, 1.3)] == [1.0, 0.55, 0.1, 0.1]
+    with pytest.raises(ValueError, match="^bc.lr_end: must lie in"):
+        TC.apply_sets(CFG, ["bc.lr_end=1.5"])
+    net, params, batch, _ = _bc_network_and_ppo_batch()
+    cfg = PPOConfig(entropy_cost=0.0, epochs=1, minibatches=1)
+    tx = optax.sgd(1e-2)
+
+    def moved(scale):
+        new = P.sgd(params, tx.init(params), batch, jax.random.key(3), P.loss(net, cfg), tx,
+                    1, 1, jnp.float32(scale))[0]
+        return jax.tree.leaves(jax.tree.map(lambda a, b: a - b, new, params))
+
+    for a in moved(0.0):
+        np.testing.assert_array_equal(a, 0.0)
+    full, half = moved(1.0), moved(0.5)
+    assert max(float(jnp.max(jnp.abs(x))) for x in full) > 0
+    for f, h in zip(full, half, strict=True):
+        np.testing.assert_allclose(h, 0.5 * f, rtol=1e-4, atol=1e-7)
 
 
 def test_the_teacher_term_keeps_ppo_near_the_teacher():

@@ -44,6 +44,8 @@ class BCConfig:
     max_grad_norm: float = 1.0  # global gradient-norm clip
     replay: int = 0  # earlier rollouts the updates also see, 1/replay of each (0: the current
     # rollout alone; a buffer of one rollout's samples, ~6 GB of 64 × 64 images at 15,360 worlds)
+    lr_end: float = 1.0  # the step size at the end of the phase, a fraction of learning_rate
+    # (linear from 1 at its start; 1: constant)
 
     def __post_init__(self):
         for name in ("learning_rate", "max_grad_norm"):
@@ -52,6 +54,8 @@ class BCConfig:
         for name in ("noise_std", "value_cost"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"bc.{name}: must be non-negative, got {getattr(self, name)}")
+        if not 0 <= self.lr_end <= 1:
+            raise ValueError(f"bc.lr_end: must lie in [0, 1], got {self.lr_end}")
         if not 0 < self.beta_until <= 1:
             raise ValueError(f"bc.beta_until: must lie in (0, 1], got {self.beta_until}")
         for name in ("epochs", "minibatches"):
@@ -65,6 +69,10 @@ class BCConfig:
         if not self.dagger:
             return 1.0
         return float(max(0.0, 1.0 - progress / self.beta_until))
+
+    def lr_scale(self, progress: float) -> float:
+        """The step size at `progress` ∈ [0, 1] of the phase, a fraction of learning_rate."""
+        return float(1.0 - (1.0 - self.lr_end) * min(1.0, max(0.0, progress)))
 
 
 REPLAYED = ("obs", "teacher", "target")  # what the buffer keeps of a training batch

@@ -271,8 +271,10 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             jax.block_until_ready(traj.reward)
             t1 = time.perf_counter()
             if phase == "bc":
+                lr = cfg.bc.lr_scale(clock / (cfg.bc_fraction * budget))
                 params, bc_opt, m, replay = updates["bc"](params, bc_opt, traj, boot, k_upd,
-                                                          replay)
+                                                          replay, jnp.float32(lr))
+                m = {**m, "lr_scale": lr}
             else:
                 params, ppo_opt, m = updates["ppo"](params, ppo_opt, traj, boot, k_upd)
                 ppo_started = True

@@ -123,10 +123,12 @@ def batch(traj: Transition, advantage: jax.Array, target: jax.Array) -> dict:
 
 
 def sgd(params: Any, opt_state: Any, data: dict, key: jax.Array,
-        loss_fn: Callable, tx: optax.GradientTransformation, epochs: int, minibatches: int):
+        loss_fn: Callable, tx: optax.GradientTransformation, epochs: int, minibatches: int,
+        scale: jax.Array | None = None):
     """`epochs` passes over `data` (a dict of [N, ...] arrays) in `minibatches` shuffled
-    minibatches (N rounded down to a multiple), one optax step each. Returns (params,
-    opt_state, mean metrics over the steps)."""
+    minibatches (N rounded down to a multiple), one optax step each, its updates times `scale`
+    (traced: a learning-rate schedule; None: 1). Returns (params, opt_state, mean metrics
+    over the steps)."""
     n = jax.tree.leaves(data)[0].shape[0]
     size = n // minibatches
     if size < 1:
@@ -137,6 +139,8 @@ def sgd(params: Any, opt_state: Any, data: dict, key: jax.Array,
         mb = jax.tree.map(lambda x: x[idx], data)
         grads, metrics = jax.grad(loss_fn, has_aux=True)(params, mb)
         updates, opt_state = tx.update(grads, opt_state, params)
+        if scale is not None:
+            updates = jax.tree.map(lambda u: scale * u, updates)
         metrics["grad_norm"] = optax.global_norm(grads)
         return (optax.apply_updates(params, updates), opt_state), metrics
 

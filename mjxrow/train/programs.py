@@ -173,7 +173,8 @@ class Trainer:
             _, traj, boot, _ = jax.eval_shape(rollout.join, outs)
             for ph, opt in opts.items():
                 if ph == "bc":
-                    low = self.bc_update.lower(params, opt, traj, boot, key, replay)
+                    low = self.bc_update.lower(params, opt, traj, boot, key, replay,
+                                               jnp.float32(1.0))
                 else:
                     low = self.ppo_update.lower(params, opt, traj, boot, key)
                 futures[("update", ph)] = ex.submit(_timed, low.compile)
@@ -218,9 +219,10 @@ class Trainer:
             "teacher": jax.ShapeDtypeStruct((n, 2), jnp.float32),
             "target": jax.ShapeDtypeStruct((n,), jnp.float32)})
 
-    def _update(self, phase, params, opt_state, traj, boot, key, replay=None):
+    def _update(self, phase, params, opt_state, traj, boot, key, replay=None, lr_scale=None):
         """One phase's update on a rollout: (params, opt_state, metrics), and for BC also its
-        replay buffer after it (None without `bc.replay`)."""
+        replay buffer after it (None without `bc.replay`); BC's steps are scaled by `lr_scale`
+        (traced: `bc.lr_end`'s schedule)."""
         c = self.cfg.ppo
         adv, target = train_ppo.gae(traj, boot, c.discount, c.gae_lambda, c.reward_scale)
         data = train_ppo.batch(traj, adv, target)
@@ -238,6 +240,7 @@ class Trainer:
                 self.bc_tx,
                 b.epochs,
                 b.minibatches,
+                lr_scale,
             )
             return (*out, replay)
         return train_ppo.sgd(params, opt_state, data, key, train_ppo.loss(self.net, c), self.ppo_tx,
