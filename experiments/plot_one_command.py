@@ -80,7 +80,7 @@ def plot(runs: list[dict], rollouts: list[dict], out: Path, n: int) -> Path:
     ax.axhline(GOAL, color="k", ls="--", lw=0.8)
     ax.text(len(commands) - 0.5, GOAL + 0.01, f"goal {GOAL}", ha="right", va="bottom", fontsize=8)
     ax.set_xticks(range(len(commands)))
-    ax.set_xticklabels([f"{'H100' if 'H100' in c[1] else 'H200'}\nseed {c[3]}\n{c[4]} it"
+    ax.set_xticklabels([f"{'H100' if 'H100' in c[1] else 'H200'}\nseed {c[3]}\n{c[4] or '?'} it"
                         for c in commands], fontsize=7)
     ax.set_ylabel("pear success, default geometry (95 % CI)")
     ax.set_ylim(0, 1.05)
