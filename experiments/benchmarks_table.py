@@ -216,8 +216,8 @@ HEADLINES = [
            "the tracing (Python, one program at a time) (median of six commands)", "train_policy",
            _SIDE, GPU, batch=15360, pick="median", field="trace_s", unit="s"),
     Figure("policy training, five crops, one GPU and 16 cores, with a reset program per crop: "
-           "env-steps/s with the updates (median of six commands)", "train_policy", _SIDE, GPU, batch=15360, pick="median",
-           goal=(">=", 50000)),
+           "env-steps/s with the updates (median of six commands)", "train_policy", _SIDE, GPU,
+           batch=15360, pick="median", goal=(">=", 50000)),
     Figure("policy training, PPO with the teacher term from the shipped policy (five crops, "
            "10,240 worlds): env-steps/s with the updates (median of three commands)",
            "train_policy", _PPO_TEACHER, GPU, batch=10240, pick="median", goal=(">=", 50000)),
