@@ -119,18 +119,19 @@ class Evaluation:
                 built, batch = self._build(b, b.run)
                 b.exe = built.executable(batch.args(built.mx))
                 b.compile_s = time.perf_counter() - t0
-            self._run_one(b, b.controller, log)
+            self._run_one(b, log)
         return self.blocks
 
-    def _run_one(self, b: Block, name: str, log) -> None:
-        """Run block `b`'s episodes in its compiled program; log its success as `name`'s."""
+    def _run_one(self, b: Block, log) -> None:
+        """Run block `b`'s episodes in its compiled program; log its success under its label
+        (else its controller's name)."""
         t0 = time.perf_counter()
         built, batch = self._build(b, b.run)
         b.summary = built.summarise(b.exe(*batch.args(built.mx)), b.n)
         b.run_s = time.perf_counter() - t0
         a = rollout_aggregate.aggregate({"success": b.summary["success"]})["success"]
-        log(f"{name} on {b.preset}: success {a['mean']:.2f} [{a['lo']:.2f}, {a['hi']:.2f}] "
-            f"({b.n} episodes, {b.run_s:.1f} s)")
+        log(f"{b.label or b.controller} on {b.preset}: success {a['mean']:.2f} "
+            f"[{a['lo']:.2f}, {a['hi']:.2f}] ({b.n} episodes, {b.run_s:.1f} s)")
 
     def run_checkpoint(self, checkpoint: str, label: str, log=print) -> list[Block]:
         """The policy's blocks again with another checkpoint of the same architecture (e.g. the
@@ -143,7 +144,7 @@ class Evaluation:
             e = Block(b.preset, "policy", run_config(b.preset, "policy", self.values,
                                                      checkpoint, self.seed), b.n, exe=b.exe,
                       label=label)
-            self._run_one(e, label, log)
+            self._run_one(e, log)
             extra.append(e)
         return extra
 

@@ -171,16 +171,23 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     compile_s = time.perf_counter() - t0
     if on_compiled is not None:
         on_compiled()
+
+    def unroll(params, envs, key, beta, noise, ppo, pools):
+        """Every environment's rollout (its own program), joined along the batch, and each
+        environment's episode stats."""
+        outs = [u(params, st, jax.random.fold_in(key, i), beta, noise, ppo, pool)
+                for i, (u, st, pool) in enumerate(zip(unrolls, envs, pools, strict=True))]
+        return (*rollout.join(outs), [o[3] for o in outs])
+
     t1 = time.perf_counter()
     if restored is None:
         # the first rollout resets every blank world at its first step (a new field each, as
         # the rollout's own resets draw them) and is not trained on
         k_first, key = jax.random.split(key_after)
-        envs = tuple(u(params, b(k), jax.random.fold_in(k_first, i), jnp.float32(1.0),
-                       jnp.float32(0.0), jnp.bool_(False), p)[0]
-                     for i, (u, b, k, p) in enumerate(zip(
-                         unrolls, blanks, jax.random.split(k_reset, len(blanks)), pools,
-                         strict=True)))
+        blank = tuple(b(k) for b, k in zip(blanks, jax.random.split(k_reset, len(blanks)),
+                                           strict=True))
+        envs = unroll(params, blank, k_first, jnp.float32(1.0), jnp.float32(0.0),
+                      jnp.bool_(False), pools)[0]
     else:
         envs = train_state.restored(state["worlds"], worlds)
     jax.block_until_ready(envs)
@@ -194,13 +201,6 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
         + ", ".join(f"{k} {v:.1f} s" for k, v in parts["xla_s"].items())
         + ("" if restored is not None else
            f"; the first worlds (a rollout from blank ones, not trained on) {first_s:.1f} s"))
-
-    def unroll(params, envs, key, beta, noise, ppo, pools):
-        """Every environment's rollout (its own program), joined along the batch, and each
-        environment's episode stats."""
-        outs = [u(params, st, jax.random.fold_in(key, i), beta, noise, ppo, pool)
-                for i, (u, st, pool) in enumerate(zip(unrolls, envs, pools, strict=True))]
-        return (*rollout.join(outs), [o[3] for o in outs])
 
     # with a deadline, the budget is what it leaves (`train.schedule`): PPO's share comes in time
     budget = train_schedule.call_budget(cfg, elapsed,
@@ -260,7 +260,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             # call's training (saves, logging and searches included) where that ran ahead
             clock = elapsed if deadline is None else max(
                 elapsed, elapsed0 + time.perf_counter() - t_train)
-            phase, beta, noise, ppo = train_schedule.phase(cfg, clock, budget, ppo_started)
+            phase, beta, noise, ppo, lr = train_schedule.phase(cfg, clock, budget, ppo_started)
             if ppo and not ppo_started and cfg.ppo.start_log_std is not None:
                 params = train_schedule.with_log_std(params, cfg.ppo.start_log_std)
             key, k_roll, k_upd = jax.random.split(key, 3)
@@ -271,7 +271,6 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             jax.block_until_ready(traj.reward)
             t1 = time.perf_counter()
             if phase == "bc":
-                lr = cfg.bc.lr_scale(clock / (cfg.bc_fraction * budget))
                 params, bc_opt, m, replay = updates["bc"](params, bc_opt, traj, boot, k_upd,
                                                           replay, jnp.float32(lr))
                 m = {**m, "lr_scale": lr}

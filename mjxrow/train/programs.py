@@ -107,26 +107,16 @@ class Trainer:
         compiles here, side by side, as before. A failed process is a one-line note, and what
         it did not keep is traced here. Returns the seconds the processes took."""
         meanwhile = meanwhile or (lambda: None)
-        root = runtime.cache_dir()
-        cfg = self.cfg
-        if (root is None or len(self.envs) < 2 or not all(self.keys) or cfg.curriculum.on
-                or jax.process_count() > 1
-                or not (force or (os.cpu_count() or 1) >= 2 * len(self.envs))):
-            meanwhile()
-            return 0.0
-        h = hashlib.sha256(runtime.code_version().encode())
-        for part in (*self.keys, str(cfg.net), str(cfg.unroll), str(cfg.seed),
-                     jax.default_backend()):
-            h.update(part.encode() + b"\0")
-        marker = root / "exported" / f"{h.hexdigest()}.traced"
-        if marker.is_file():
+        marker = self._untraced_marker(force)
+        if marker is None:
             meanwhile()
             return 0.0
         t0 = time.perf_counter()
         log(f"tracing the {len(self.envs)} crops' programs in {len(self.envs)} processes")
         with ProcessPoolExecutor(len(self.envs), mp_context=multiprocessing.get_context("spawn"),
                                  initializer=_little_gpu_memory) as ex:
-            jobs = [ex.submit(_trace_one, cfg, i, str(root)) for i in range(len(self.envs))]
+            jobs = [ex.submit(_trace_one, self.cfg, i, str(runtime.cache_dir()))
+                    for i in range(len(self.envs))]
             meanwhile()
             errors = [e for e in (j.exception() for j in jobs) if e is not None]
         if errors:
@@ -137,6 +127,21 @@ class Trainer:
             marker.parent.mkdir(parents=True, exist_ok=True)
             marker.write_text("traced\n")
         return time.perf_counter() - t0
+
+    def _untraced_marker(self, force: bool):
+        """The marker file `trace_in_processes` writes once it has traced this run's programs,
+        or None where it does not trace them (see there), or has already."""
+        root, cfg = runtime.cache_dir(), self.cfg
+        if (root is None or len(self.envs) < 2 or not all(self.keys) or cfg.curriculum.on
+                or jax.process_count() > 1
+                or not (force or (os.cpu_count() or 1) >= 2 * len(self.envs))):
+            return None
+        h = hashlib.sha256(runtime.code_version().encode())
+        for part in (*self.keys, str(cfg.net), str(cfg.unroll), str(cfg.seed),
+                     jax.default_backend()):
+            h.update(part.encode() + b"\0")
+        marker = root / "exported" / f"{h.hexdigest()}.traced"
+        return None if marker.is_file() else marker
 
     def rollout_program(self, i: int, args: tuple):
         """Environment i's rollout for `args` (params, worlds, key, beta, noise, ppo, pool),

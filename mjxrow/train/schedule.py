@@ -24,16 +24,18 @@ def call_budget(cfg: TrainConfig, elapsed: float, left: float | None) -> float:
 
 
 def phase(cfg: TrainConfig, elapsed: float, budget: float,
-          ppo_started: bool = False) -> tuple[str, float, float, bool]:
-    """(phase, beta, noise_std, ppo) at `elapsed` seconds of a `budget` [s] (`call_budget`;
-    with a deadline the loop passes the wall time of the call's training where it is larger):
-    BC / DAgger for its first `bc_fraction`, then PPO; once PPO has updated the network
-    (`ppo_started`, from the PPO optimiser's step count) it stays PPO, whatever budget a
-    resumed call has."""
+          ppo_started: bool = False) -> tuple[str, float, float, bool, float]:
+    """(phase, beta, noise_std, ppo, lr_scale) at `elapsed` seconds of a `budget` [s]
+    (`call_budget`; with a deadline the loop passes the wall time of the call's training where
+    it is larger): BC / DAgger for its first `bc_fraction`, then PPO; once PPO has updated the
+    network (`ppo_started`, from the PPO optimiser's step count) it stays PPO, whatever budget
+    a resumed call has. `lr_scale`: BC's step size, a fraction of its learning rate
+    (`bc.lr_end`'s schedule over the phase); 1 in PPO."""
     split = cfg.bc_fraction * budget
     if cfg.bc_fraction >= 1 or (elapsed < split and not ppo_started):
-        return "bc", cfg.bc.beta(elapsed / split), cfg.bc.noise_std, False
-    return "ppo", 0.0, 0.0, True
+        progress = elapsed / split
+        return "bc", cfg.bc.beta(progress), cfg.bc.noise_std, False, cfg.bc.lr_scale(progress)
+    return "ppo", 0.0, 0.0, True, 1.0
 
 
 def reachable(cfg: TrainConfig, elapsed: float, ppo_started: bool) -> list[str]:
