@@ -312,6 +312,8 @@ def report(args, cfg, result, blocks, out: Path, wall: float) -> None:
             if cfg.curriculum.on else "") + (
             f", DAgger's data aggregated over {cfg.bc.replay} rollouts (bc.replay)"
             if cfg.bc.replay and cfg.bc_fraction > 0 else "") + (
+            ", half of every update's samples mirrored left-right (bc.mirror)"
+            if cfg.bc.mirror and cfg.bc_fraction > 0 else "") + (
             f", the weights' moving average (decay {cfg.average:g} an iteration)"
             if cfg.average > 0 else "")
         summary["method"] = method

@@ -162,6 +162,41 @@ def test_bc_lr_end_scales_the_steps_linearly_over_the_phase():
         np.testing.assert_allclose(h, 0.5 * f, rtol=1e-4, atol=1e-7)
 
 
+def test_bc_mirror_shows_the_flagged_samples_as_the_world_in_a_mirror():
+    """`bc.mirror`: a flagged sample's image is flipped along its width, ω is negated in the
+    proprioception (measured and previous action) and in the teacher's action, v and the
+    value target stay; unflagged samples are untouched; the BC loss of a flagged batch is the
+    loss of the batch mirrored by hand; about half the samples are flagged."""
+    img = jnp.arange(4 * 2 * 3, dtype=jnp.uint8).reshape(4, 2, 3, 1)
+    proprio = jnp.arange(16, dtype=jnp.float32).reshape(4, 4) + 1
+    teacher = jnp.array([[0.5, 0.2], [0.4, -0.3], [0.6, 0.1], [0.7, 0.0]])
+    b = {"obs": {"image": img, "proprio": proprio}, "teacher": teacher,
+         "target": jnp.arange(4.0), "mirror": jnp.array([True, False, True, False])}
+    m = BC.mirrored(b)
+    for i in (0, 2):
+        np.testing.assert_array_equal(m["obs"]["image"][i], img[i][:, ::-1])
+        np.testing.assert_array_equal(m["obs"]["proprio"][i], proprio[i] * jnp.array(
+            [1, -1, 1, -1]))
+        np.testing.assert_array_equal(m["teacher"][i], teacher[i] * jnp.array([1, -1]))
+    for i in (1, 3):
+        np.testing.assert_array_equal(m["obs"]["image"][i], img[i])
+        np.testing.assert_array_equal(m["obs"]["proprio"][i], proprio[i])
+        np.testing.assert_array_equal(m["teacher"][i], teacher[i])
+    np.testing.assert_array_equal(m["target"], b["target"])
+    assert m["obs"]["image"].dtype == jnp.uint8
+    net = N.PolicyNet(TINY)
+    params = N.init(net, {"image": img[:1], "proprio": proprio[:1]}, jax.random.key(0))
+    by_hand = {k: v for k, v in m.items() if k != "mirror"}
+    loss = BC.loss(net, 0.5)
+    np.testing.assert_allclose(loss(params, b)[0], loss(params, by_hand)[0], rtol=1e-6)
+    assert not np.isclose(float(loss(params, b)[0]),
+                          float(loss(params, {k: v for k, v in b.items() if k != "mirror"})[0]))
+    flags = BC.mirror_flags(jax.random.key(1), 4000)
+    assert 0.45 < float(jnp.mean(flags)) < 0.55
+    with pytest.raises(ValueError, match="^bc.mirror: must be true or false"):
+        TC.apply_sets(CFG, ["bc.mirror=2"])
+
+
 def test_the_teacher_term_keeps_ppo_near_the_teacher():
     """`ppo.teacher_cost` adds the mean action's squared error to the teacher's to the PPO
     loss: at the BC network it adds exactly cost · that error, and the same PPO epochs that

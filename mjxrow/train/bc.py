@@ -46,6 +46,8 @@ class BCConfig:
     # rollout alone; a buffer of one rollout's samples, ~6 GB of 64 × 64 images at 15,360 worlds)
     lr_end: float = 1.0  # the step size at the end of the phase, a fraction of learning_rate
     # (linear from 1 at its start; 1: constant)
+    mirror: bool = False  # every update sees a random half of its samples mirrored left-right
+    # (`mirrored`: image flipped, ω negated), so the network learns no left-right bias
 
     def __post_init__(self):
         for name in ("learning_rate", "max_grad_norm"):
@@ -54,6 +56,8 @@ class BCConfig:
         for name in ("noise_std", "value_cost"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"bc.{name}: must be non-negative, got {getattr(self, name)}")
+        if not isinstance(self.mirror, bool):
+            raise ValueError(f"bc.mirror: must be true or false, got {self.mirror!r}")
         if not 0 <= self.lr_end <= 1:
             raise ValueError(f"bc.lr_end: must lie in [0, 1], got {self.lr_end}")
         if not 0 < self.beta_until <= 1:
@@ -113,6 +117,35 @@ def replay_mix(buffer: dict, batch: dict, key: jax.Array, spans: int) -> tuple[d
     return data, after
 
 
+# the sign of each proprioception entry (v, ω measured, v, ω of the previous action) and of
+# each action entry (v, ω) in a left-right mirror image of the world
+PROPRIO_MIRROR = (1.0, -1.0, 1.0, -1.0)
+ACTION_MIRROR = (1.0, -1.0)
+
+
+def mirror_flags(key: jax.Array, n: int) -> jax.Array:
+    """bool [n]: which of n samples `mirrored` mirrors (a random half, each with p = 0.5)."""
+    return jax.random.bernoulli(key, 0.5, (n,))
+
+
+def mirrored(b: dict) -> dict:
+    """The training batch `b` with every sample whose `b['mirror']` is set mirrored
+    left-right, as the same world seen in a mirror: its image ([..., H, W, C]) flipped along
+    the width, ω negated in the proprioception (measured and previous action) and in the
+    teacher's action; v and the value target stay. Without 'mirror', `b` as it is."""
+    if "mirror" not in b:
+        return b
+    m = b["mirror"]
+    obs = dict(b["obs"])
+    img = obs["image"]
+    obs["image"] = jnp.where(m.reshape(m.shape + (1,) * (img.ndim - 1)),
+                             jnp.flip(img, axis=-2), img)
+    if "proprio" in obs:
+        obs["proprio"] = obs["proprio"] * jnp.where(m[:, None], jnp.array(PROPRIO_MIRROR), 1.0)
+    teacher = b["teacher"] * jnp.where(m[:, None], jnp.array(ACTION_MIRROR), 1.0)
+    return {**b, "obs": obs, "teacher": teacher}
+
+
 def teacher_error(mean: jnp.ndarray, teacher: jnp.ndarray) -> jnp.ndarray:
     """The mean over samples of the squared error of the network's mean action to the
     teacher's (summed over the 2 normalised action dims): BC's loss, and PPO's teacher term."""
@@ -121,9 +154,11 @@ def teacher_error(mean: jnp.ndarray, teacher: jnp.ndarray) -> jnp.ndarray:
 
 def loss(net: policies_networks.PolicyNet, value_cost: float):
     """`(params, batch) -> (loss, metrics)`: MSE of the mean action to the teacher's plus
-    `value_cost` · the value head's squared error to the λ-return targets."""
+    `value_cost` · the value head's squared error to the λ-return targets, on the batch
+    `mirrored` where it flags samples."""
 
     def fn(params, b):
+        b = mirrored(b)
         mean, _, value = net.apply(params, b["obs"])
         bc = teacher_error(mean, b["teacher"])
         v_loss = 0.5 * jnp.mean((b["target"] - value) ** 2)

@@ -64,6 +64,9 @@ class Trainer:
         self.cfg = cfg
         self.raw, self.envs = make_envs(cfg)
         self.spec = self.raw[0].spec
+        if cfg.bc.mirror and self.spec.kind == "features":
+            raise ValueError("bc.mirror: the segmenter's features of a mirrored image are not "
+                             "its features mirrored; mirror rgb or mask observations")
         self.net = policies_networks.PolicyNet(cfg.net)
         self.obs_example = self.raw[0].observation_structs()
         self.limits = tuple(float(x) for x in np.asarray(self.raw[0].limits))
@@ -236,6 +239,10 @@ class Trainer:
             if replay is not None:
                 key, k_mix = jax.random.split(key)
                 data, replay = train_bc.replay_mix(replay, data, k_mix, b.replay)
+            if b.mirror:
+                key, k_mirror = jax.random.split(key)
+                data = {**data, "mirror": train_bc.mirror_flags(k_mirror,
+                                                                len(data["teacher"]))}
             out = train_ppo.sgd(
                 params,
                 opt_state,
