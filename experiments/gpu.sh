@@ -612,7 +612,7 @@ set_train_policy() {  # train.log, policy.tgz, learning_curve.png, logs.tgz (tra
   read -r -a args <<<"${TRAIN_ARGS:-}"
   (nvidia-smi --query-gpu=name,driver_version --format=csv,noheader || true) > "$out/train.log"
   "${py[@]}" experiments/train_policy.py --out "$work" --budget-minutes 5 --deadline-minutes 9 \
-    --eval-reserve-minutes 1.5 --bc-fraction 1 --ship "${args[@]}" 2>&1 | tee -a "$out/train.log"
+    --bc-fraction 1 --ship "${args[@]}" 2>&1 | tee -a "$out/train.log"
   status=${PIPESTATUS[0]}
   [ -e "$work/learning_curve.png" ] && cp "$work/learning_curve.png" "$out/"
   logs=()

@@ -23,6 +23,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 GOAL = 0.97  # the pear goal (within 2 points of SegZeros' 0.99-1.00)
 TAG = "mjxrow experiments/plot_one_command.py"  # the PNG's Software entry
+SEED_STYLES = ("-", ":", "--", "-.")  # a training seed's line style
 
 
 def parser() -> argparse.ArgumentParser:
@@ -62,9 +63,11 @@ def plot(runs: list[dict], rollouts: list[dict], out: Path, n: int) -> Path:
 
     recipes = list(dict.fromkeys(r["recipe"] for r in runs))
     colors = dict(zip(recipes, plt.cm.tab10.colors, strict=False))
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 4.6), gridspec_kw={"width_ratios": [1.2, 1]})
     commands = list(dict.fromkeys((r["date"], r["device"], r["recipe"], r["seed"],
                                    r["iterations"]) for r in runs))
+    # the commands above (as wide as they need), the training rollouts below
+    fig, (ax, bx) = plt.subplots(2, 1, figsize=(max(12.0, 0.5 * len(commands) + 3), 9.5),
+                                 gridspec_kw={"height_ratios": [1.1, 1]})
     for x, c in enumerate(commands):
         mine = {r["weights"]: float(r["pear"]) for r in runs
                 if (r["date"], r["device"], r["recipe"], r["seed"], r["iterations"]) == c}
@@ -88,20 +91,20 @@ def plot(runs: list[dict], rollouts: list[dict], out: Path, n: int) -> Path:
     handles += [plt.Line2D([], [], color="gray", marker="o", mfc="white", ls="", label="last "
                            "weights"), plt.Line2D([], [], color="gray", marker="s", ls="",
                                                   label="moving average (0.8)")]
-    ax.legend(handles=handles, fontsize=7, loc="lower left")
+    ax.legend(handles=handles, fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.set_title("one command from a fresh network: pear at its default geometry", fontsize=9)
 
     for (recipe, seed), group in _groups(rollouts).items():
         it = [int(r["iteration"]) for r in group if r["pear_rollout_success"]]
         s = [float(r["pear_rollout_success"]) for r in group if r["pear_rollout_success"]]
-        bx.plot(it, s, color=colors.get(recipe, "k"), ls="-" if seed == "0" else ":",
+        bx.plot(it, s, color=colors.get(recipe, "k"), ls=SEED_STYLES[int(seed) % 4],
                 label=f"{recipe}, seed {seed}")
         b = [(int(r["iteration"]), float(r["beta"])) for r in group]
         bx.plot(*zip(*b, strict=True), color=colors.get(recipe, "k"), lw=0.6, alpha=0.5)
     bx.set_xlabel("iteration")
     bx.set_ylabel("pear success in the sampled rollouts (thick); β (thin)")
     bx.set_ylim(0, 1.05)
-    bx.legend(fontsize=6, loc="lower left")
+    bx.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     bx.set_title("training rollouts (action noise, field variety)", fontsize=9)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -408,6 +408,22 @@ def test_replay_keeps_one_rollout_of_samples_and_writes_a_share_of_each_new_one(
     assert TC.apply_sets(CFG, ["bc.replay=8"])[0].bc.replay == 8
 
 
+def test_an_iteration_cap_runs_the_schedule_to_its_end():
+    """With train.iterations the schedule's clock is at least their share done of the budget,
+    so β falls to 1/N by the last of N iterations (and the BC / PPO split falls inside them)
+    where the budget's time would leave it high; without it the clock is the time."""
+    cfg = dataclasses.replace(CFG, bc_fraction=1.0, iterations=16)
+    budget = 230.0
+    assert S.clock(CFG, 10.0, budget, 5) == 10.0
+    assert S.clock(CFG, 10.0, budget, 5, wall=12.0) == 12.0
+    assert S.clock(cfg, 200.0, budget, 5) == 200.0  # time ahead of the iterations
+    last = S.phase(cfg, S.clock(cfg, 165.0, budget, 15), budget)[1]
+    assert last == pytest.approx(1 / 16)  # 165 s alone would leave β at 0.28
+    assert S.phase(cfg, 165.0, budget)[1] == pytest.approx(1 - 165 / 230)
+    half = dataclasses.replace(cfg, bc_fraction=0.5)
+    assert S.phase(half, S.clock(half, 50.0, budget, 8), budget)[0] == "ppo"
+
+
 def test_a_deadline_puts_the_ppo_share_inside_the_call():
     """The BC / PPO split is a share of the budget the call can spend: a deadline that leaves
     less than the budget cuts it, so PPO starts before the deadline; once PPO has run, a
@@ -643,3 +659,22 @@ def test_a_policys_program_is_named_by_its_checkpoints_architecture_not_its_path
     here = key(saved)
     assert here and key(tmp_path / "elsewhere") == here
     assert key(slower) != here and "limits (0.4, 1.0)" in key(slower)
+
+
+def test_the_evaluation_reserve_follows_its_blocks():
+    """train_policy.py keeps BLOCK_MINUTES of its deadline per evaluation block unless
+    --eval-reserve-minutes says otherwise: the policy and its last weights on five crops are
+    10 blocks, with SegZeros and the oracle 20; --no-eval none."""
+    import importlib.util
+    path = Path(__file__).resolve().parents[1] / "experiments" / "train_policy.py"
+    spec = importlib.util.spec_from_file_location("train_policy_cli", path)
+    tp = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tp)
+    parse = lambda *a: tp.parser().parse_args(["--out", "x", *a])  # noqa: E731
+    assert parse().eval_reserve_minutes is None
+    assert tp.eval_blocks(parse()) == 15
+    assert tp.eval_blocks(parse("--eval-last")) == 20
+    assert tp.eval_blocks(parse("--controllers", "policy", "--eval-last")) == 10
+    assert tp.eval_blocks(parse("--controllers", "oracle", "--eval-last")) == 5
+    assert tp.eval_blocks(parse("--presets", "pear", "--no-eval")) == 0
+    assert tp.BLOCK_MINUTES * tp.eval_blocks(parse("--eval-last")) == pytest.approx(3.0)

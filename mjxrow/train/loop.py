@@ -11,7 +11,8 @@ find) and `policy/` (the policy checkpoint the `policy` controller loads: the la
 with `average` their moving average over the iterations, the last then in `policy_last/`). The
 budget counts the iterations' wall time (compilation and the curriculum's searches excluded)
 over every call with the same `out`; the first `bc_fraction` of it is BC / DAgger, the rest
-PPO; `iterations` caps the iterations as well. A `deadline` that leaves less than the budget
+PPO; `iterations` caps the iterations as well, and the schedule then also runs its course
+within them (`train.schedule.clock`). A `deadline` that leaves less than the budget
 cuts it to what it leaves once everything is compiled (`train.schedule`), and the schedule
 follows the wall clock where it runs ahead of the budget's, so the split falls inside the call;
 once PPO has run it stays PPO. A progress bar shows the budget spent and its ETA.
@@ -257,9 +258,10 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
         while elapsed < budget and (deadline is None or time.time() < deadline) and (
                 cfg.iterations is None or it < cfg.iterations):
             # the schedule's clock: the budget's, or with a deadline the wall time of this
-            # call's training (saves, logging and searches included) where that ran ahead
-            clock = elapsed if deadline is None else max(
-                elapsed, elapsed0 + time.perf_counter() - t_train)
+            # call's training (saves, logging and searches included) where that ran ahead, or
+            # the iterations' share of the budget where `cfg.iterations` ends the run first
+            clock = train_schedule.clock(cfg, elapsed, budget, it, None if deadline is None
+                                         else elapsed0 + time.perf_counter() - t_train)
             phase, beta, noise, ppo, lr = train_schedule.phase(cfg, clock, budget, ppo_started)
             if ppo and not ppo_started and cfg.ppo.start_log_std is not None:
                 params = train_schedule.with_log_std(params, cfg.ppo.start_log_std)

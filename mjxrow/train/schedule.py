@@ -1,7 +1,8 @@
-"""The training schedule: BC / DAgger for the first `bc_fraction` of the budget, then PPO
-(`phase`); the phases a call can reach (`reachable`); the budget a call schedules over when a
-deadline leaves less (`call_budget`); whether PPO has run (`ppo_started`) and the log std PPO
-starts from (`with_log_std`)."""
+"""The training schedule: BC / DAgger for the first `bc_fraction` of the budget, then PPO (`phase`,
+on the clock of `clock`: time, or the iterations' share where they end first); the phases a call
+can reach (`reachable`); the budget a call schedules over when a deadline leaves less
+(`call_budget`); whether PPO has run (`ppo_started`) and the log std PPO starts from
+(`with_log_std`)."""
 
 from __future__ import annotations
 
@@ -21,6 +22,19 @@ def call_budget(cfg: TrainConfig, elapsed: float, left: float | None) -> float:
     inside the call."""
     budget = cfg.budget_minutes * 60.0
     return budget if left is None else min(budget, elapsed + max(left, 0.0))
+
+
+def clock(cfg: TrainConfig, elapsed: float, budget: float, it: int,
+          wall: float | None = None) -> float:
+    """The schedule's clock [s] for the iteration after `it` done: the budget's `elapsed`, or
+    with a deadline the wall time `wall` of the call's training where that ran ahead; with
+    `cfg.iterations` at least their share done of `budget` (`budget` · it / iterations), so
+    that β, the BC / PPO split and `bc.lr_end` run their course by whichever limit comes
+    first (a run stopped by its iterations would otherwise end with β still high)."""
+    t = elapsed if wall is None else max(elapsed, wall)
+    if cfg.iterations:
+        t = max(t, budget * it / cfg.iterations)
+    return t
 
 
 def phase(cfg: TrainConfig, elapsed: float, budget: float,
