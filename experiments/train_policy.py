@@ -2,7 +2,7 @@
 the table: one command on one GPU.
 
     python experiments/train_policy.py --out runs/policy [--budget-minutes 5]
-        [--deadline-minutes 8.5] [--presets P ...] [--num-envs 15360]
+        [--deadline-minutes 8.5] [--eval-reserve-minutes M] [--presets P ...] [--num-envs 15360]
         [--episodes 100] [--bc-fraction 0.5] [--observation rgb] [--teacher oracle]
         [--seed 0] [--iterations N] [--init CHECKPOINT] [--curriculum SEARCH.yaml]
         [--set KEY=VALUE ...] [--no-eval] [--eval-only] [--eval-last] [--ship] [--smoke]
@@ -14,7 +14,8 @@ worlds split evenly over `--presets`; JAX gets 90 % of the GPU's memory unless
 XLA_PYTHON_CLIENT_MEM_FRACTION says otherwise). The budget counts training wall time over every
 command with the same `--out` (compilation excluded): a second command resumes from the orbax
 state in OUT/state/ and trains until the budget is spent. `--deadline-minutes` bounds this
-command's whole wall time: training stops early enough for the evaluation to finish before it.
+command's whole wall time: training stops early enough for the evaluation to finish before it
+(`--eval-reserve-minutes`, by default 0.15 min per block of episodes).
 Where that leaves less than the budget, the BC / PPO split is a share of the time it leaves
 (counted once everything is compiled), so PPO runs in this command; `--set
 ppo.start_log_std=-1.6` sets the policy's sampling std (e^-1.6 = 0.2, DAgger's noise) when PPO

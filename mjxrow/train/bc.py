@@ -47,7 +47,8 @@ class BCConfig:
     lr_end: float = 1.0  # the step size at the end of the phase, a fraction of learning_rate
     # (linear from 1 at its start; 1: constant)
     mirror: bool = False  # every update sees a random half of its samples mirrored left-right
-    # (`mirrored`: image flipped, ω negated), so the network learns no left-right bias
+    # (`mirrored`: image flipped, ω negated), so the network learns no left-right bias (not yet
+    # measured under a full schedule: docs/training.md, seventh round)
 
     def __post_init__(self):
         for name in ("learning_rate", "max_grad_norm"):
