@@ -46,6 +46,8 @@
 #   scale_out       GPUS ["1 2 4"], PER_GPU ["8208"] episodes per GPU and batch (multiples of
 #                   36: whole seeds of sweeps.yaml's 36 cells), LIMIT [280] s per sweep
 #   train_policy    TRAIN_ARGS: more train_policy.py arguments (e.g. --smoke on a CPU)
+#   train_side      TRAIN_ARGS_0 .. TRAIN_ARGS_3: each set one's arguments (command I on GPU I,
+#                   the cores split evenly); XLA_FLAGS_I: its XLA flags
 #   policy_surfaces SWEEP_ARGS: more sweep arguments
 set -uo pipefail
 OUT=${OUT:-/tmp/gpu_out}; WORK=${WORK:-/tmp/gpu_work}
@@ -56,7 +58,7 @@ cd "$root" || exit 2
 sets=(time_to_result determinism surfaces scaling table3 table3_kernels speed_round loop_224
       compile_flags mjwarp seg_speed shading suite_bench suite_tables suite_final train_policy
       policy_surfaces seg_variety search_segzeros search_oracle variety_surfaces render_curved
-      scale_out)
+      scale_out train_side)
 declare -A about=(
   [time_to_result]="sweeps.yaml cold / warm, closed loop 64 / 224 px, Table 3 block and whole"
   [determinism]="sweeps.yaml cold, warm, warm; the same with XLA's deterministic ops; diffs"
@@ -80,6 +82,7 @@ declare -A about=(
   [suite_tables]="Table 2 (segmentation) and Table 3 (navigation)"
   [suite_final]="renderer, closed loop, sweep, Table 3 with its controllers side by side"
   [train_policy]="train the policy (BC / DAgger), evaluate it, ship its checkpoint"
+  [train_side]="up to four train_policy commands side by side, a GPU each, none shipped"
   [policy_surfaces]="the policy's sweep surfaces (sweeps/policy*.yaml)"
 )
 
@@ -605,29 +608,73 @@ set_render_curved() {  # render_curved.log
   echo "exit $?" >> "$out/render_curved.log"; tail -n 30 "$out/render_curved.log"
 }
 
-set_train_policy() {  # train.log, policy.tgz, learning_curve.png, logs.tgz (train_log.jsonl,
-  # adversary.jsonl, eval.md, eval.json, summary.json, benchmarks.jsonl: one file, since a device
-  # machine returns few); the training state stays in WORK/train_policy (a second call
-  # resumes it); the set's status is the training's
-  read -r -a args <<<"${TRAIN_ARGS:-}"
-  (nvidia-smi --query-gpu=name,driver_version --format=csv,noheader || true) > "$out/train.log"
-  "${py[@]}" experiments/train_policy.py --out "$work" --budget-minutes 5 --deadline-minutes 9 \
-    --bc-fraction 1 --ship "${args[@]}" 2>&1 | tee -a "$out/train.log"
+# train_one OUT WORK [ARGS ...]: train_policy.py with the sets' defaults and ARGS into WORK
+# (a second call resumes it), its log in OUT/train.log, and OUT/policy.tgz, OUT/learning_curve.png,
+# OUT/logs.tgz (train_log.jsonl, adversary.jsonl, eval.md, eval.json, summary.json,
+# benchmarks.jsonl: one file, since a device machine returns few); its exit status
+train_one() {
+  local o=$1 w=$2 status logs parts f; shift 2
+  mkdir -p "$o" "$w"
+  (nvidia-smi --query-gpu=name,driver_version --format=csv,noheader || true) > "$o/train.log"
+  "${py[@]}" experiments/train_policy.py --out "$w" --budget-minutes 5 --deadline-minutes 9 \
+    --bc-fraction 1 "$@" 2>&1 | tee -a "$o/train.log"
   status=${PIPESTATUS[0]}
-  [ -e "$work/learning_curve.png" ] && cp "$work/learning_curve.png" "$out/"
+  [ -e "$w/learning_curve.png" ] && cp "$w/learning_curve.png" "$o/"
   logs=()
   for f in train_log.jsonl adversary.jsonl eval.md eval.json summary.json benchmarks.jsonl; do
-    [ -e "$work/$f" ] && logs+=("$f")
+    [ -e "$w/$f" ] && logs+=("$f")
   done
-  [ ${#logs[@]} -gt 0 ] && tar -czf "$out/logs.tgz" -C "$work" "${logs[@]}"
+  [ ${#logs[@]} -gt 0 ] && tar -czf "$o/logs.tgz" -C "$w" "${logs[@]}"
   # the checkpoints as one file: a device machine returns few files and no deep folders
-  parts=(); [ -d "$work/policy" ] && parts+=(-C "$work" policy)
-  [ -d "$work/policy_last" ] && parts+=(-C "$work" policy_last)
+  parts=(); [ -d "$w/policy" ] && parts+=(-C "$w" policy)
+  [ -d "$w/policy_last" ] && parts+=(-C "$w" policy_last)
   if [ -d mjxrow/checkpoints/policy ]; then
-    rm -rf "$work/shipped_policy" && cp -r mjxrow/checkpoints/policy "$work/shipped_policy"
-    parts+=(-C "$work" shipped_policy)
+    rm -rf "$w/shipped_policy" && cp -r mjxrow/checkpoints/policy "$w/shipped_policy"
+    parts+=(-C "$w" shipped_policy)
   fi
-  [ ${#parts[@]} -gt 0 ] && tar -czf "$out/policy.tgz" "${parts[@]}"
+  [ ${#parts[@]} -gt 0 ] && tar -czf "$o/policy.tgz" "${parts[@]}"
+  return "$status"
+}
+
+set_train_policy() {  # train.log, policy.tgz, learning_curve.png, logs.tgz (train_one); the
+  # training state stays in WORK/train_policy (a second call resumes it), and the policy is
+  # shipped into mjxrow/checkpoints/policy/; the set's status is the training's
+  read -r -a args <<<"${TRAIN_ARGS:-}"
+  train_one "$out" "$work" --ship "${args[@]}"
+}
+
+set_train_side() {  # I.log while it runs, then I.tgz (train_one's files), per command I
+  # commands side by side, one GPU each: command I (0-3) where TRAIN_ARGS_I is set, on GPU I
+  # (CUDA_VISIBLE_DEVICES), with XLA_FLAGS_I if set, pinned to its share of the cores; nothing
+  # is shipped; the set's status is the first failing command's
+  local ids=() i k n cores v x rc status=0 pids=()
+  for i in 0 1 2 3; do v=TRAIN_ARGS_$i; [ -n "${!v:-}" ] && ids+=("$i"); done
+  if [ ${#ids[@]} -eq 0 ]; then
+    echo "train_side: set TRAIN_ARGS_0 (and TRAIN_ARGS_1 .. TRAIN_ARGS_3 for more)" >&2; return 2
+  fi
+  n=${#ids[@]}; cores=$(( $(nproc) / n )); [ "$cores" -ge 1 ] || cores=1; k=0
+  for i in "${ids[@]}"; do
+    v=TRAIN_ARGS_$i; x=XLA_FLAGS_$i
+    ( read -r -a args <<<"${!v}"
+      export CUDA_VISIBLE_DEVICES=$i
+      if [ -n "${!x:-}" ]; then export XLA_FLAGS="${!x}"; fi
+      taskset -cp "$((k * cores))-$((k * cores + cores - 1))" "$BASHPID" > /dev/null
+      train_one "$work/$i/files" "$work/$i/run" "${args[@]}" > "$out/$i.log" 2>&1
+      rc=$?
+      tar -czf "$out/$i.tgz" -C "$work/$i" files && rm -f "$out/$i.log"
+      exit "$rc" ) &
+    pids+=($!); k=$((k + 1))
+  done
+  for k in "${!pids[@]}"; do
+    wait "${pids[$k]}"; rc=$?
+    if [ "$rc" != 0 ]; then
+      [ "$status" = 0 ] && status=$rc; echo "!! command ${ids[$k]}: exit status $rc"
+    fi
+  done
+  for i in "${ids[@]}"; do
+    v=TRAIN_ARGS_$i; echo "== command $i: ${!v}"
+    tar -xzOf "$out/$i.tgz" files/train.log 2>/dev/null | grep -aE "^compiled [0-9]|on [a-z]+: success|env-steps/s during|wall time" | cut -c1-240
+  done
   return "$status"
 }
 
