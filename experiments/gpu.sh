@@ -10,7 +10,8 @@
 #
 # Set-up, once per call: the project root as working folder; the wheels in .whl/ (the packages
 # the GPU machine lacks; /tmp/wp/*.whl too, for a wheel brought in parts) installed into SITE
-# (default /tmp/site) unless the same files are there already, with PYTHONPATH=SITE:ROOT
+# (default /tmp/site) where nvidia-smi is found (not on a CPU check) and unless the same files
+# are there already, with PYTHONPATH=SITE:ROOT
 # (ROOT alone without wheels) and PYTHONUNBUFFERED=1; the device (nvidia-smi, jax, mujoco) in
 # OUT/device.txt. A set writes into OUT/SET and works in WORK/SET (default WORK=/tmp/gpu_work),
 # which it empties first (train_policy resumes from it instead). Compilation caches: most sets
@@ -101,6 +102,9 @@ done
 read -r -a py <<<"${PY:-python3}"
 mkdir -p "$OUT" "$WORK"
 shopt -s nullglob; wheels=(.whl/*.whl /tmp/wp/*.whl); shopt -u nullglob
+# the wheels are the device machine's (its Python); a machine without nvidia-smi (a CPU check)
+# runs on the packages installed there
+command -v nvidia-smi >/dev/null || wheels=()
 if [ ${#wheels[@]} -gt 0 ]; then
   site=${SITE:-/tmp/site}; stamp=$(ls -l "${wheels[@]}")
   if [ "$(cat "$site/.gpu_wheels" 2>/dev/null)" != "$stamp" ]; then
