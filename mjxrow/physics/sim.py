@@ -1,7 +1,8 @@
 """MJX physics of the robot driving one lane of a field (impl "jax"): the state, `reset`,
-`step` and the read-outs, on the per-world models of `mjxrow.physics.model` (whose names this
-module re-exports: `sim.SimConfig`, `sim.make_model`, `sim.world_model`, ...; the terrain patch,
-the obstacle contact slots and the choices of time step and solver are explained there).
+`step` and the read-outs, on the model of `mjxrow.physics.model` with each world written in by
+`mjxrow.physics.world` (whose names this module re-exports: `sim.SimConfig`, `sim.make_model`,
+`sim.world_model`, ...; the terrain patch and the obstacle contact slots are explained in
+`world`, the choices of time step and solver in `model`).
 
 - `reset(mx, field, lane, key, sim_cfg, noise) -> SimState`: the robot at rest at the start of
   its lane, wheels on the terrain.
@@ -36,25 +37,27 @@ from mjxrow.physics.model import (  # noqa: F401  (the physics' face: sim.make_m
     TERRAIN,
     WORLD_FIELDS,
     SimConfig,
-    _axis_quat,
     _geom_ids,
-    _quat_mul,
     _wheel_body_ids,
     make_model,
     model_axes,
     model_xml,
+    robot_numbers,
+    wheel_dofs,
+)
+from mjxrow.physics.quiet import mjx
+from mjxrow.physics.world import (  # noqa: F401  (sim.world_model, ...)
+    _axis_quat,
+    _quat_mul,
     obstacles_dropped,
     patch_frame,
     patch_heights,
     patch_yaw,
     refresh_contacts,
-    robot_numbers,
     to_patch,
-    wheel_dofs,
     world_mjmodel,
     world_model,
 )
-from mjxrow.physics.quiet import mjx
 
 # ---------------------------------------------------------------------------------------------
 # State
