@@ -656,6 +656,12 @@ set_train_side() {  # I.log while it runs, then I.tgz (train_one's files), per c
   if [ ${#ids[@]} -eq 0 ]; then
     echo "train_side: set TRAIN_ARGS_0 (and TRAIN_ARGS_1 .. TRAIN_ARGS_3 for more)" >&2; return 2
   fi
+  for i in "${ids[@]}"; do  # side by side, shipping commands would overwrite each other's
+    v=TRAIN_ARGS_$i
+    if [[ " ${!v} " == *" --ship "* ]]; then
+      echo "train_side: TRAIN_ARGS_$i: --ship is not for commands side by side" >&2; return 2
+    fi
+  done
   n=${#ids[@]}; cores=$(( $(nproc) / n )); [ "$cores" -ge 1 ] || cores=1; k=0
   for i in "${ids[@]}"; do
     v=TRAIN_ARGS_$i; x=XLA_FLAGS_$i
