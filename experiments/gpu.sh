@@ -615,7 +615,8 @@ set_render_curved() {  # render_curved.log
 # train_one OUT WORK [ARGS ...]: train_policy.py with the sets' defaults and ARGS into WORK
 # (a second call resumes it), its log in OUT/train.log, and OUT/policy.tgz, OUT/learning_curve.png,
 # OUT/logs.tgz (train_log.jsonl, adversary.jsonl, eval.md, eval.json, summary.json,
-# benchmarks.jsonl: one file, since a device machine returns few); its exit status
+# benchmarks.jsonl: one file, since a device machine returns few); with --ship the shipped
+# policy is in policy.tgz too; its exit status
 train_one() {
   local o=$1 w=$2 status logs parts f; shift 2
   mkdir -p "$o" "$w"
@@ -632,7 +633,7 @@ train_one() {
   # the checkpoints as one file: a device machine returns few files and no deep folders
   parts=(); [ -d "$w/policy" ] && parts+=(-C "$w" policy)
   [ -d "$w/policy_last" ] && parts+=(-C "$w" policy_last)
-  if [ -d mjxrow/checkpoints/policy ]; then
+  if [[ " $* " == *" --ship "* ]] && [ -d mjxrow/checkpoints/policy ]; then  # what it shipped
     rm -rf "$w/shipped_policy" && cp -r mjxrow/checkpoints/policy "$w/shipped_policy"
     parts+=(-C "$w" shipped_policy)
   fi

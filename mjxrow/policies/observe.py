@@ -80,6 +80,13 @@ def odometry(prev_pose: jax.Array, pose: jax.Array, dt: float) -> jax.Array:
     return jnp.stack([c * d[0] + s * d[1], wrap_angle(pose[2] - prev_pose[2])]) / dt
 
 
+# the sign each entry takes in the left-right mirror image of a world: the proprioception's
+# (v, ω measured; v, ω of the previous action: `observe`) and an action's (v, ω); an image
+# mirrors along its width (axis -2)
+PROPRIO_MIRROR = (1.0, -1.0, 1.0, -1.0)
+ACTION_MIRROR = (1.0, -1.0)
+
+
 def scale_action(action: jax.Array, limits: jax.Array) -> jax.Array:
     """Action [..., 2] → command (v [m/s], ω [rad/s]): clipped to [-1, 1] times `limits`
     [2] = (v_max, ω_max)."""

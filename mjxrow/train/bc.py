@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 
 from mjxrow.policies import networks as policies_networks
+from mjxrow.policies import observe as policies_observe
 
 
 @dataclasses.dataclass(frozen=True)
@@ -118,12 +119,6 @@ def replay_mix(buffer: dict, batch: dict, key: jax.Array, spans: int) -> tuple[d
     return data, after
 
 
-# the sign of each proprioception entry (v, ω measured, v, ω of the previous action) and of
-# each action entry (v, ω) in a left-right mirror image of the world
-PROPRIO_MIRROR = (1.0, -1.0, 1.0, -1.0)
-ACTION_MIRROR = (1.0, -1.0)
-
-
 def mirror_flags(key: jax.Array, n: int) -> jax.Array:
     """bool [n]: which of n samples `mirrored` mirrors (a random half, each with p = 0.5)."""
     return jax.random.bernoulli(key, 0.5, (n,))
@@ -141,9 +136,10 @@ def mirrored(b: dict) -> dict:
     img = obs["image"]
     obs["image"] = jnp.where(m.reshape(m.shape + (1,) * (img.ndim - 1)),
                              jnp.flip(img, axis=-2), img)
+    signs = lambda s: jnp.where(m[:, None], jnp.array(s), 1.0)  # noqa: E731
     if "proprio" in obs:
-        obs["proprio"] = obs["proprio"] * jnp.where(m[:, None], jnp.array(PROPRIO_MIRROR), 1.0)
-    teacher = b["teacher"] * jnp.where(m[:, None], jnp.array(ACTION_MIRROR), 1.0)
+        obs["proprio"] = obs["proprio"] * signs(policies_observe.PROPRIO_MIRROR)
+    teacher = b["teacher"] * signs(policies_observe.ACTION_MIRROR)
     return {**b, "obs": obs, "teacher": teacher}
 
 
