@@ -287,7 +287,11 @@ def _trace_one(cfg: TrainConfig, i: int, cache: str) -> None:
     one = dataclasses.replace(cfg, presets=(cfg.presets[i],), num_envs=cfg.per_env)
     tr = Trainer(one)
     key = jax.random.key(cfg.seed)
-    params = tr.fresh_params(key)  # the shapes of `train`'s (the values are not traced)
+    # the shapes and device of `train`'s weights (their values are not traced): no network is
+    # initialised here, which would compile its programs first
+    dev = jax.sharding.SingleDeviceSharding(jax.devices()[0])
+    params = jax.tree.map(lambda s: jax.ShapeDtypeStruct(s.shape, s.dtype, sharding=dev),
+                          jax.eval_shape(tr.fresh_params, key))
     pools = train_curriculum.Curriculum(one.curriculum, one.presets,
                                         [e.ranges for e in tr.raw]).pools()  # as `train`'s
     worlds = jax.eval_shape(tr.blanks[0], key)
