@@ -19,6 +19,14 @@ programs:
   so about B / spread worlds end per step (as in training, where episodes last a few hundred
   steps). Its env-steps/s is B · unroll over a call.
 
+With `--ops` nothing is compiled or timed: each part's program is lowered and its StableHLO
+operations are counted by the innermost `mjxrow` source file that made them (`operations`;
+JAX's own, such as loops' plumbing and random bits, under "(no mjxrow line)"), the size that
+XLA's compilation time follows (docs/training.md, eighth round). With `--compile-profile DIR`
+the parts are compiled side by side under JAX's profiler (its trace in DIR), not timed, and
+XLA's compile time is summed by event (`compile_profile`: passes, pipelines, code generation)
+over every compiler thread, most self time first; DIR/compile_profile.csv holds every event.
+
 The programs are lowered one after another and compiled side by side (threads), then each is
 timed by `mjxrow.bench.timing.time_runs`: the median of `--repeats` calls after one untimed
 call; env-steps/s is B (B · unroll for `rollout`) over it. Run it with
@@ -29,9 +37,13 @@ call; env-steps/s is B (B · unroll for `rollout`) over it. Run it with
 from __future__ import annotations
 
 import argparse
+import collections
+import csv
 import datetime
+import functools
 import json
 import os
+import re
 import statistics
 import sys
 import time
@@ -81,6 +93,73 @@ def _programs(preset: str, B: int, parts, max_resets, spread: int) -> dict:
             if p in parts}
 
 
+NO_LINE = "(no mjxrow line)"
+
+
+def operations(lowered) -> collections.Counter:
+    """{source: StableHLO operations} of a lowered program: each operation under the innermost
+    frame of its location in the mjxrow package (the file, relative to the package), else
+    under `NO_LINE`."""
+    text = lowered.as_text(debug_info=True)
+    alias = {m[1]: m[2] for m in re.finditer(r"^#(loc\d*) = loc\((.*)\)$", text, re.M)}
+
+    @functools.cache
+    def frames(loc: str) -> tuple:  # (file, line), innermost first
+        m = re.match(r'"([^"]+)":(\d+)', loc)
+        if m:
+            return ((m[1], int(m[2])),)
+        inner = re.findall(r"#(loc\d*)\b", loc)  # a name, a call site or a fusion of aliases
+        return tuple(f for a in inner for f in frames(alias.get(a, "")))
+
+    counts: collections.Counter = collections.Counter()
+    for m in re.finditer(r'^\s*(?:%[^=]*= )?"?(?:stablehlo|chlo)\.\w+.*loc\((.*)\)\s*$',
+                         text, re.M):
+        ours = [f for f, _ in frames(m[1]) if "/mjxrow/" in f]
+        counts[ours[0].rsplit("/mjxrow/", 1)[1] if ours else NO_LINE] += 1
+    return counts
+
+
+def compile_profile(lowered: list, folder: Path) -> list[dict]:
+    """Compile `lowered` side by side under JAX's profiler (its trace in `folder`) and sum the
+    compiler threads' events by name: [{name, count, self_s, total_s}], most self time first.
+    An event's self time leaves out the events it encloses on its thread; a pipeline's name
+    ends in ' (jit_NAME)', dropped here so that the programs add up. An event whose work runs
+    on other threads (the compile call itself, a thread pool's dispatch) counts its waiting as
+    its own."""
+    import jax
+    from jax.profiler import ProfileData
+
+    with jax.profiler.trace(str(folder)), ThreadPoolExecutor(len(lowered)) as ex:
+        list(ex.map(lambda low: low.compile(), lowered))
+    path = max(folder.rglob("*.xplane.pb"), key=lambda f: f.stat().st_mtime)
+    sums: dict[str, list] = {}
+
+    def add(name: str, total: int, own: int) -> None:
+        row = sums.setdefault(re.sub(r" \(jit_\w+\)$", "", name), [0, 0, 0])
+        row[0] += 1
+        row[1] += own
+        row[2] += total
+
+    for plane in ProfileData.from_file(str(path)).planes:
+        for line in plane.lines if plane.name.startswith("/host:") else ():
+            if line.name == "python":  # the Python side: the calls, not XLA's work
+                continue
+            events = [e for e in line.events if not e.name.startswith("$")]  # Python's too
+            open_: list[list] = []  # [end, name, duration, enclosed] of the enclosing events
+            for e in sorted(events, key=lambda e: (e.start_ns, -e.duration_ns)):
+                while open_ and open_[-1][0] <= e.start_ns:
+                    _end, name, dur, inner = open_.pop()
+                    add(name, dur, dur - inner)
+                if open_:
+                    open_[-1][3] += e.duration_ns
+                open_.append([e.end_ns, e.name, e.duration_ns, 0])
+            for _end, name, dur, inner in open_:
+                add(name, dur, dur - inner)
+    rows = [{"name": k, "count": v[0], "self_s": v[1] / 1e9, "total_s": v[2] / 1e9}
+            for k, v in sums.items()]
+    return sorted(rows, key=lambda r: -r["self_s"])
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python experiments/env_parts.py",
                                 description=__doc__.split("\n")[0])
@@ -94,6 +173,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--spread", type=int, default=300,
                    help="rollout: the time limit the step counts are spread over [steps]")
     p.add_argument("--record", type=Path, default=None)
+    p.add_argument("--ops", action="store_true",
+                   help="count each program's StableHLO operations by source file instead "
+                        "(no compilation, no timing)")
+    p.add_argument("--compile-profile", type=Path, default=None, metavar="DIR",
+                   help="compile under JAX's profiler (trace in DIR) and print where XLA's "
+                        "time goes (no timing)")
     args = p.parse_args(argv)
     if min(args.batch) < 1 or args.repeats < 1 or args.spread < 2 or (
             args.max_resets is not None and args.max_resets < 1):
@@ -115,6 +200,28 @@ def main(argv: list[str] | None = None) -> int:
             for part, job in _programs(args.preset, B, args.parts, args.max_resets,
                                        args.spread).items()}
     lower_s = time.perf_counter() - t0
+    if args.ops:
+        for (B, part), (low, _, _) in jobs.items():
+            counts = operations(low)
+            print(f"B {B} {part}: {sum(counts.values()):,} operations")
+            for source, n in counts.most_common():
+                print(f"  {n:8,d}  {source}")
+        return 0
+    if args.compile_profile is not None:
+        args.compile_profile.mkdir(parents=True, exist_ok=True)
+        t0 = time.perf_counter()
+        rows = compile_profile([low for low, _, _ in jobs.values()], args.compile_profile)
+        print(f"{len(jobs)} programs: traced in {lower_s:.1f} s, compiled side by side under "
+              f"the profiler in {time.perf_counter() - t0:.1f} s; XLA's events, most self "
+              "time first (seconds summed over the compiler's threads):")
+        for r in rows[:40]:
+            print(f"  {r['self_s']:8.2f} self {r['total_s']:8.2f} in all {r['count']:6d}x  "
+                  f"{r['name'][:90]}")
+        with (args.compile_profile / "compile_profile.csv").open("w", newline="") as f:
+            w = csv.DictWriter(f, ["name", "count", "self_s", "total_s"])
+            w.writeheader()
+            w.writerows(rows)
+        return 0
     t0 = time.perf_counter()
     with ThreadPoolExecutor(len(jobs)) as ex:
         compiled = dict(zip(jobs, ex.map(lambda j: j[0].compile(), jobs.values()), strict=True))

@@ -50,6 +50,7 @@
 #   train_side      TRAIN_ARGS_0 .. TRAIN_ARGS_3: each set one's arguments (command I on GPU I,
 #                   the cores split evenly); XLA_FLAGS_I: its XLA flags
 #   policy_surfaces SWEEP_ARGS: more sweep arguments
+#   compile_profile PRESET [pear], BATCH [3072], PARTS [rollout]: env_parts.py's parts
 set -uo pipefail
 OUT=${OUT:-/tmp/gpu_out}; WORK=${WORK:-/tmp/gpu_work}
 [[ $OUT == /* ]] || OUT="$PWD/$OUT"; [[ $WORK == /* ]] || WORK="$PWD/$WORK"
@@ -59,7 +60,7 @@ cd "$root" || exit 2
 sets=(time_to_result determinism surfaces scaling table3 table3_kernels speed_round loop_224
       compile_flags mjwarp seg_speed shading suite_bench suite_tables suite_final train_policy
       policy_surfaces seg_variety search_segzeros search_oracle variety_surfaces render_curved
-      scale_out train_side)
+      scale_out train_side compile_profile)
 declare -A about=(
   [time_to_result]="sweeps.yaml cold / warm, closed loop 64 / 224 px, Table 3 block and whole"
   [determinism]="sweeps.yaml cold, warm, warm; the same with XLA's deterministic ops; diffs"
@@ -85,6 +86,7 @@ declare -A about=(
   [train_policy]="train the policy (BC / DAgger), evaluate it, ship its checkpoint"
   [train_side]="up to four train_policy commands side by side, a GPU each, none shipped"
   [policy_surfaces]="the policy's sweep surfaces (sweeps/policy*.yaml)"
+  [compile_profile]="where XLA's compile time goes: env_parts.py --compile-profile, --ops"
 )
 
 if [ $# -eq 0 ] || [ "$1" = -h ] || [ "$1" = --help ]; then
@@ -696,6 +698,15 @@ set_policy_surfaces() {  # NAME.log, surfaces.tgz
     "${py[@]}" -m mjxrow.sweep "$y" --out "$work/$name" --no-progress "${args[@]}" 2>&1 | tee "$out/$name.log"
   done
   tar -czf "$out/surfaces.tgz" -C "$work" policy policy_slope_roughness
+}
+
+set_compile_profile() {  # compile_profile.log, compile_profile.csv, ops.log
+  read -r -a parts <<<"${PARTS:-rollout}"
+  local a=(--preset "${PRESET:-pear}" --batch "${BATCH:-3072}" --parts "${parts[@]}")
+  "${py[@]}" experiments/env_parts.py "${a[@]}" --compile-profile "$work/prof" \
+    2>&1 | tee "$out/compile_profile.log"
+  cp "$work/prof/compile_profile.csv" "$out/" 2>/dev/null
+  "${py[@]}" experiments/env_parts.py "${a[@]}" --ops > "$out/ops.log" 2>&1
 }
 
 status=0

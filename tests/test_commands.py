@@ -3,6 +3,7 @@ parses before JAX, MuJoCo, Flax, orbax, pandas or matplotlib are imported, and o
 over to the heavy module. Each case runs in a fresh process, as a user's command does."""
 
 import os
+import re
 import subprocess
 import sys
 import time
@@ -122,3 +123,28 @@ def test_run_command_hands_over():
     from mjxrow import commands
 
     assert commands.run_command("builtins", ("a", "b"), "len") == 2
+
+
+def test_env_parts_counts_operations_and_profiles_a_compilation(tmp_path):
+    """env_parts.operations puts each StableHLO operation under the mjxrow file that made it
+    (or under NO_LINE) and misses none; compile_profile sums XLA's compiler events by name
+    (self time within total time) and names its passes."""
+    import importlib.util
+
+    import jax
+    import jax.numpy as jnp
+
+    from mjxrow.render import geom
+    spec = importlib.util.spec_from_file_location(
+        "env_parts_t", Path(__file__).resolve().parents[1] / "experiments" / "env_parts.py")
+    ep = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ep)
+    low = jax.jit(lambda o, d: geom.slab(o, d, o - 1, o + 1)).lower(jnp.ones(3), jnp.ones(3))
+    counts = ep.operations(low)
+    total = len(re.findall(r'^\s*(?:%[^=]*= )?"?(?:stablehlo|chlo)\.\w+', low.as_text(), re.M))
+    assert sum(counts.values()) == total and counts["render/geom.py"] > 0
+    rows = ep.compile_profile([jax.jit(lambda x: jnp.cumsum(jnp.sin(x))).lower(jnp.ones(8))],
+                              tmp_path / "prof")
+    assert rows and all(0 <= r["self_s"] <= r["total_s"] + 1e-9 for r in rows)
+    assert [r["self_s"] for r in rows] == sorted((r["self_s"] for r in rows), reverse=True)
+    assert any(r["name"] in ("algsimp", "cse", "dce") for r in rows)
