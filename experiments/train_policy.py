@@ -4,7 +4,7 @@ the table: one command on one GPU.
     python experiments/train_policy.py --out runs/policy [--budget-minutes 5]
         [--deadline-minutes 8.5] [--eval-reserve-minutes M] [--presets P ...] [--num-envs 15360]
         [--episodes 100] [--bc-fraction 0.5] [--observation rgb] [--teacher oracle]
-        [--seed 0] [--iterations N] [--init CHECKPOINT] [--curriculum SEARCH.yaml]
+        [--seed 0] [--eval-seed 0] [--iterations N] [--init CHECKPOINT] [--curriculum SEARCH.yaml]
         [--set KEY=VALUE ...] [--no-eval] [--eval-only] [--eval-last] [--ship] [--smoke]
 
 Training (mjxrow.train.loop): behaviour cloning / DAgger from the teacher (`--teacher`, the
@@ -124,7 +124,11 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=int, default=100, help="per preset and controller")
     p.add_argument("--controllers", nargs="+", default=["policy", "segzeros", "oracle"],
                    choices=("policy", "segzeros", "segzeros_gt", "oracle"))
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0,
+                   help="the training's: the network, its worlds and rollouts")
+    p.add_argument("--eval-seed", type=int, default=0,
+                   help="the evaluation's episodes (default 0: the same episodes whatever "
+                        "--seed, so that commands compare on them)")
     p.add_argument("--iterations", type=int, default=None,
                    help="stop after this many iterations in all (default: the budget only)")
     p.add_argument("--init", default="", metavar="CHECKPOINT",
@@ -195,6 +199,10 @@ def main(argv: list[str] | None = None) -> int:
 
     try:  # the arguments checked before OUT is made
         out = files.check_out_dir(args.out, "--out")
+        for name in ("seed", "eval_seed"):
+            if not 0 <= getattr(args, name) <= 2**32 - 1:
+                raise ValueError(f"--{name.replace('_', '-')}: must lie in [0, 2**32 - 1], got "
+                                 f"{getattr(args, name)}")
         for name in ("num_envs", "unroll", "episodes"):
             if getattr(args, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')}: must be ≥ 1, got "
@@ -248,7 +256,7 @@ def _work(args, cfg, values, out: Path, t_start: float) -> int:
                                                and jax.default_backend() == "gpu")
             ahead = L.initial_policy(cfg, out / "init_policy") if overlap else None
             evaluation = EV.Evaluation(cfg.presets, args.controllers, values,
-                                       str(out / "policy"), args.episodes, args.seed,
+                                       str(out / "policy"), args.episodes, args.eval_seed,
                                        compile_checkpoint=str(ahead) if ahead else None)
         thread, errors = None, []
         if evaluation is not None and evaluation.compile_checkpoint:

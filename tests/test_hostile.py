@@ -494,7 +494,9 @@ def _train_policy():
     (["--episodes", "0"], "--episodes"),
     (["--budget-minutes", "nan"], "--budget-minutes"),
     (["--deadline-minutes", "-1"], "--deadline-minutes"),
-], ids=["num_envs", "unroll", "episodes", "budget_nan", "deadline"])
+    (["--seed", "-1"], "--seed"),
+    (["--eval-seed", str(2**32)], "--eval-seed"),
+], ids=["num_envs", "unroll", "episodes", "budget_nan", "deadline", "seed", "eval_seed"])
 def test_train_policy_checks_its_arguments_before_making_out(tmp_path, capsys, extra, needle):
     _rejected(capsys, _train_policy().main, ["--smoke"], extra, tmp_path / "o", needle)
 

@@ -678,3 +678,29 @@ def test_the_evaluation_reserve_follows_its_blocks():
     assert tp.eval_blocks(parse("--controllers", "oracle", "--eval-last")) == 5
     assert tp.eval_blocks(parse("--presets", "pear", "--no-eval")) == 0
     assert tp.BLOCK_MINUTES * tp.eval_blocks(parse("--eval-last")) == pytest.approx(3.0)
+
+
+def test_the_evaluation_draws_its_episodes_from_eval_seed_not_seed(tmp_path, monkeypatch):
+    """train_policy.py hands the evaluation --eval-seed (default 0), so commands trained at
+    other --seed values are evaluated on the same episodes."""
+    import importlib.util
+
+    from mjxrow.train import evaluate as EV
+    path = Path(__file__).resolve().parents[1] / "experiments" / "train_policy.py"
+    spec = importlib.util.spec_from_file_location("train_policy_seeds", path)
+    tp = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tp)
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def fake(presets, controllers, values, checkpoint, episodes, seed, **kw):
+        seen.append(seed)
+        raise Stop
+
+    monkeypatch.setattr(EV, "Evaluation", fake)
+    for argv, want in ((["--seed", "3"], 0), (["--seed", "3", "--eval-seed", "5"], 5)):
+        with pytest.raises(Stop):
+            tp.main(["--smoke", "--no-progress", "--out", str(tmp_path / f"o{want}"), *argv])
+    assert seen == [0, 5]
