@@ -183,6 +183,8 @@ def main(argv: list[str] | None = None) -> int:
     if min(args.batch) < 1 or args.repeats < 1 or args.spread < 2 or (
             args.max_resets is not None and args.max_resets < 1):
         p.error("--batch, --repeats and --max-resets must be ≥ 1, --spread ≥ 2")  # exit 2
+    if args.ops and args.compile_profile is not None:
+        p.error("--ops and --compile-profile: one at a time")  # exit 2
     bad = [x for x in args.parts if x not in PARTS]
     if bad:
         p.error(f"--parts: {bad[0]!r} is not one of {', '.join(PARTS)}")

@@ -41,6 +41,7 @@ COMMANDS = [
     ("experiments/table3_navigation.py", ["--controllers", "nope"], 2),
     ("experiments/env_parts.py", ["--parts", "nope"], 2),
     ("experiments/env_parts.py", ["--batch", "0"], 2),
+    ("experiments/env_parts.py", ["--ops", "--compile-profile", "DIR"], 2),
 ]
 
 # runs the command in this process, then reports which heavy packages it imported
