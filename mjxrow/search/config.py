@@ -32,7 +32,7 @@ from typing import Any
 
 from mjxrow import field as mjxrow_field
 from mjxrow import limits
-from mjxrow.rollout import config as rollout_config
+from mjxrow.rollout import keys as rollout_keys
 from mjxrow.rollout.config import ConfigError, apply_sets
 from mjxrow.search import box as search_box
 from mjxrow.sweep import config as sweep_config
@@ -116,20 +116,20 @@ def _flatten(node: Any, path: str, out: dict[str, Any]) -> None:
             out[p.split(".", 1)[1]] = v
 
 
-def _dim(key: str, v: Any, keys: dict[str, rollout_config.Key], controller: str) -> search_box.Dim:
+def _dim(key: str, v: Any, keys: dict[str, rollout_keys.Key], controller: str) -> search_box.Dim:
     path = f"box.{key}"
     spec = keys.get(key)
     if spec is None:
         if key == "preset" or key in sweep_config.TOP_KEYS:
             raise ConfigError(f"{path}: not a traced key (it fixes the compiled program or the "
                               "run); give it one value at the top of the file")
-        if key in rollout_config.all_keys():
+        if key in rollout_keys.all_keys():
             raise ConfigError(f"{path}: not a key of controller {controller!r}")
         section, _, name = key.partition(".")
         known = [k.split(".", 1)[1] for k in keys if k.startswith(f"{section}.")]
         if known:
             raise sweep_config.unknown_key(path, name, known)
-        raise sweep_config.unknown_key(path, key, rollout_config.ORDER)
+        raise sweep_config.unknown_key(path, key, rollout_keys.ORDER)
     if spec.static:
         raise ConfigError(f"{path}: static (a new value compiles a new program, every "
                           "generation would recompile); search traced keys only, give this one "
@@ -196,9 +196,9 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
     for key in raw:
         if key in SWEEP_ONLY:
             raise ConfigError(f"{key}: a sweep's key; {SWEEP_ONLY[key]}")
-        if key not in SEARCH_KEYS + SCENARIO_KEYS + rollout_config.ORDER:
+        if key not in SEARCH_KEYS + SCENARIO_KEYS + rollout_keys.ORDER:
             raise sweep_config.unknown_key(key, key,
-                                           SCENARIO_KEYS + SEARCH_KEYS + rollout_config.ORDER)
+                                           SCENARIO_KEYS + SEARCH_KEYS + rollout_keys.ORDER)
     scenario = sweep_config.from_dict({k: v for k, v in raw.items() if k not in SEARCH_KEYS},
                                       base_dir, (), smoke)
     if scenario.axis_order:
@@ -266,7 +266,7 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
     if smoke:  # the box wins over the smoke settings of the scenario (sweep_config.SMOKE)
         scenario = dataclasses.replace(scenario, values=tuple(
             (k, v) for k, v in scenario.values if k not in flat))
-    keys = {k: v for s in rollout_config.ORDER for k, v in rollout_config.section_keys(
+    keys = {k: v for s in rollout_keys.ORDER for k, v in rollout_keys.section_keys(
         s, (scenario.controller.name,) if s == "controller" else None).items()}
     given = dict(scenario.values)
     dims = []

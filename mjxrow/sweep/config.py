@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from mjxrow import control, crops, limits
-from mjxrow.rollout import config as rollout_config
+from mjxrow.rollout import keys as rollout_keys
 from mjxrow.rollout.config import (
     ConfigError,
     ControllerChoice,
@@ -71,9 +71,9 @@ class SweepConfig:
         return dict(self.values).get("preset", "zucchini")
 
     def __getattr__(self, section: str):
-        if section in rollout_config.ORDER:
+        if section in rollout_keys.ORDER:
             vals = dict(self.values)
-            keys = rollout_config.section_keys(section)
+            keys = rollout_keys.section_keys(section)
             return Section(section, {k.split(".", 1)[1]: vals.get(k, key.default)
                                      for k, key in keys.items()})
         raise AttributeError(section)
@@ -104,7 +104,7 @@ def _unknown_key(path: str, key: str, known) -> ConfigError:
     another section (a key that moved: `episode.path_length` → `sim.path_length`)."""
     if difflib.get_close_matches(str(key), list(known), n=1):
         return _unknown(path, key, known)
-    others = {k.split(".", 1)[1]: k for k in rollout_config.all_keys()}
+    others = {k.split(".", 1)[1]: k for k in rollout_keys.all_keys()}
     near = difflib.get_close_matches(str(key), list(others), n=1, cutoff=0.8)
     if near:
         return ConfigError(f"{path}: unknown key; did you mean {others[near[0]]}?")
@@ -201,17 +201,17 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
     axes: list[str] = []
     meta = {f.name: f.metadata for f in dataclasses.fields(SweepConfig) if f.metadata}
     for key, v in raw.items():
-        if key in rollout_config.ORDER:
+        if key in rollout_keys.ORDER:
             if not isinstance(v, dict):
                 raise ConfigError(f"{key}: expected a mapping of keys, got {type(v).__name__}")
-            known = rollout_config.section_keys(key, _controllers_named(raw) if key == "controller"
+            known = rollout_keys.section_keys(key, _controllers_named(raw) if key == "controller"
                                                 else None)
-            everything = rollout_config.section_keys(key) if key == "controller" else known
+            everything = rollout_keys.section_keys(key) if key == "controller" else known
             for k2, v2 in v.items():
                 path = f"{key}.{k2}"
-                if path in rollout_config.REJECTED:
+                if path in rollout_keys.REJECTED:
                     raise ConfigError(
-                        f"{path}: cannot be set here: {rollout_config.REJECTED[path]}"
+                        f"{path}: cannot be set here: {rollout_keys.REJECTED[path]}"
                     )
                 if path not in everything:
                     raise _unknown_key(path, k2, [k.split(".", 1)[1] for k in known])
@@ -244,7 +244,7 @@ def from_dict(raw: Any, base_dir: str | Path = ".", sets=(), smoke: bool = False
             except limits.LimitError as e:
                 raise ConfigError(str(e)) from None
         else:
-            raise _unknown(key, key, TOP_KEYS + rollout_config.ORDER)
+            raise _unknown(key, key, TOP_KEYS + rollout_keys.ORDER)
         for k, val in list(values.items()):
             if isinstance(val, tuple) and k not in axes:
                 axes.append(k)
@@ -287,14 +287,14 @@ def with_values(cfg: SweepConfig, **updates: Any) -> SweepConfig:
     return dataclasses.replace(cfg, values=tuple(vals.items()))
 
 
-def leaf_keys() -> list[tuple[str, rollout_config.Key | dict]]:
+def leaf_keys() -> list[tuple[str, rollout_keys.Key | dict]]:
     """Every dotted key with its spec, top-level keys first."""
     out: list[tuple[str, Any]] = [(k, {}) for k in TOP_KEYS]
-    return out + list(rollout_config.all_keys().items())
+    return out + list(rollout_keys.all_keys().items())
 
 
 def is_static(dotted: str) -> bool:
-    return rollout_config.is_static(dotted)
+    return rollout_keys.is_static(dotted)
 
 
 def shrink(cfg: SweepConfig) -> SweepConfig:
