@@ -185,6 +185,18 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--batch, --repeats and --max-resets must be ≥ 1, --spread ≥ 2")  # exit 2
     if args.ops and args.compile_profile is not None:
         p.error("--ops and --compile-profile: one at a time")  # exit 2
+    if args.record is not None and (args.ops or args.compile_profile is not None):
+        p.error("--record: only with timings, not with --ops or --compile-profile")
+    if args.compile_profile is not None:
+        from mjxrow import files
+
+        try:
+            args.compile_profile = files.check_out_dir(args.compile_profile, "--compile-profile")
+        except ValueError as e:
+            p.error(str(e))
+        if (args.compile_profile / "compile_profile.csv").exists():
+            p.error(f"--compile-profile {args.compile_profile}: holds a compile_profile.csv "
+                    "already (an earlier profile's); give another folder")
     bad = [x for x in args.parts if x not in PARTS]
     if bad:
         p.error(f"--parts: {bad[0]!r} is not one of {', '.join(PARTS)}")

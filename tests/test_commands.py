@@ -42,6 +42,7 @@ COMMANDS = [
     ("experiments/env_parts.py", ["--parts", "nope"], 2),
     ("experiments/env_parts.py", ["--batch", "0"], 2),
     ("experiments/env_parts.py", ["--ops", "--compile-profile", "DIR"], 2),
+    ("experiments/env_parts.py", ["--ops", "--record", "R.jsonl"], 2),
 ]
 
 # runs the command in this process, then reports which heavy packages it imported
@@ -129,7 +130,8 @@ def test_run_command_hands_over():
 def test_env_parts_counts_operations_and_profiles_a_compilation(tmp_path):
     """env_parts.operations puts each StableHLO operation under the mjxrow file that made it
     (or under NO_LINE) and misses none; compile_profile sums XLA's compiler events by name
-    (self time within total time) and names its passes."""
+    (self time within total time) and names its passes; a folder that holds a profile already
+    is refused."""
     import importlib.util
 
     import jax
@@ -149,3 +151,8 @@ def test_env_parts_counts_operations_and_profiles_a_compilation(tmp_path):
     assert rows and all(0 <= r["self_s"] <= r["total_s"] + 1e-9 for r in rows)
     assert [r["self_s"] for r in rows] == sorted((r["self_s"] for r in rows), reverse=True)
     assert any(r["name"] in ("algsimp", "cse", "dce") for r in rows)
+    (tmp_path / "prof" / "compile_profile.csv").write_text("an earlier profile\n")
+    with pytest.raises(SystemExit) as e:  # refused before any work, the earlier file kept
+        ep.main(["--compile-profile", str(tmp_path / "prof")])
+    assert e.value.code == 2
+    assert (tmp_path / "prof" / "compile_profile.csv").read_text() == "an earlier profile\n"
