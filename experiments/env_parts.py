@@ -23,9 +23,10 @@ With `--ops` nothing is compiled or timed: each part's program is lowered and it
 operations are counted by the innermost `mjxrow` source file that made them (`operations`;
 JAX's own, such as loops' plumbing and random bits, under "(no mjxrow line)"), the size that
 XLA's compilation time follows (docs/training.md, eighth round). With `--compile-profile DIR`
-the parts are compiled side by side under JAX's profiler (its trace in DIR), not timed, and
-XLA's compile time is summed by event (`compile_profile`: passes, pipelines, code generation)
-over every compiler thread, most self time first; DIR/compile_profile.csv holds every event.
+the operations are counted so, then the parts are compiled side by side under JAX's profiler
+(its trace in DIR), not timed, and XLA's compile time is summed by event (`compile_profile`:
+passes, pipelines, code generation) over every compiler thread, most self time first;
+DIR/compile_profile.csv holds every event.
 
 The programs are lowered one after another and compiled side by side (threads), then each is
 timed by `mjxrow.bench.timing.time_runs`: the median of `--repeats` calls after one untimed
@@ -177,14 +178,15 @@ def main(argv: list[str] | None = None) -> int:
                    help="count each program's StableHLO operations by source file instead "
                         "(no compilation, no timing)")
     p.add_argument("--compile-profile", type=Path, default=None, metavar="DIR",
-                   help="compile under JAX's profiler (trace in DIR) and print where XLA's "
-                        "time goes (no timing)")
+                   help="count the operations as --ops does, then compile under JAX's "
+                        "profiler (trace in DIR) and print where XLA's time goes (no timing)")
     args = p.parse_args(argv)
     if min(args.batch) < 1 or args.repeats < 1 or args.spread < 2 or (
             args.max_resets is not None and args.max_resets < 1):
         p.error("--batch, --repeats and --max-resets must be ≥ 1, --spread ≥ 2")  # exit 2
     if args.ops and args.compile_profile is not None:
-        p.error("--ops and --compile-profile: one at a time")  # exit 2
+        p.error("--ops and --compile-profile: one at a time (--compile-profile counts the "
+                "operations too)")  # exit 2
     if args.record is not None and (args.ops or args.compile_profile is not None):
         p.error("--record: only with timings, not with --ops or --compile-profile")
     if args.compile_profile is not None:
@@ -214,12 +216,13 @@ def main(argv: list[str] | None = None) -> int:
             for part, job in _programs(args.preset, B, args.parts, args.max_resets,
                                        args.spread).items()}
     lower_s = time.perf_counter() - t0
-    if args.ops:
+    if args.ops or args.compile_profile is not None:
         for (B, part), (low, _, _) in jobs.items():
             counts = operations(low)
             print(f"B {B} {part}: {sum(counts.values()):,} operations")
             for source, n in counts.most_common():
                 print(f"  {n:8,d}  {source}")
+    if args.ops:
         return 0
     if args.compile_profile is not None:
         args.compile_profile.mkdir(parents=True, exist_ok=True)

@@ -86,7 +86,7 @@ declare -A about=(
   [train_policy]="train the policy (BC / DAgger), evaluate it, ship its checkpoint"
   [train_side]="up to four train_policy commands side by side, a GPU each, none shipped"
   [policy_surfaces]="the policy's sweep surfaces (sweeps/policy*.yaml)"
-  [compile_profile]="where XLA's compile time goes: env_parts.py --compile-profile, --ops"
+  [compile_profile]="where XLA's compile time goes: env_parts.py --compile-profile (operations, events)"
 )
 
 if [ $# -eq 0 ] || [ "$1" = -h ] || [ "$1" = --help ]; then
@@ -700,13 +700,12 @@ set_policy_surfaces() {  # NAME.log, surfaces.tgz
   tar -czf "$out/surfaces.tgz" -C "$work" policy policy_slope_roughness
 }
 
-set_compile_profile() {  # compile_profile.log, compile_profile.csv, ops.log
+set_compile_profile() {  # compile_profile.log (the operations, then XLA's events),
+  # compile_profile.csv
   read -r -a parts <<<"${PARTS:-rollout}"
-  local a=(--preset "${PRESET:-pear}" --batch "${BATCH:-3072}" --parts "${parts[@]}")
-  "${py[@]}" experiments/env_parts.py "${a[@]}" --compile-profile "$work/prof" \
-    2>&1 | tee "$out/compile_profile.log"
+  "${py[@]}" experiments/env_parts.py --preset "${PRESET:-pear}" --batch "${BATCH:-3072}" \
+    --parts "${parts[@]}" --compile-profile "$work/prof" 2>&1 | tee "$out/compile_profile.log"
   cp "$work/prof/compile_profile.csv" "$out/" 2>/dev/null
-  "${py[@]}" experiments/env_parts.py "${a[@]}" --ops > "$out/ops.log" 2>&1
 }
 
 status=0

@@ -195,14 +195,14 @@ def configure(args) -> tuple:
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     t_start = time.time()
-    from mjxrow import files, interrupt
+    from mjxrow import files, interrupt, limits
 
     try:  # the arguments checked before OUT is made
         out = files.check_out_dir(args.out, "--out")
-        for name in ("seed", "eval_seed"):
-            if not 0 <= getattr(args, name) <= 2**32 - 1:
-                raise ValueError(f"--{name.replace('_', '-')}: must lie in [0, 2**32 - 1], got "
-                                 f"{getattr(args, name)}")
+        for name in ("seed", "eval_seed"):  # the bound of every run's seed (mjxrow.limits)
+            if not 0 <= getattr(args, name) <= limits.VALUES["seed"][0]:
+                raise ValueError(f"--{name.replace('_', '-')}: must lie in [0, "
+                                 f"{limits.VALUES['seed'][0]}], got {getattr(args, name)}")
         for name in ("num_envs", "unroll", "episodes"):
             if getattr(args, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')}: must be ≥ 1, got "
