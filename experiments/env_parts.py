@@ -13,11 +13,12 @@ programs:
 - `reset_pass`: one pass of the auto-reset loop's reset: `max_resets` new worlds, unobserved;
 - `step`: the auto-reset step (advance, the resets of the worlds that ended, observe), with zero
   actions from the first state (no world ends, so no reset pass runs);
-- `rollout`: the trainer's rollout program (`train.rollout.unroll`: network, step, transitions,
-  episode stats) for `train.unroll` steps, on worlds whose episodes end at a steady rate: each
-  world's step count starts uniform in [0, `--spread`) under a time limit of `--spread` steps,
-  so about B / spread worlds end per step (as in training, where episodes last a few hundred
-  steps). Its env-steps/s is B · unroll over a call.
+- `rollout`: the trainer's rollout as one program (`train.rollout.unroll`: network, step,
+  transitions, episode stats; the trainer runs the same as three programs a step,
+  `train.rollout.Stepwise`) for `train.unroll` steps, on worlds whose episodes end at a
+  steady rate: each world's step count starts uniform in [0, `--spread`) under a time limit
+  of `--spread` steps, so about B / spread worlds end per step (as in training, where episodes
+  last a few hundred steps). Its env-steps/s is B · unroll over a call.
 
 With `--ops` nothing is compiled or timed: each part's program is lowered and its StableHLO
 operations are counted by the innermost `mjxrow` source file that made them (`operations`;
@@ -63,7 +64,7 @@ def _programs(preset: str, B: int, parts, max_resets, spread: int) -> dict:
     import jax.numpy as jnp
 
     from mjxrow.rollout import metrics as rollout_metrics
-    from mjxrow.train import loop, programs
+    from mjxrow.train import loop, programs, rollout
 
     cfg = loop.TrainConfig(presets=(preset,), num_envs=B, max_resets=max_resets,
                            episode_length=spread if "rollout" in parts else None)
@@ -88,8 +89,8 @@ def _programs(preset: str, B: int, parts, max_resets, spread: int) -> dict:
         steps = jax.random.randint(jax.random.key(1), (B,), 0, spread)
         spread_st = st.replace(info={**st.info, "steps": steps})
         c = (jnp.float32(0.5), jnp.float32(0.1), jnp.bool_(False))
-        progs["rollout"] = (tr.unrolls[0], (params, spread_st, key, *c), B * cfg.unroll)
-    # jit of the trainer's jitted rollout lowers that same program
+        unroll = functools.partial(rollout.unroll, tr.net, env, length=cfg.unroll)
+        progs["rollout"] = (unroll, (params, spread_st, key, *c), B * cfg.unroll)
     return {p: (jax.jit(fn).lower(*args), args, n) for p, (fn, args, n) in progs.items()
             if p in parts}
 

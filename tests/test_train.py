@@ -560,50 +560,129 @@ def test_a_state_saved_in_the_background_restores_once_waited(tmp_path):
 
 
 def test_the_trainers_programs_are_kept_and_read_back_without_tracing(tmp_path, monkeypatch):
-    """With the compilation cache on, each environment's rollout is traced once and kept as
-    data (`runtime.exported`); a new Trainer in a new process (the in-process memo cleared)
-    reads it back without tracing a step, with the same result shapes; another time limit is
-    another program, traced afresh. The rollout's result tree, which the kept program does not
-    hold, is `out_structure`'s; its worlds' shapes are the blank worlds' (no reset program)."""
+    """With the compilation cache on, each environment's rollout programs (advance, reset,
+    observe) are traced once and kept as data (`runtime.exported`); a new Trainer in a new
+    process (the in-process memo cleared) reads them back without tracing a step, with the
+    same result shapes; another time limit is another advance (its reset and frame stay).
+    The advance's result tree, which the kept program does not hold, is
+    `advance_structure`'s; the worlds' shapes are the blank worlds' (no reset program) before
+    and after every part."""
     from mjxrow import runtime as R
     from mjxrow.train import programs as TP
     from mjxrow.train import rollout as RO
 
-    c = (jnp.float32(1.0), jnp.float32(0.1), jnp.bool_(False))
     key = jax.random.key(0)
 
     def programs(cfg):
         tr = TP.Trainer(cfg)
         params = tr.init_params(key)
         (low,) = tr.lower_blanks(key)
-        args = (params, low.out_info, key, *c, None)
-        return tr, args, tr.rollout_program(0, args).lower(*args).out_info
+        args = TP.rollout_args(params, low.out_info, key, 0, None)
+        progs = tr.rollout_programs(0, args)
+        return tr, args, {p: progs[p].lower(*args[p]).out_info for p in TP.PARTS}
+
+    def shapes(tree):
+        return jax.tree.structure(tree), [(x.shape, x.dtype) for x in jax.tree.leaves(tree)]
 
     try:
         R.enable_cache(tmp_path / "cache")
         tr, args, out = programs(CFG)
-        assert tr.keys[0] and len(list((tmp_path / "cache" / "exported").iterdir())) == 1
-        assert jax.tree.structure(jax.eval_shape(tr.unrolls[0], *args)) == \
-            RO.out_structure(args[1])
+        assert tr.keys[0] and len(list((tmp_path / "cache" / "exported").iterdir())) == 3
+        worlds = args["observe"][0]
+        assert jax.tree.structure(jax.eval_shape(tr.parts[0]["advance"], *args["advance"])) \
+            == RO.advance_structure(worlds)
+        assert shapes(out["advance"][0]) == shapes(out["reset"]) == shapes(out["observe"]) \
+            == shapes(worlds)
         R._EXPORTED.clear()  # as a new process
-        real_step = E.AutoResetWrapper.step
-        monkeypatch.setattr(E.AutoResetWrapper, "step", lambda *a: pytest.fail("traced"))
+        for part in ("step_advance", "step_reset", "step_observe"):
+            monkeypatch.setattr(E.AutoResetWrapper, part, lambda *a: pytest.fail("traced"))
         tr2, args2, out2 = programs(CFG)
-        assert jax.tree.structure(out2) == jax.tree.structure(out)
-        assert [(x.shape, x.dtype) for x in jax.tree.leaves(out2)] == \
-            [(x.shape, x.dtype) for x in jax.tree.leaves(out)]
-        monkeypatch.setattr(E.AutoResetWrapper, "step", real_step)
+        assert {p: shapes(o) for p, o in out2.items()} == {p: shapes(o) for p, o in out.items()}
+        monkeypatch.undo()
         programs(dataclasses.replace(CFG, episode_length=7))
-        assert len(list((tmp_path / "cache" / "exported").iterdir())) == 2
+        assert len(list((tmp_path / "cache" / "exported").iterdir())) == 6  # new keys: the
+        # time limit is in each environment's key
     finally:
         R.disable_cache()
         R._EXPORTED.clear()
 
 
+class _Toy:
+    """A batched environment of `step`'s three parts in a few operations (compiled at once):
+    x += v, an episode ends every 3 steps (the last one's truncation 0.5) and restarts at 0;
+    the observation and the teacher's action follow x."""
+
+    def step_advance(self, s, a):
+        x = s.data + a[:, 0]
+        steps = s.info["steps"] + 1
+        done = (steps >= 3).astype(jnp.float32)
+        return s.replace(data=x, reward=a[:, 1] * x, done=done,
+                         info={**s.info, "steps": steps, "truncation": 0.5 * done},
+                         metrics={"return": x, "reward/x": x})
+
+    def step_reset(self, s, pool=None):
+        over = s.done > 0
+        return s.replace(data=jnp.where(over, 0.0, s.data),
+                         info={**s.info, "steps": jnp.where(over, 0, s.info["steps"])})
+
+    def step_observe(self, s):
+        x = s.data
+        img = jnp.broadcast_to((jnp.abs(x) * 40 % 250).astype(jnp.uint8)[:, None, None, None],
+                               (len(x), 16, 16, 3))
+        return s.replace(obs={"image": img, "proprio": jnp.stack([x, -x, x, 1 + 0 * x], -1)},
+                         info={**s.info, "teacher_action": jnp.stack([-0.1 * x, x], -1)})
+
+
+def test_a_rollout_of_three_programs_a_step_is_the_one_program_rollout():
+    """`rollout.Stepwise` (advance, reset and observe compiled apart, a host loop over the
+    steps) returns what `rollout.unroll` (one program, the same parts) returns, and `join`
+    stacks the steps and puts the environments side by side in their order: the worlds,
+    transitions, bootstrap values and episode stats of two environments with episodes ending
+    within the rollout (in the tiny environment `_Toy`, so that both compile at once)."""
+    import functools
+
+    from mjxrow.env.core import State
+    from mjxrow.train import rollout as RO
+
+    net, toy, T, B = N.PolicyNet(TINY), _Toy(), 5, 3
+    params = N.init(net, CK.example_obs(E.ObsSpec("rgb", 16, 16, True)), jax.random.key(1))
+    c = (jnp.float32(0.5), jnp.float32(0.2), jnp.bool_(False))
+
+    def worlds(x0, steps):
+        z = jnp.zeros(B)
+        return toy.step_observe(State(data=jnp.asarray(x0, jnp.float32), obs={}, reward=z,
+                                      done=z, metrics={"return": z, "reward/x": z},
+                                      info={"steps": jnp.asarray(steps), "truncation": z}))
+
+    starts = [worlds([0.0, 1.0, 2.0], [0, 1, 2]), worlds([-1.0, 0.5, 3.0], [2, 0, 1])]
+    one = jax.jit(functools.partial(RO.unroll, net, toy, length=T))
+    steps = RO.Stepwise(advance=jax.jit(functools.partial(RO.advance, net, toy, length=T)),
+                        reset=jax.jit(toy.step_reset), observe=jax.jit(toy.step_observe),
+                        value=jax.jit(functools.partial(RO.value, net)), length=T)
+    keys = [jax.random.key(7), jax.random.key(8)]
+    want = [one(params, w, k, *c) for w, k in zip(starts, keys, strict=True)]
+    got = [steps(params, w, k, *c) for w, k in zip(starts, keys, strict=True)]
+    assert len(got[0][1]) == T and got[0][1][0].obs["image"].shape == (B, 16, 16, 3)
+    traj, boot, sums = jax.jit(RO.join)([g[1] for g in got], [g[2] for g in got],
+                                        [g[3] for g in got])
+    assert float(sums["episodes"][0]) == 2 + 2 + 1 + 1 + 2 + 2  # each world's endings
+    cat = lambda *x: np.concatenate(x, axis=1 if np.ndim(x[0]) > 1 else 0)  # noqa: E731
+    want_joined = (jax.tree.map(cat, want[0][1], want[1][1]),
+                   np.concatenate([want[0][2], want[1][2]]),
+                   jax.tree.map(lambda a, b: a + b, want[0][3], want[1][3]))
+    pairs = [(want[0][0], got[0][0]), (want[1][0], got[1][0]),
+             (want_joined, (traj, boot, sums))]
+    for w, g in pairs:
+        assert jax.tree.structure(w) == jax.tree.structure(g)
+        for a, b in zip(jax.tree.leaves(w), jax.tree.leaves(g), strict=True):
+            np.testing.assert_allclose(np.asarray(a, np.float64), np.asarray(b, np.float64),
+                                       rtol=1e-6, atol=1e-6)
+
+
 def test_the_crops_programs_are_traced_in_processes_side_by_side(tmp_path, monkeypatch):
-    """With the cache on and several crops, each crop's rollout is traced in a process of its
-    own and kept, while this process lowers the blank worlds (`meanwhile`); it then reads every
-    rollout back without tracing a step (the same keys and argument shapes as
+    """With the cache on and several crops, each crop's rollout programs are traced in a
+    process of its own and kept, while this process lowers the blank worlds (`meanwhile`); it
+    then reads every one back without tracing a step (the same keys and argument shapes as
     `Trainer.compile`'s), and a second Trainer of the same run does not start the processes
     again but still calls `meanwhile`. (`force`: a run does it only with two cores per crop,
     which this CPU lacks.)"""
@@ -620,15 +699,17 @@ def test_the_crops_programs_are_traced_in_processes_side_by_side(tmp_path, monke
         assert tr.trace_in_processes(log=lambda m: None, force=True,
                                      meanwhile=lambda: lows.extend(tr.lower_blanks(key))) > 0
         kept = tmp_path / "cache" / "exported"
-        assert len(list(kept.glob("*.bin"))) == 2 and len(list(kept.glob("*.traced"))) == 1
+        assert len(list(kept.glob("*.bin"))) == 6 and len(list(kept.glob("*.traced"))) == 1
         assert len(lows) == 2
         R._EXPORTED.clear()
-        monkeypatch.setattr(E.AutoResetWrapper, "step", lambda *a: pytest.fail("traced"))
+        for part in ("step_advance", "step_reset", "step_observe"):
+            monkeypatch.setattr(E.AutoResetWrapper, part, lambda *a: pytest.fail("traced"))
         params = tr.init_params(key)
         pools = TCU.Curriculum(cfg.curriculum, cfg.presets, [e.ranges for e in tr.raw]).pools()
         for i, (low, pool) in enumerate(zip(lows, pools, strict=True)):
             args = TP.rollout_args(params, low.out_info, key, i, pool)
-            assert type(tr.rollout_program(i, args)).__name__ == "_Program"
+            progs = tr.rollout_programs(i, args)
+            assert {type(p).__name__ for p in progs.values()} == {"_Program"}
         called = []
         assert TP.Trainer(cfg).trace_in_processes(log=lambda m: None, force=True,
                                                   meanwhile=lambda: called.append(1)) == 0.0

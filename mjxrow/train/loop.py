@@ -59,7 +59,7 @@ class TrainConfig:
     """One training run (static)."""
 
     presets: tuple[str, ...] = ("zucchini", "vineyard", "pear", "lettuce", "chard")  # crops
-    # trained together, one environment (and one rollout program) each
+    # trained together, one environment (and its rollout programs) each
     num_envs: int = 15360  # worlds stepped together, split evenly over the presets (3,072 a
     # crop: a GPU runs a batch of 512 barely faster than one of 2,048, and 3,072 faster still)
     unroll: int = 32  # control steps per rollout (one iteration)
@@ -165,7 +165,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
 
     ppo_started = train_schedule.ppo_started(ppo_opt)
     phases = train_schedule.reachable(cfg, elapsed, ppo_started)
-    blanks, unrolls, updates = tr.compile(
+    blanks, unrolls, updates, join = tr.compile(
         params, worlds, key, pools,
         {p: bc_opt if p == "bc" else ppo_opt for p in phases},
         lowered if restored is None else [], replay=replay)
@@ -174,11 +174,13 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
         on_compiled()
 
     def unroll(params, envs, key, beta, noise, ppo, pools):
-        """Every environment's rollout (its own program), joined along the batch, and each
-        environment's episode stats."""
+        """Every environment's rollout (its own programs): (their worlds, the transitions
+        joined along the batch, the bootstrap values, the episode stats summed, and each
+        environment's)."""
         outs = [u(params, st, jax.random.fold_in(key, i), beta, noise, ppo, pool)
                 for i, (u, st, pool) in enumerate(zip(unrolls, envs, pools, strict=True))]
-        return (*rollout.join(outs), [o[3] for o in outs])
+        worlds, trs, boots, sums = (list(x) for x in zip(*outs, strict=True))
+        return (tuple(worlds), *join(trs, boots, sums), sums)
 
     t1 = time.perf_counter()
     if restored is None:

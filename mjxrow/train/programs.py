@@ -1,9 +1,9 @@
 """The compiled pieces of a training run (`Trainer`): every crop's environment with the
-trainer's wrappers (episode, vmap, auto-reset), its rollout program (traced, or read back from
-the one an earlier process kept beside the compilation cache: `runtime.exported`;
-`trace_in_processes` traces every crop's in a process of its own, side by side) and its blank
-worlds, the BC and PPO updates, and what a saved training state must match. `train.loop`
-drives them.
+trainer's wrappers (episode, vmap, auto-reset), its rollout's three programs (`PARTS`, run by
+`rollout.Stepwise`; traced, or read back from those an earlier process kept beside the
+compilation cache: `runtime.exported`; `trace_in_processes` traces every crop's in a process
+of its own, side by side) and its blank worlds, the network's value and `rollout.join`, the
+BC and PPO updates, and what a saved training state must match. `train.loop` drives them.
 
 There is no reset program: a run's first rollout starts from blank worlds
 (`AutoResetWrapper.blank`, zeros made by a program of broadcasts) whose first step resets every
@@ -70,9 +70,15 @@ class Trainer:
         self.net = policies_networks.PolicyNet(cfg.net)
         self.obs_example = self.raw[0].observation_structs()
         self.limits = tuple(float(x) for x in np.asarray(self.raw[0].limits))
-        # one rollout program per environment (crop): they compile side by side, in threads
-        self.unrolls = tuple(jax.jit(functools.partial(rollout.unroll, self.net, e,
-                                                       length=cfg.unroll)) for e in self.envs)
+        # each environment's (crop's) rollout step as three programs (`rollout.Stepwise`):
+        # smaller programs, which XLA compiles side by side, in threads
+        self.parts = tuple({
+            "advance": jax.jit(functools.partial(rollout.advance, self.net, e,
+                                                 length=cfg.unroll)),
+            "reset": jax.jit(e.step_reset), "observe": jax.jit(e.step_observe)}
+            for e in self.envs)
+        self.value = jax.jit(functools.partial(rollout.value, self.net))  # every crop's
+        self.join = jax.jit(rollout.join)
         self.blanks = tuple(jax.jit(e.blank) for e in self.envs)  # key → worlds to replace
         # what names each environment's traced programs kept beside the compilation cache
         # (`runtime.exported`; '' traces them every run)
@@ -98,8 +104,9 @@ class Trainer:
         return runtime.exported(fn, args, f"{self.keys[i]}\n{what}", out_tree) or fn
 
     def trace_in_processes(self, log=print, force: bool = False, meanwhile=None) -> float:
-        """Trace every environment's rollout in a process of its own, side by side, and keep
-        them beside the compilation cache (`runtime.exported`), so that `rollout_program` reads
+        """Trace every environment's rollout programs in a process of its own, side by side,
+        and keep them beside the compilation cache (`runtime.exported`), so that
+        `rollout_programs` reads
         them back instead of tracing them one after another (Python traces one program at a
         time in a process). `meanwhile()`, if given, is called once in any case: here while
         the processes trace. Only where the cache is on, several environments have kept
@@ -146,11 +153,15 @@ class Trainer:
         marker = root / "exported" / f"{h.hexdigest()}.traced"
         return None if marker.is_file() else marker
 
-    def rollout_program(self, i: int, args: tuple):
-        """Environment i's rollout for `args` (params, worlds, key, beta, noise, ppo, pool),
-        kept as `kept` keeps it."""
-        return self.kept(i, f"rollout of {self.cfg.unroll} steps, {self.cfg.net}",
-                         self.unrolls[i], args, rollout.out_structure(args[1]))
+    def rollout_programs(self, i: int, args: dict) -> dict:
+        """Environment i's rollout programs {part: program} (`PARTS`) for `args`
+        (`rollout_args`'), each kept as `kept` keeps it."""
+        worlds = jax.tree.structure(args["observe"][0])
+        trees = {"advance": rollout.advance_structure(args["observe"][0]), "reset": worlds,
+                 "observe": worlds}
+        about = {"advance": f"the rollout's advance, {self.cfg.unroll} steps, {self.cfg.net}",
+                 "reset": "the training step's reset", "observe": "the training step's frame"}
+        return {p: self.kept(i, about[p], self.parts[i][p], args[p], trees[p]) for p in PARTS}
 
     def lower_blanks(self, key: jax.Array) -> list:
         """Every environment's blank worlds (`AutoResetWrapper.blank`), lowered for `key`
@@ -164,21 +175,31 @@ class Trainer:
         """Every program the run needs, compiled side by side (one thread each: XLA compiles
         separate programs in parallel where the machine has the cores; the tracing before it
         is Python's, one at a time, and skipped for a program kept by `kept`): the lowered
-        `blanks`, the rollout of every environment (on worlds of the shapes `worlds`), and the
-        update of every phase in `opts` ({'bc' or 'ppo': its optimiser state}; BC's with the
-        `replay` buffer, or None: `train.bc.replay_mix`). Returns ([blank executables],
-        [rollout executables], {phase: update executable}); the times are in
-        `compile_times`."""
-        with ThreadPoolExecutor(len(blanks) + len(self.unrolls) + len(opts)) as ex:
+        `blanks`, every environment's rollout programs (on worlds of the shapes `worlds`;
+        `PARTS`, and the network's value and `rollout.join`, which all share), and the update
+        of every phase in `opts` ({'bc' or 'ppo': its optimiser state}; BC's with the `replay`
+        buffer, or None: `train.bc.replay_mix`). Returns ([blank executables],
+        [`rollout.Stepwise` of each environment], {phase: update executable}, join's
+        executable); the times are in `compile_times`."""
+        n = len(blanks) + len(PARTS) * len(self.parts) + 2 + len(opts)
+        with ThreadPoolExecutor(n) as ex:
             futures = {("blank", i): ex.submit(_timed, low.compile)
                        for i, low in enumerate(blanks)}
             outs = []
             for i, (st, pool) in enumerate(zip(worlds, pools, strict=True)):
                 args = rollout_args(params, st, key, i, pool)
-                low = self.rollout_program(i, args).lower(*args)
-                outs.append(low.out_info)
-                futures[("rollout", i)] = ex.submit(_timed, low.compile)
-            _, traj, boot, _ = jax.eval_shape(rollout.join, outs)
+                for part, prog in self.rollout_programs(i, args).items():
+                    low = prog.lower(*args[part])
+                    futures[(part, i)] = ex.submit(_timed, low.compile)
+                    if part == "advance":
+                        outs.append(low.out_info)
+            low_v = self.value.lower(params, worlds[0].obs)
+            futures[("value", None)] = ex.submit(_timed, low_v.compile)
+            T = self.cfg.unroll
+            low = self.join.lower([[o[1]] * T for o in outs], [low_v.out_info] * len(outs),
+                                  [o[2] for o in outs])
+            futures[("join", None)] = ex.submit(_timed, low.compile)
+            traj, boot, _ = low.out_info
             for ph, opt in opts.items():
                 if ph == "bc":
                     low = self.bc_update.lower(params, opt, traj, boot, key, replay,
@@ -189,12 +210,20 @@ class Trainer:
             t_traced = time.perf_counter()
             done = {k: f.result() for k, f in futures.items()}
         jobs = {k: v[0] for k, v in done.items()}
-        self.compile_times = {"traced": t_traced, **{
-            f"{k[0]} {self.cfg.presets[k[1]] if k[0] != 'update' else k[1]}": v[1:]
-            for k, v in done.items()}}
-        return ([jobs[("blank", i)] for i in range(len(blanks))],
-                [jobs[("rollout", i)] for i in range(len(self.unrolls))],
-                {ph: jobs[("update", ph)] for ph in opts})
+        self.compile_times = {"traced": t_traced, **{self._name(k): v[1:]
+                                                     for k, v in done.items()}}
+        rollouts = [rollout.Stepwise(**{p: jobs[(p, i)] for p in PARTS},
+                                     value=jobs[("value", None)], length=self.cfg.unroll)
+                    for i in range(len(self.parts))]
+        return ([jobs[("blank", i)] for i in range(len(blanks))], rollouts,
+                {ph: jobs[("update", ph)] for ph in opts}, jobs[("join", None)])
+
+    def _name(self, job: tuple) -> str:
+        """A compile job's name in `compile_times`: its program, and its crop or phase."""
+        what, which = job
+        if which is None:
+            return what
+        return f"{what} {self.cfg.presets[which] if isinstance(which, int) else which}"
 
     def fresh_params(self, key: jax.Array) -> Any:
         """A fresh network's weights."""
@@ -266,11 +295,16 @@ class Trainer:
                 "state_format": STATE_FORMAT}
 
 
-def rollout_args(params, worlds, key: jax.Array, i: int, pool) -> tuple:
-    """The arguments environment i's rollout is compiled for (the values of β, noise and the
-    PPO switch are data; these only fix their dtypes)."""
-    return (params, worlds, jax.random.fold_in(key, i), jnp.float32(1.0), jnp.float32(0.1),
-            jnp.bool_(False), pool)
+PARTS = ("advance", "reset", "observe")  # a rollout step's programs (`rollout.Stepwise`)
+
+
+def rollout_args(params, worlds, key: jax.Array, i: int, pool) -> dict:
+    """{part: the arguments} environment i's rollout programs (`PARTS`) are compiled for
+    (the step, β, noise and the PPO switch are data; these only fix their dtypes)."""
+    return {"advance": (params, worlds, jax.random.fold_in(key, i), np.int32(0),
+                        jnp.float32(1.0), jnp.float32(0.1), jnp.bool_(False),
+                        rollout.sums0(worlds)),
+            "reset": (worlds, pool), "observe": (worlds,)}
 
 
 def _little_gpu_memory() -> None:
@@ -296,7 +330,8 @@ def _trace_one(cfg: TrainConfig, i: int, cache: str) -> None:
                                         [e.ranges for e in tr.raw]).pools()  # as `train`'s
     worlds = jax.eval_shape(tr.blanks[0], key)
     args = rollout_args(params, worlds, key, i, pools[0])
-    tr.rollout_program(0, args).lower(*args)
+    for part, prog in tr.rollout_programs(0, args).items():
+        prog.lower(*args[part])
 
 
 def _timed(fn):
