@@ -71,6 +71,9 @@ _SIDE = r"^one command from a fresh network on one GPU and 16 cores of a 2-GPU h
 _BLANK = r"^one command from a fresh network, no reset program, one GPU and 16 cores of a 2-GPU"
 _ALONE = r"^compilation, no reset program, a one-GPU machine alone \(16 cores\), five crops "
 _ALONE1 = r"^compilation, no reset program, a one-GPU machine alone \(16 cores\), one crop "
+_STEP3 = r"^compilation, three programs a step, a one-GPU machine alone \(16 cores\), five crops "
+_DONATED = r"^four iterations, three programs a step, the worlds donated, "
+_PROFILE = r"^pear, 3072 worlds, parts "
 
 HEADLINES = [
     Figure("Table 3, the paper's 15 blocks × 100 episodes, empty cache", "table3",
@@ -212,8 +215,41 @@ HEADLINES = [
     Figure("policy training, five crops, one GPU and 16 cores: env-steps/s with the updates "
            "(median of three commands)", "train_policy", _BLANK, GPU, batch=15360,
            pick="median", goal=(">=", 50000)),
-    Figure("policy training, five crops: compilation from an empty cache, a one-GPU machine "
-           "alone (median of two commands)", "train_policy", _ALONE + r".*empty cache", GPU,
+    Figure("policy training, five crops, a rollout step as three programs (advance, reset, "
+           "observe): compilation from an empty cache, a one-GPU machine alone (median of two "
+           "commands)", "train_policy", _STEP3 + r".*empty cache", GPU, batch=15360,
+           pick="median", field="compile_s", unit="s", goal=("<=", 90)),
+    Figure("policy training, five crops, three programs a step: of that compilation, XLA's "
+           "(after the tracing) (median of two commands)", "train_policy",
+           _STEP3 + r".*empty cache", GPU, batch=15360, pick="median",
+           field="xla_after_trace_s", unit="s"),
+    Figure("policy training, five crops, three programs a step: compilation, warm cache (the "
+           "programs kept and compiled by the command before)", "train_policy",
+           _STEP3 + r".*warm cache", GPU, batch=15360, field="compile_s", unit="s",
+           goal=("<=", 90)),
+    Figure("policy training, five crops, three programs a step, one host thread: env-steps/s "
+           "with the updates (one iteration; median of two commands)", "train_policy",
+           _STEP3 + r".*empty cache", GPU, batch=15360, pick="median", field="steps_per_s_"
+           "with_updates", unit="env-steps/s", fmt="{:,.0f}", goal=(">=", 50000)),
+    Figure("policy training, five crops, three programs a step, a host thread per crop, the "
+           "worlds donated: env-steps/s with the updates (four iterations)", "train_policy",
+           _DONATED, GPU, batch=15360, goal=(">=", 50000)),
+    Figure("policy training, five crops, three programs a step, the worlds donated (not "
+           "kept: see docs/training.md, ninth round): compilation from an empty cache",
+           "train_policy", _DONATED, GPU, batch=15360, field="compile_s", unit="s",
+           goal=("<=", 90)),
+    Figure("policy training, five crops: one command from a fresh network and an empty cache "
+           "to a checkpoint, three programs a step, the worlds donated, one host thread (its "
+           "policy: zucchini 0.97, vineyard 0.96, pear 0.75, lettuce 1.00, chard 0.99)",
+           "train_policy", r"^one command from a fresh network, three programs a step", GPU,
+           batch=15360, field="wall_s", unit="s wall", fmt="{:.0f}", goal=("<=", 600)),
+    Figure("pear's rollout (3,072 worlds) compiled under JAX's profiler: its parts (advance, "
+           "observe, one reset pass, the network) side by side ÷ the one program",
+           "compile_profile", _PROFILE + r"advance", GPU, unit="×", fmt="{:.2f}",
+           over=Figure("", "compile_profile", _PROFILE + r"rollout,", GPU)),
+    Figure("policy training, five crops, one rollout program per crop (before): compilation "
+           "from an empty cache, a one-GPU machine alone (median of two commands)",
+           "train_policy", _ALONE + r".*empty cache", GPU,
            batch=15360, pick="median", field="compile_s", unit="s", goal=("<=", 90)),
     Figure("policy training, one crop (pear, 3,072 worlds: one rollout program and the "
            "update): compilation from an empty cache, a one-GPU machine alone", "train_policy",
