@@ -635,10 +635,11 @@ class _Toy:
 
 def test_a_rollout_of_three_programs_a_step_is_the_one_program_rollout():
     """`rollout.Stepwise` (advance, reset and observe compiled apart, a host loop over the
-    steps) returns what `rollout.unroll` (one program, the same parts) returns, and `join`
-    stacks the steps and puts the environments side by side in their order: the worlds,
-    transitions, bootstrap values and episode stats of two environments with episodes ending
-    within the rollout (in the tiny environment `_Toy`, so that both compile at once)."""
+    steps) returns what `rollout.unroll` (one program, the same parts) returns, and
+    `side_by_side` runs two environments so (a thread each, environment i's key folded in i)
+    and `join` stacks the steps and puts the environments side by side in their order: the
+    worlds, transitions, bootstrap values and episode stats, with episodes ending within the
+    rollout (in the tiny environment `_Toy`, so that both compile at once)."""
     import functools
 
     from mjxrow.env.core import State
@@ -654,24 +655,24 @@ def test_a_rollout_of_three_programs_a_step_is_the_one_program_rollout():
                                       done=z, metrics={"return": z, "reward/x": z},
                                       info={"steps": jnp.asarray(steps), "truncation": z}))
 
-    starts = [worlds([0.0, 1.0, 2.0], [0, 1, 2]), worlds([-1.0, 0.5, 3.0], [2, 0, 1])]
+    starts = (worlds([0.0, 1.0, 2.0], [0, 1, 2]), worlds([-1.0, 0.5, 3.0], [2, 0, 1]))
+    key = jax.random.key(7)
     one = jax.jit(functools.partial(RO.unroll, net, toy, length=T))
+    want = [one(params, w, jax.random.fold_in(key, i), *c) for i, w in enumerate(starts)]
     steps = RO.Stepwise(advance=jax.jit(functools.partial(RO.advance, net, toy, length=T)),
                         reset=jax.jit(toy.step_reset), observe=jax.jit(toy.step_observe),
                         value=jax.jit(functools.partial(RO.value, net)), length=T)
-    keys = [jax.random.key(7), jax.random.key(8)]
-    want = [one(params, w, k, *c) for w, k in zip(starts, keys, strict=True)]
-    got = [steps(params, w, k, *c) for w, k in zip(starts, keys, strict=True)]
-    assert len(got[0][1]) == T and got[0][1][0].obs["image"].shape == (B, 16, 16, 3)
-    traj, boot, sums = jax.jit(RO.join)([g[1] for g in got], [g[2] for g in got],
-                                        [g[3] for g in got])
+    got = steps(params, starts[0], jax.random.fold_in(key, 0), *c)
+    assert len(got[1]) == T and got[1][0].obs["image"].shape == (B, 16, 16, 3)
+    ends, traj, boot, sums, each = RO.side_by_side([steps, steps], jax.jit(RO.join), params,
+                                                   starts, key, *c, [None, None])
     assert float(sums["episodes"][0]) == 2 + 2 + 1 + 1 + 2 + 2  # each world's endings
     cat = lambda *x: np.concatenate(x, axis=1 if np.ndim(x[0]) > 1 else 0)  # noqa: E731
     want_joined = (jax.tree.map(cat, want[0][1], want[1][1]),
                    np.concatenate([want[0][2], want[1][2]]),
                    jax.tree.map(lambda a, b: a + b, want[0][3], want[1][3]))
-    pairs = [(want[0][0], got[0][0]), (want[1][0], got[1][0]),
-             (want_joined, (traj, boot, sums))]
+    pairs = [(want[0][0], got[0]), (want[0][0], ends[0]), (want[1][0], ends[1]),
+             (want[0][3], each[0]), (want_joined, (traj, boot, sums))]
     for w, g in pairs:
         assert jax.tree.structure(w) == jax.tree.structure(g)
         for a, b in zip(jax.tree.leaves(w), jax.tree.leaves(g), strict=True):

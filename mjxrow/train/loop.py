@@ -32,7 +32,6 @@ import json
 import math
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -175,17 +174,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
         on_compiled()
 
     def unroll(params, envs, key, beta, noise, ppo, pools):
-        """Every environment's rollout (its own programs): (their worlds, the transitions
-        joined along the batch, the bootstrap values, the episode stats summed, and each
-        environment's)."""
-        keys = [jax.random.fold_in(key, i) for i in range(len(unrolls))]
-        # one thread per environment: a reset's loop waits for the GPU at each pass (its
-        # condition is read on the host), and meanwhile the other threads queue their steps
-        with ThreadPoolExecutor(len(unrolls), thread_name_prefix="rollout") as ex:
-            outs = list(ex.map(lambda u, st, k, pool: u(params, st, k, beta, noise, ppo, pool),
-                               unrolls, envs, keys, pools))
-        worlds, trs, boots, sums = (list(x) for x in zip(*outs, strict=True))
-        return (tuple(worlds), *join(trs, boots, sums), sums)
+        return rollout.side_by_side(unrolls, join, params, envs, key, beta, noise, ppo, pools)
 
     t1 = time.perf_counter()
     if restored is None:

@@ -1,7 +1,8 @@
 """Batched training rollouts shared by PPO, behaviour cloning and DAgger: the policy network in
 one batched, auto-resetting environment for `length` control steps. Each crop has its own
 static field shape, hence its own environment and rollout programs; the trainer runs one
-rollout per crop and joins their outputs (`join`).
+rollout per crop, each in a thread of its own (`side_by_side`), and joins their outputs
+(`join`).
 
 A step is three programs (`Stepwise`, a host loop over them): `advance` (the network acts, the
 worlds advance, the step's `Transition`), the environment's `step_reset` and `step_observe`.
@@ -22,6 +23,7 @@ return to `EpisodeStats` (sums and counts; the host divides).
 from __future__ import annotations
 
 import dataclasses
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import jax
@@ -189,6 +191,21 @@ def join(trs: list, boots: list, sums: list) -> tuple:
                                                                                strict=True)]
     return (jax.tree.map(lambda *x: jnp.stack(x), *steps), jnp.concatenate(boots),
             jax.tree.map(lambda *x: sum(x[1:], x[0]), *sums))
+
+
+def side_by_side(rollouts: list, join_fn, params, worlds: tuple, key: jax.Array, beta,
+                 noise_std, ppo, pools: list) -> tuple:
+    """Every environment's rollout (`Stepwise`, or any function called as one; environment
+    i's key folded in i), each in a thread of its own: a reset's loop waits for the device at
+    each pass (its condition is read on the host), and meanwhile the other threads queue their
+    steps. Returns (their worlds, then `join_fn`'s transitions [T, ΣB_i], bootstrap values and
+    episode stats summed, then each environment's stats)."""
+    keys = [jax.random.fold_in(key, i) for i in range(len(rollouts))]
+    with ThreadPoolExecutor(len(rollouts), thread_name_prefix="rollout") as ex:
+        outs = list(ex.map(lambda u, st, k, pool: u(params, st, k, beta, noise_std, ppo, pool),
+                           rollouts, worlds, keys, pools))
+    worlds, trs, boots, sums = (list(x) for x in zip(*outs, strict=True))
+    return (tuple(worlds), *join_fn(trs, boots, sums), sums)
 
 
 def per_preset_success(presets: tuple[str, ...], stats: list) -> dict[str, float]:
