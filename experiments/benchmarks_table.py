@@ -273,9 +273,10 @@ HEADLINES = [
     Figure("policy training, PPO with the teacher term from the shipped policy (five crops, "
            "10,240 worlds): env-steps/s with the updates (median of three commands)",
            "train_policy", _PPO_TEACHER, GPU, batch=10240, pick="median", goal=(">=", 50000)),
-    Figure("the trainer's rollout program, zucchini alone, 512 worlds (steady resets)",
+    Figure("the rollout as one program (the trainer's before its three programs a step), "
+           "zucchini alone, 512 worlds (steady resets)",
            "env_parts", r"^training env, zucchini, rollout, max_resets 32, ", GPU, batch=512),
-    Figure("the trainer's rollout program, zucchini alone, 2,048 worlds (steady resets)",
+    Figure("the rollout as one program, zucchini alone, 2,048 worlds (steady resets)",
            "env_parts", r"^training env, zucchini, rollout, max_resets 128, ", GPU, batch=2048),
     Figure("training environment alone, zucchini: the auto-reset step (physics, frame, "
            "teacher)", "env_parts", r"^training env, zucchini, step, deterministic ops on",
