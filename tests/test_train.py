@@ -563,7 +563,8 @@ def test_the_trainers_programs_are_kept_and_read_back_without_tracing(tmp_path, 
     """With the compilation cache on, each environment's rollout programs (advance, reset,
     observe) are traced once and kept as data (`runtime.exported`); a new Trainer in a new
     process (the in-process memo cleared) reads them back without tracing a step, with the
-    same result shapes; another time limit is another advance (its reset and frame stay).
+    same result shapes; another time limit is in the environment's key, so all three are
+    traced afresh.
     The advance's result tree, which the kept program does not hold, is
     `advance_structure`'s; the worlds' shapes are the blank worlds' (no reset program) before
     and after every part."""

@@ -104,18 +104,17 @@ class Trainer:
         return runtime.exported(fn, args, f"{self.keys[i]}\n{what}", out_tree) or fn
 
     def trace_in_processes(self, log=print, force: bool = False, meanwhile=None) -> float:
-        """Trace every environment's rollout programs in a process of its own, side by side,
-        and keep them beside the compilation cache (`runtime.exported`), so that
-        `rollout_programs` reads
-        them back instead of tracing them one after another (Python traces one program at a
-        time in a process). `meanwhile()`, if given, is called once in any case: here while
-        the processes trace. Only where the cache is on, several environments have kept
-        programs, the curriculum is off, this set of programs was not traced so before (a
-        marker in the cache's `exported/`), and the machine has two cores per environment or
-        `force` (each process first spends seconds importing and tracing once: on a 2-core CPU
-        three tiny crops took 39 s so, 29-41 s in one). The processes do not compile: XLA
-        compiles here, side by side, as before. A failed process is a one-line note, and what
-        it did not keep is traced here. Returns the seconds the processes took."""
+        """Trace every environment's rollout programs in a process of its own, side by side, and
+        keep them beside the compilation cache (`runtime.exported`), so that `rollout_programs`
+        reads them back instead of tracing them one after another (Python traces one program at a
+        time in a process). `meanwhile()`, if given, is called once in any case: here while the
+        processes trace. Only where the cache is on, several environments have kept programs, the
+        curriculum is off, this set of programs was not traced so before (a marker in the cache's
+        `exported/`), and the machine has two cores per environment or `force` (each process
+        first spends seconds importing and tracing once: on a 2-core CPU three tiny crops took
+        39 s so, 29-41 s in one). The processes do not compile: XLA compiles here, side by side, as
+        before. A failed process is a one-line note, and what it did not keep is traced here.
+        Returns the seconds the processes took."""
         meanwhile = meanwhile or (lambda: None)
         marker = self._untraced_marker(force)
         if marker is None:
@@ -156,9 +155,9 @@ class Trainer:
     def rollout_programs(self, i: int, args: dict) -> dict:
         """Environment i's rollout programs {part: program} (`PARTS`) for `args`
         (`rollout_args`'), each kept as `kept` keeps it."""
-        worlds = jax.tree.structure(args["observe"][0])
-        trees = {"advance": rollout.advance_structure(args["observe"][0]), "reset": worlds,
-                 "observe": worlds}
+        worlds = args["observe"][0]
+        trees = {"advance": rollout.advance_structure(worlds),
+                 "reset": jax.tree.structure(worlds), "observe": jax.tree.structure(worlds)}
         about = {"advance": f"the rollout's advance, {self.cfg.unroll} steps, {self.cfg.net}",
                  "reset": "the training step's reset", "observe": "the training step's frame"}
         return {p: self.kept(i, about[p], self.parts[i][p], args[p], trees[p]) for p in PARTS}
