@@ -215,16 +215,18 @@ class _Program:
             out_info=self.out_info)
 
 
-def exported(fn: Any, args: tuple, key: str, out_tree: Any) -> Any | None:
+def exported(fn: Any, args: tuple, key: str, out_tree: Any, donate: tuple[int, ...] = ()
+             ) -> Any | None:
     """A function equal to `fn(*args)` (fn: a jitted function) for arguments of `args`'
     shapes, dtypes and shardings, traced once and kept in the compilation cache's directory
     (`exported/`); `key`: a description of everything static that `fn` closes over or that
     the arguments' tree holds as aux data (for the closed loop: the MJX model's XML);
     `out_tree`: the tree structure of what `fn` returns (`jax.tree.structure` of an example),
     given by the caller: a kept file holds only the serialized program (`jax.export`, data),
-    never Python objects, so a cache folder cannot run code. None (use `fn`) when the cache is
-    off, several processes run, or the program cannot be exported; a one-line warning says
-    why, once."""
+    never Python objects, so a cache folder cannot run code; `donate`: the positions of the
+    arguments whose buffers the program may reuse (`fn`'s `donate_argnums`, which the kept
+    program does not hold). None (use `fn`) when the cache is off, several processes run, or
+    the program cannot be exported; a one-line warning says why, once."""
     global _EXPORT_WARNED
     root = cache_dir()
     if root is None or jax.process_count() > 1:
@@ -236,7 +238,7 @@ def exported(fn: Any, args: tuple, key: str, out_tree: Any) -> Any | None:
     h = hashlib.sha256()
     tree = re.sub(r" at 0x[0-9a-fA-F]+", "", str(treedef))  # no addresses (MJX's wrappers);
     # static arrays in the tree's aux data are the caller's `key`'s to describe (the model)
-    for part in (code_version(), key, tree, str(impls),
+    for part in (code_version(), key, tree, str(impls), f"donate {sorted(donate)}",
                  str(jax.config.jax_enable_x64), str(jax.config.jax_default_matmul_precision),
                  os.environ.get("MJXROW_RENDER_KERNEL", ""), jax.default_backend()):
         h.update(part.encode() + b"\0")
@@ -252,7 +254,10 @@ def exported(fn: Any, args: tuple, key: str, out_tree: Any) -> Any | None:
     def wrap(exp, out_tree):
         info = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in exp.out_avals]  # as a
         # jitted function's `out_info` (no shardings: one device)
-        return _Program(jax.jit(exp.call), keys, out_tree,
+        sizes = [len(jax.tree.leaves(a)) for a in args]
+        flat_donate = [j for i in donate for j in range(sum(sizes[:i]), sum(sizes[:i + 1]))
+                       if not keys[j]]  # a key's data is no result's type: none to reuse
+        return _Program(jax.jit(exp.call, donate_argnums=flat_donate), keys, out_tree,
                         out_info=jax.tree.unflatten(out_tree, info))
 
     try:

@@ -8,6 +8,7 @@ worlds) trains once for the module (its compiled programs cached on disk for the
 
 import dataclasses
 import json
+import re
 from pathlib import Path
 
 import jax
@@ -594,6 +595,12 @@ def test_the_trainers_programs_are_kept_and_read_back_without_tracing(tmp_path, 
             == RO.advance_structure(worlds)
         assert shapes(out["advance"][0]) == shapes(out["reset"]) == shapes(out["observe"]) \
             == shapes(worlds)
+        for part, prog in tr.rollout_programs(0, args).items():  # each takes the worlds'
+            # buffers (its donated arguments: reused for its results, or free to be)
+            main = next(line for line in prog.call.lower(*prog._flat(args[part])).as_text()
+                        .splitlines() if "func.func public @main" in line)
+            donated = len(re.findall(r"tf\.aliasing_output|jax\.buffer_donor", main))
+            assert donated == len([x for x in jax.tree.leaves(worlds) if not R.is_key(x)]), part
         R._EXPORTED.clear()  # as a new process
         for part in ("step_advance", "step_reset", "step_observe"):
             monkeypatch.setattr(E.AutoResetWrapper, part, lambda *a: pytest.fail("traced"))

@@ -71,11 +71,13 @@ class Trainer:
         self.obs_example = self.raw[0].observation_structs()
         self.limits = tuple(float(x) for x in np.asarray(self.raw[0].limits))
         # each environment's (crop's) rollout step as three programs (`rollout.Stepwise`):
-        # smaller programs, which XLA compiles side by side, in threads
-        self.parts = tuple({
-            "advance": jax.jit(functools.partial(rollout.advance, self.net, e,
-                                                 length=cfg.unroll)),
-            "reset": jax.jit(e.step_reset), "observe": jax.jit(e.step_observe)}
+        # smaller programs, which XLA compiles side by side, in threads; each takes the worlds'
+        # buffers for its own (`DONATE`: no copy of the arrays a part leaves as they are, a
+        # few GB a crop, such as its field and plant tables)
+        self.parts = tuple(
+            {p: jax.jit(fn, donate_argnums=DONATE[p]) for p, fn in (
+                ("advance", functools.partial(rollout.advance, self.net, e, length=cfg.unroll)),
+                ("reset", e.step_reset), ("observe", e.step_observe))}
             for e in self.envs)
         self.value = jax.jit(functools.partial(rollout.value, self.net))  # every crop's
         self.join = jax.jit(rollout.join)
@@ -95,13 +97,14 @@ class Trainer:
         # traced or read back), and each XLA compilation's (start, end) by program
         self.compile_times: dict[str, Any] = {}
 
-    def kept(self, i: int, what: str, fn, args: tuple, out_tree: Any):
+    def kept(self, i: int, what: str, fn, args: tuple, out_tree: Any, donate: tuple = ()):
         """Environment i's jitted `fn`, or the same program for `args` traced by an earlier
         process and kept beside the compilation cache (`runtime.exported`: no tracing);
-        `what` names the program among the environment's, `out_tree` its result's tree."""
+        `what` names the program among the environment's, `out_tree` its result's tree,
+        `donate` the arguments it takes the buffers of (as `fn` does)."""
         if not self.keys[i]:
             return fn
-        return runtime.exported(fn, args, f"{self.keys[i]}\n{what}", out_tree) or fn
+        return runtime.exported(fn, args, f"{self.keys[i]}\n{what}", out_tree, donate) or fn
 
     def trace_in_processes(self, log=print, force: bool = False, meanwhile=None) -> float:
         """Trace every environment's rollout programs in a process of its own, side by side, and
@@ -160,7 +163,8 @@ class Trainer:
                  "reset": jax.tree.structure(worlds), "observe": jax.tree.structure(worlds)}
         about = {"advance": f"the rollout's advance, {self.cfg.unroll} steps, {self.cfg.net}",
                  "reset": "the training step's reset", "observe": "the training step's frame"}
-        return {p: self.kept(i, about[p], self.parts[i][p], args[p], trees[p]) for p in PARTS}
+        return {p: self.kept(i, about[p], self.parts[i][p], args[p], trees[p], DONATE[p])
+                for p in PARTS}
 
     def lower_blanks(self, key: jax.Array) -> list:
         """Every environment's blank worlds (`AutoResetWrapper.blank`), lowered for `key`
@@ -295,6 +299,7 @@ class Trainer:
 
 
 PARTS = ("advance", "reset", "observe")  # a rollout step's programs (`rollout.Stepwise`)
+DONATE = {"advance": (1,), "reset": (0,), "observe": (0,)}  # each one's worlds argument
 
 
 def rollout_args(params, worlds, key: jax.Array, i: int, pool) -> dict:
