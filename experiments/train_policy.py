@@ -353,7 +353,9 @@ def report(args, cfg, result, blocks, out: Path, wall: float) -> None:
                   f"{result['save_s']:.0f} s), {cfg.num_envs} worlds",
                   f"env-steps/s during training: {result['rollout_steps_per_s']:,.0f} in the "
                   f"rollouts, {result['steps_per_s']:,.0f} with the updates (median over "
-                  f"iterations, B = {cfg.num_envs})", ""]
+                  f"iterations, B = {cfg.num_envs})",
+                  "memory peak: " + ", ".join(f"{k} {v:.1f} GiB" for k, v in
+                                              result["memory_peak_gib"].items()), ""]
         with (out / "benchmarks.jsonl").open("a") as f:
             f.write(json.dumps({
                 "date": summary["date"], "device": device, "stage": "train",
@@ -365,6 +367,7 @@ def report(args, cfg, result, blocks, out: Path, wall: float) -> None:
                 "compile_s": result["compile_s"],
                 "trace_s": result["compile_parts"]["trace_s"], "run_s": result["elapsed_s"],
                 "search_s": result["search_s"], "save_s": result["save_s"], "method": method,
+                "memory_peak_gib": result["memory_peak_gib"],
                 "command": summary["command"]}) + "\n")
         for r in result["rounds"]:
             lines.append(f"adversary round {r['round']} (iteration {r['iteration']}): "

@@ -30,6 +30,7 @@ import hashlib
 import json
 import os
 import re
+import resource
 import sys
 import types
 from pathlib import Path
@@ -67,6 +68,16 @@ def setup(args: argparse.Namespace, cpu_split: bool = False) -> Path | None:
     if cluster is not None:
         init_cluster(*cluster)
     return cache
+
+
+def memory_peak() -> dict[str, float]:
+    """This process's peak memory in GiB: `host` (its RSS) and, on an accelerator, `device`
+    (XLA's peak bytes in use on its first device)."""
+    peak = {"host": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20}  # Linux: KiB
+    stats = jax.local_devices()[0].memory_stats() or {}
+    if "peak_bytes_in_use" in stats:
+        peak["device"] = stats["peak_bytes_in_use"] / 2**30
+    return peak
 
 
 def nondeterministic() -> None:

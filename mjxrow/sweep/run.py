@@ -23,7 +23,6 @@ import contextlib
 import dataclasses
 import datetime
 import json
-import resource
 import signal
 import sys
 import threading
@@ -345,7 +344,8 @@ def _run(
         if old is not None:
             signal.signal(signal.SIGTERM, old)
     info["wall time"] = f"{time.perf_counter() - t0:.1f} s for {ran} episodes"
-    info["memory peak"] = memory_peak()
+    info["memory peak"] = ", ".join(f"{k} {v:.2f} GiB"
+                                    for k, v in runtime.memory_peak().items())
     split = watch.split()
     info["time"] = (f"compile {split['compile']:.1f} s, run {split['run']:.1f} s, write cells "
                     f"{split['write']:.1f} s")
@@ -357,17 +357,6 @@ def _run(
             info = _facts(out, info, ran, todo)
             files = write_outputs(cfg, groups, out, info, figures, pool)
     return {"groups": groups, "ran": ran, "skipped": skipped, "files": files, "time": watch}
-
-
-def memory_peak() -> str:
-    """The peak memory of this process (host RSS) and, on an accelerator, of its first device
-    (XLA's peak bytes in use): what the estimate before the run is calibrated against."""
-    host = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # Linux: KiB
-    text = f"host {host / 2**30:.2f} GiB"
-    stats = jax.local_devices()[0].memory_stats() or {}
-    if "peak_bytes_in_use" in stats:
-        text += f", device {stats['peak_bytes_in_use'] / 2**30:.2f} GiB"
-    return text
 
 
 def _facts(out: Path, info: dict[str, Any], ran: int, todo: int) -> dict[str, Any]:

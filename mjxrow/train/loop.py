@@ -41,6 +41,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from mjxrow import env as mjxrow_env
+from mjxrow import runtime
 from mjxrow.policies import checkpoint as policies_checkpoint
 from mjxrow.policies import networks as policies_networks
 from mjxrow.rollout.config import build_run
@@ -116,10 +117,10 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     `on_compiled()`, if given, is called once the run's programs are compiled (to start other
     compilations then, e.g. an evaluation's, rather than compete with these). Returns
     the summary: paths, iterations, env steps, elapsed, compile time, seconds spent saving
-    the training state, steps/s, last metrics, the curriculum's rounds. With
-    `background_save` the last training state is still being written when it returns: its
-    `train.state.PendingSave` is the summary's `saving` (call its `wait()` before the process
-    ends, e.g. after an evaluation)."""
+    the training state, steps/s, the memory peak (`runtime.memory_peak`), last metrics, the
+    curriculum's rounds. With `background_save` the last training state is still being
+    written when it returns: its `train.state.PendingSave` is the summary's `saving` (call its
+    `wait()` before the process ends, e.g. after an evaluation)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
@@ -197,7 +198,8 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
         f"{parts['xla_after_trace_s']:.1f} s; each program's XLA compilation "
         + ", ".join(f"{k} {v:.1f} s" for k, v in parts["xla_s"].items())
         + ("" if restored is not None else
-           f"; the first worlds (a rollout from blank ones, not trained on) {first_s:.1f} s"))
+           f"; the first worlds (a rollout from blank ones, not trained on) {first_s:.1f} s")
+        + "; memory peak so far " + _peak_text(runtime.memory_peak()))
 
     # with a deadline, the budget is what it leaves (`train.schedule`): PPO's share comes in time
     budget = train_schedule.call_budget(cfg, elapsed,
@@ -322,7 +324,12 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             "rollout_steps_per_s": float(np.median([r[0] for r in steady])) if steady
             else math.nan,
             "steps_per_s": float(np.median([r[1] for r in steady])) if steady else math.nan,
+            "memory_peak_gib": runtime.memory_peak(),
             "last": last, **({"saving": saving} if background_save else {})}
+
+
+def _peak_text(peak: dict[str, float]) -> str:
+    return ", ".join(f"{k} {v:.1f} GiB" for k, v in peak.items())
 
 
 def compile_parts(times: dict, t0: float) -> dict:
