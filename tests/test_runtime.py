@@ -231,3 +231,13 @@ def test_the_pallas_triton_call_of_this_jax_is_allowed_in_kept_programs():
         pytest.skip("this JAX has no Pallas Triton lowering")
     names = re.findall(r'call_target_name="([^"]+)"', Path(spec.origin).read_text())
     assert names and set(names) <= set(R._KERNEL_CALLS), names
+
+
+def test_memory_peak_is_this_process_rss_and_the_device_peak_where_there_is_one():
+    before = R.memory_peak()
+    block = np.ones(64 * 2**20 // 8)  # 64 MiB touched: the host peak can only grow by it
+    after = R.memory_peak()
+    ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+    assert block.sum() > 0 and 1 / 16 <= before["host"] <= after["host"] <= ram  # GiB
+    stats = jax.local_devices()[0].memory_stats() or {}
+    assert ("device" in after) == ("peak_bytes_in_use" in stats)
