@@ -688,28 +688,34 @@ def test_a_rollout_of_three_programs_a_step_is_the_one_program_rollout():
                                        rtol=1e-6, atol=1e-6)
 
 
-def test_the_crops_programs_are_traced_in_processes_side_by_side(tmp_path, monkeypatch):
+def test_the_crops_programs_are_traced_in_processes_and_come_as_each_is_kept(tmp_path,
+                                                                             monkeypatch):
     """With the cache on and several crops, each crop's rollout programs are traced in a
-    process of its own and kept, while this process lowers the blank worlds (`meanwhile`); it
-    then reads every one back without tracing a step (the same keys and argument shapes as
-    `Trainer.compile`'s), and a second Trainer of the same run does not start the processes
-    again but still calls `meanwhile`. (`force`: a run does it only with two cores per crop,
-    which this CPU lacks.)"""
+    process of its own and kept, the one XLA takes longest over first; `Tracing.ready` hands
+    every (crop, part) over once, as its process reports it, while this process lowers the
+    blank worlds; it then reads every one back without tracing a step (the same keys and
+    argument shapes as `Trainer.compile`'s), and a second Trainer of the same run starts no
+    processes. (`force`: a run does it only with two cores per crop, which this CPU lacks.)"""
     from mjxrow import runtime as R
     from mjxrow.train import curriculum as TCU
     from mjxrow.train import programs as TP
+    from mjxrow.train import tracing as TT
 
     cfg = dataclasses.replace(CFG, presets=("vineyard", "lettuce"), num_envs=8)
     key = jax.random.key(3)
     try:
         R.enable_cache(tmp_path / "cache")
         tr = TP.Trainer(cfg)
-        lows = []
-        assert tr.trace_in_processes(log=lambda m: None, force=True,
-                                     meanwhile=lambda: lows.extend(tr.lower_blanks(key))) > 0
+        tracing = tr.start_tracing(log=lambda m: None, force=True)
+        lows = tr.lower_blanks(key)
+        came = list(tracing.ready())
+        assert tracing.close() > 0 and not tracing.noted
+        assert sorted(came) == sorted((i, p) for i in (0, 1) for p in TP.PARTS)
+        assert came[0][1] == TT.ORDER[0] == "reset"  # each process keeps its reset first
+        for i in (0, 1):
+            assert [p for c, p in came if c == i] == list(TT.ORDER)
         kept = tmp_path / "cache" / "exported"
         assert len(list(kept.glob("*.bin"))) == 6 and len(list(kept.glob("*.traced"))) == 1
-        assert len(lows) == 2
         R._EXPORTED.clear()
         for part in ("step_advance", "step_reset", "step_observe"):
             monkeypatch.setattr(E.AutoResetWrapper, part, lambda *a: pytest.fail("traced"))
@@ -719,13 +725,24 @@ def test_the_crops_programs_are_traced_in_processes_side_by_side(tmp_path, monke
             args = TP.rollout_args(params, low.out_info, key, i, pool)
             progs = tr.rollout_programs(i, args)
             assert {type(p).__name__ for p in progs.values()} == {"_Program"}
-        called = []
-        assert TP.Trainer(cfg).trace_in_processes(log=lambda m: None, force=True,
-                                                  meanwhile=lambda: called.append(1)) == 0.0
-        assert called == [1]
+        assert TP.Trainer(cfg).start_tracing(log=lambda m: None, force=True) is None
     finally:
         R.disable_cache()
         R._EXPORTED.clear()
+
+
+def test_a_failed_tracing_process_hands_its_programs_over_to_be_traced_here(tmp_path, capsys):
+    """Where a tracing process fails, `Tracing.ready` still hands over each of its programs
+    once (this process then traces them), one note says so, and no marker spares the next run
+    the processes."""
+    from mjxrow.train import tracing as TT
+
+    marker = tmp_path / "exported" / "run.traced"
+    t = TT.start(int, "x", 2, str(tmp_path), marker)  # int("x", 0, cache): a TypeError
+    came = list(t.ready())
+    assert t.close() > 0 and t.noted and not marker.exists()
+    assert sorted(came) == sorted((i, p) for i in (0, 1) for p in TT.ORDER)
+    assert capsys.readouterr().err.count("note: tracing in processes failed (TypeError") == 1
 
 
 def test_a_policys_program_is_named_by_its_checkpoints_architecture_not_its_path(saved,

@@ -138,38 +138,46 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     k_reset, key_after = jax.random.split(key)
     # compile everything once, before the clock of the budget runs (from the first tracing)
     t0 = time.perf_counter()
-    lowered = []  # the blank worlds' programs (their shapes are the rollouts' arguments),
-    # traced here while other processes trace the rollouts, if they do
-    tr.trace_in_processes(log=log, meanwhile=lambda: lowered.extend(tr.lower_blanks(k_reset)))
-    worlds = tuple(low.out_info for low in lowered)
-    state = {"params": params, "bc_opt": tr.bc_tx.init(params), "ppo_opt": tr.ppo_tx.init(params),
-             "counters": _counters(0, 0, 0.0), "key": jax.random.key_data(key),
-             "worlds": jax.eval_shape(train_state.storable, worlds), "pools": pools,
-             "average": params}
-    replay = tr.replay_buffer()  # BC's earlier rollouts (bc.replay), or None
-    if replay is not None:
-        state["replay"] = replay
-    restored = train_state.restore_state(out / "state", state, tr.about())
-    if restored is not None:
-        state = restored[1]
-        log(f"resumed from {out / 'state'}: iteration {int(state['counters']['iteration'])}, "
-            f"{float(state['counters']['elapsed']) / 60:.1f} of {cfg.budget_minutes:g} min")
-    params, bc_opt, ppo_opt = state["params"], state["bc_opt"], state["ppo_opt"]
-    average = state["average"]
-    replay = None if "replay" not in state else jax.tree.map(jnp.asarray, state["replay"])
-    it = int(state["counters"]["iteration"])
-    env_steps = int(state["counters"]["env_steps"])
-    elapsed = float(state["counters"]["elapsed"])
-    key = jax.random.wrap_key_data(jnp.asarray(state["key"]))
-    pools = jax.tree.map(jnp.asarray, state["pools"])
-    cur.load(pools)
+    # every crop's rollout programs traced in processes side by side, where they are, each
+    # compiled here as it comes (`train.tracing`)
+    tracing = tr.start_tracing(log=log)
+    try:
+        lowered = tr.lower_blanks(k_reset)  # the blank worlds' programs (their shapes are the
+        # rollouts' arguments), traced here while the processes trace the rollouts
+        worlds = tuple(low.out_info for low in lowered)
+        state = {"params": params, "bc_opt": tr.bc_tx.init(params),
+                 "ppo_opt": tr.ppo_tx.init(params), "counters": _counters(0, 0, 0.0),
+                 "key": jax.random.key_data(key),
+                 "worlds": jax.eval_shape(train_state.storable, worlds), "pools": pools,
+                 "average": params}
+        replay = tr.replay_buffer()  # BC's earlier rollouts (bc.replay), or None
+        if replay is not None:
+            state["replay"] = replay
+        restored = train_state.restore_state(out / "state", state, tr.about())
+        if restored is not None:
+            state = restored[1]
+            log(f"resumed from {out / 'state'}: iteration {int(state['counters']['iteration'])}, "
+                f"{float(state['counters']['elapsed']) / 60:.1f} of {cfg.budget_minutes:g} min")
+        params, bc_opt, ppo_opt = state["params"], state["bc_opt"], state["ppo_opt"]
+        average = state["average"]
+        replay = None if "replay" not in state else jax.tree.map(jnp.asarray, state["replay"])
+        it = int(state["counters"]["iteration"])
+        env_steps = int(state["counters"]["env_steps"])
+        elapsed = float(state["counters"]["elapsed"])
+        key = jax.random.wrap_key_data(jnp.asarray(state["key"]))
+        pools = jax.tree.map(jnp.asarray, state["pools"])
+        cur.load(pools)
 
-    ppo_started = train_schedule.ppo_started(ppo_opt)
-    phases = train_schedule.reachable(cfg, elapsed, ppo_started)
-    blanks, unrolls, updates, join = tr.compile(
-        params, worlds, key, pools,
-        {p: bc_opt if p == "bc" else ppo_opt for p in phases},
-        lowered if restored is None else [], replay=replay)
+        ppo_started = train_schedule.ppo_started(ppo_opt)
+        phases = train_schedule.reachable(cfg, elapsed, ppo_started)
+        blanks, unrolls, updates, join = tr.compile(
+            params, worlds, key, pools,
+            {p: bc_opt if p == "bc" else ppo_opt for p in phases},
+            lowered if restored is None else [], replay=replay, tracing=tracing)
+    except BaseException:
+        if tracing is not None:
+            tracing.close()
+        raise
     compile_s = time.perf_counter() - t0
     if on_compiled is not None:
         on_compiled()
@@ -335,13 +343,16 @@ def _peak_text(peak: dict[str, float]) -> str:
 def compile_parts(times: dict, t0: float) -> dict:
     """Where a compilation's time went, from `Trainer.compile_times` and its start `t0`:
     `trace_s` (until every program was traced or read back: Python, one program at a time),
-    `xla_after_trace_s` (the XLA compilations still running after that) and `xla_s` (each
-    program's XLA compilation, side by side with the others and the tracing)."""
+    `xla_after_trace_s` (the XLA compilations still running after that), `xla_s` (each
+    program's XLA compilation, side by side with the others and the tracing) and
+    `xla_from_s` (when each began, from `t0`: a rollout program's as soon as it was traced or
+    read back)."""
     jobs = {k: v for k, v in times.items() if k != "traced"}
     traced = times.get("traced", t0)
     end = max((e for _, e in jobs.values()), default=traced)
     return {"trace_s": traced - t0, "xla_after_trace_s": max(0.0, end - traced),
-            "xla_s": {k: e - s for k, (s, e) in jobs.items()}}
+            "xla_s": {k: e - s for k, (s, e) in jobs.items()},
+            "xla_from_s": {k: s - t0 for k, (s, _) in jobs.items()}}
 
 
 def _counters(it: int, env_steps: int, elapsed: float) -> dict:

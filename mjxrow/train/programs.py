@@ -1,9 +1,10 @@
 """The compiled pieces of a training run (`Trainer`): every crop's environment with the
 trainer's wrappers (episode, vmap, auto-reset), its rollout's three programs (`PARTS`, run by
 `rollout.Stepwise`; traced, or read back from those an earlier process kept beside the
-compilation cache: `runtime.exported`; `trace_in_processes` traces every crop's in a process
-of its own, side by side) and its blank worlds, the network's value and `rollout.join`, the
-BC and PPO updates, and what a saved training state must match. `train.loop` drives them.
+compilation cache: `runtime.exported`; `start_tracing` traces every crop's in a process of
+its own, side by side, while `compile` compiles each as it comes: `train.tracing`) and its
+blank worlds, the network's value and `rollout.join`, the BC and PPO updates, and what a saved
+training state must match. `train.loop` drives them.
 
 There is no reset program: a run's first rollout starts from blank worlds
 (`AutoResetWrapper.blank`, zeros made by a program of broadcasts) whose first step resets every
@@ -16,11 +17,9 @@ from __future__ import annotations
 import dataclasses
 import functools
 import hashlib
-import multiprocessing
 import os
-import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 import jax
@@ -35,6 +34,7 @@ from mjxrow.train import bc as train_bc
 from mjxrow.train import curriculum as train_curriculum
 from mjxrow.train import ppo as train_ppo
 from mjxrow.train import rollout
+from mjxrow.train import tracing as train_tracing
 
 if TYPE_CHECKING:
     from mjxrow.train.loop import TrainConfig
@@ -106,43 +106,27 @@ class Trainer:
             return fn
         return runtime.exported(fn, args, f"{self.keys[i]}\n{what}", out_tree, donate) or fn
 
-    def trace_in_processes(self, log=print, force: bool = False, meanwhile=None) -> float:
-        """Trace every environment's rollout programs in a process of its own, side by side, and
-        keep them beside the compilation cache (`runtime.exported`), so that `rollout_programs`
-        reads them back instead of tracing them one after another (Python traces one program at a
-        time in a process). `meanwhile()`, if given, is called once in any case: here while the
-        processes trace. Only where the cache is on, several environments have kept programs, the
-        curriculum is off, this set of programs was not traced so before (a marker in the cache's
-        `exported/`), and the machine has two cores per environment or `force` (each process
-        first spends seconds importing and tracing once: on a 2-core CPU three tiny crops took
-        39 s so, 29-41 s in one). The processes do not compile: XLA compiles here, side by side, as
-        before. A failed process is a one-line note, and what it did not keep is traced here.
-        Returns the seconds the processes took."""
-        meanwhile = meanwhile or (lambda: None)
+    def start_tracing(self, log=print, force: bool = False) -> train_tracing.Tracing | None:
+        """Start tracing every environment's rollout programs in a process of its own, side
+        by side, each kept beside the compilation cache (`runtime.exported`) and reported as
+        soon as it is, so that `compile(tracing=...)` reads each back and starts XLA on it
+        while the others are still being traced (Python traces one program at a time in a
+        process). Only where the cache is on, several environments have kept programs, the
+        curriculum is off, this set of programs was not traced so before (a marker in the
+        cache's `exported/`), and the machine has two cores per environment or `force` (each
+        process first spends seconds importing and tracing once: on a 2-core CPU three tiny
+        crops took 39 s so, 29-41 s in one); None otherwise. The processes do not compile. A
+        failed process is a one-line note, and what it did not keep is traced here."""
         marker = self._untraced_marker(force)
         if marker is None:
-            meanwhile()
-            return 0.0
-        t0 = time.perf_counter()
+            return None
         log(f"tracing the {len(self.envs)} crops' programs in {len(self.envs)} processes")
-        with ProcessPoolExecutor(len(self.envs), mp_context=multiprocessing.get_context("spawn"),
-                                 initializer=_little_gpu_memory) as ex:
-            jobs = [ex.submit(_trace_one, self.cfg, i, str(runtime.cache_dir()))
-                    for i in range(len(self.envs))]
-            meanwhile()
-            errors = [e for e in (j.exception() for j in jobs) if e is not None]
-        if errors:
-            print(f"note: tracing in processes failed ({type(errors[0]).__name__}: "
-                  f"{str(errors[0]).splitlines()[0][:160] if str(errors[0]) else ''}); tracing "
-                  "here", file=sys.stderr)
-        else:
-            marker.parent.mkdir(parents=True, exist_ok=True)
-            marker.write_text("traced\n")
-        return time.perf_counter() - t0
+        return train_tracing.start(_trace_one, self.cfg, len(self.envs),
+                                   str(runtime.cache_dir()), marker)
 
     def _untraced_marker(self, force: bool):
-        """The marker file `trace_in_processes` writes once it has traced this run's programs,
-        or None where it does not trace them (see there), or has already."""
+        """The marker file left once processes have traced this run's programs
+        (`start_tracing`), or None where they do not trace them (see there), or have."""
         root, cfg = runtime.cache_dir(), self.cfg
         if (root is None or len(self.envs) < 2 or not all(self.keys) or cfg.curriculum.on
                 or jax.process_count() > 1
@@ -155,16 +139,17 @@ class Trainer:
         marker = root / "exported" / f"{h.hexdigest()}.traced"
         return None if marker.is_file() else marker
 
-    def rollout_programs(self, i: int, args: dict) -> dict:
-        """Environment i's rollout programs {part: program} (`PARTS`) for `args`
-        (`rollout_args`'), each kept as `kept` keeps it."""
+    def rollout_programs(self, i: int, args: dict, parts: tuple[str, ...] | None = None
+                         ) -> dict:
+        """Environment i's rollout programs {part: program} (`parts`, kept in that order;
+        default `PARTS`) for `args` (`rollout_args`'), each kept as `kept` keeps it."""
         worlds = args["observe"][0]
         trees = {"advance": rollout.advance_structure(worlds),
                  "reset": jax.tree.structure(worlds), "observe": jax.tree.structure(worlds)}
         about = {"advance": f"the rollout's advance, {self.cfg.unroll} steps, {self.cfg.net}",
                  "reset": "the training step's reset", "observe": "the training step's frame"}
         return {p: self.kept(i, about[p], self.parts[i][p], args[p], trees[p], DONATE[p])
-                for p in PARTS}
+                for p in parts or PARTS}
 
     def lower_blanks(self, key: jax.Array) -> list:
         """Every environment's blank worlds (`AutoResetWrapper.blank`), lowered for `key`
@@ -174,28 +159,36 @@ class Trainer:
         return [b.lower(k) for b, k in zip(self.blanks, keys, strict=True)]
 
     def compile(self, params, worlds, key, pools, opts: dict, blanks: list = (),
-                replay=None):
+                replay=None, tracing: train_tracing.Tracing | None = None):
         """Every program the run needs, compiled side by side (one thread each: XLA compiles
         separate programs in parallel where the machine has the cores; the tracing before it
         is Python's, one at a time, and skipped for a program kept by `kept`): the lowered
         `blanks`, every environment's rollout programs (on worlds of the shapes `worlds`;
         `PARTS`, and the network's value and `rollout.join`, which all share), and the update
         of every phase in `opts` ({'bc' or 'ppo': its optimiser state}; BC's with the `replay`
-        buffer, or None: `train.bc.replay_mix`). Returns ([blank executables],
+        buffer, or None: `train.bc.replay_mix`). With `tracing` (`start_tracing`'s) each
+        rollout program is lowered and compiled as its process reports it kept, and the
+        processes are ended here. Returns ([blank executables],
         [`rollout.Stepwise` of each environment], {phase: update executable}, join's
         executable); the times are in `compile_times`."""
         n = len(blanks) + len(PARTS) * len(self.parts) + 2 + len(opts)
         with ThreadPoolExecutor(n) as ex:
             futures = {("blank", i): ex.submit(_timed, low.compile)
                        for i, low in enumerate(blanks)}
-            outs = []
-            for i, (st, pool) in enumerate(zip(worlds, pools, strict=True)):
-                args = rollout_args(params, st, key, i, pool)
-                for part, prog in self.rollout_programs(i, args).items():
-                    low = prog.lower(*args[part])
+            args = [rollout_args(params, st, key, i, pool)
+                    for i, (st, pool) in enumerate(zip(worlds, pools, strict=True))]
+            outs = {}
+            try:
+                for i, part in (tracing.ready() if tracing is not None else
+                                ((i, p) for i in range(len(args)) for p in PARTS)):
+                    low = self.rollout_programs(i, args[i], (part,))[part].lower(*args[i][part])
                     futures[(part, i)] = ex.submit(_timed, low.compile)
                     if part == "advance":
-                        outs.append(low.out_info)
+                        outs[i] = low.out_info
+            finally:
+                if tracing is not None:
+                    tracing.close()
+            outs = [outs[i] for i in range(len(args))]
             low_v = self.value.lower(params, worlds[0].obs)
             futures[("value", None)] = ex.submit(_timed, low_v.compile)
             T = self.cfg.unroll
@@ -311,16 +304,11 @@ def rollout_args(params, worlds, key: jax.Array, i: int, pool) -> dict:
             "reset": (worlds, pool), "observe": (worlds,)}
 
 
-def _little_gpu_memory() -> None:
-    """In a tracing process, before JAX starts its backend: take GPU memory as needed, not
-    JAX's default share (they only trace; the command's own process holds the worlds)."""
-    os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
-
-
 def _trace_one(cfg: TrainConfig, i: int, cache: str) -> None:
     """In a process of its own: trace environment i's rollout of the run `cfg` as
     `Trainer.compile` would (the same keys and argument shapes), keeping it beside the
-    compilation cache `cache` (`Trainer.trace_in_processes`)."""
+    compilation cache `cache` (`Trainer.start_tracing`), reporting each part as it is kept,
+    the one XLA takes longest over first (`train.tracing.ORDER`)."""
     runtime.enable_cache(cache)
     one = dataclasses.replace(cfg, presets=(cfg.presets[i],), num_envs=cfg.per_env)
     tr = Trainer(one)
@@ -334,8 +322,9 @@ def _trace_one(cfg: TrainConfig, i: int, cache: str) -> None:
                                         [e.ranges for e in tr.raw]).pools()  # as `train`'s
     worlds = jax.eval_shape(tr.blanks[0], key)
     args = rollout_args(params, worlds, key, i, pools[0])
-    for part, prog in tr.rollout_programs(0, args).items():
-        prog.lower(*args[part])
+    for part in train_tracing.ORDER:
+        tr.rollout_programs(0, args, (part,))
+        train_tracing.report(i, part)
 
 
 def _timed(fn):
