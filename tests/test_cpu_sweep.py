@@ -12,6 +12,7 @@ from mjxrow.sweep import config as sweep_config
 from mjxrow.sweep import estimate as sweep_estimate
 from mjxrow.sweep import groups as sweep_groups
 from mjxrow.sweep import run as sweep_run
+from mjxrow.sweep import writer as sweep_writer
 
 TINY = {"name": "cpu", "seeds": 2, "batch_size": 2, "controller": {"name": "oracle"},
         "perception": {"source": "ground_truth"}, "preset": "vineyard",
@@ -130,9 +131,9 @@ def test_the_bar_moves_inside_a_batch(tmp_path):
     cfg = sweep_config.from_dict(TINY)
     group = sweep_groups.plan(cfg)[0]
     bar = _Bar()
-    quiet = sweep_run._CellWriter(group, 100, tmp_path, bar)
+    quiet = sweep_writer.CellWriter(group, 100, tmp_path, bar)
     assert quiet.in_batch is None  # no bar, or a GPU: one program per batch
-    w = sweep_run._CellWriter(group, 100, tmp_path, bar, in_batch=True)
+    w = sweep_writer.CellWriter(group, 100, tmp_path, bar, in_batch=True)
     w.in_batch(50, 0, 6)
     assert bar.n == 0 and "control step 50" in bar.postfix and "0 of 6" in bar.postfix
     w.in_batch(100, 4, 6)
