@@ -321,6 +321,7 @@ def report(args, cfg, result, blocks, out: Path, wall: float) -> None:
     """Print and write the final table and the training facts."""
     import jax
 
+    from mjxrow import runtime
     from mjxrow.train import evaluate as EV
 
     device = jax.devices()[0].device_kind
@@ -354,8 +355,7 @@ def report(args, cfg, result, blocks, out: Path, wall: float) -> None:
                   f"env-steps/s during training: {result['rollout_steps_per_s']:,.0f} in the "
                   f"rollouts, {result['steps_per_s']:,.0f} with the updates (median over "
                   f"iterations, B = {cfg.num_envs})",
-                  "memory peak: " + ", ".join(f"{k} {v:.1f} GiB" for k, v in
-                                              result["memory_peak_gib"].items()), ""]
+                  "memory peak: " + runtime.peak_text(result["memory_peak_gib"]), ""]
         with (out / "benchmarks.jsonl").open("a") as f:
             f.write(json.dumps({
                 "date": summary["date"], "device": device, "stage": "train",

@@ -80,6 +80,11 @@ def memory_peak() -> dict[str, float]:
     return peak
 
 
+def peak_text(peak: dict[str, float], digits: int = 1) -> str:
+    """`memory_peak`'s figures as a report says them: 'host 1.2 GiB, device 3.4 GiB'."""
+    return ", ".join(f"{k} {v:.{digits}f} GiB" for k, v in peak.items())
+
+
 def nondeterministic() -> None:
     """Take back the deterministic-ops flag that `import mjxrow` put in XLA_FLAGS (a flag the
     user set stays); effective before JAX starts its backend, as `setup` calls it."""

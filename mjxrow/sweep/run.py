@@ -218,8 +218,7 @@ def _run(
         if old is not None:
             signal.signal(signal.SIGTERM, old)
     info["wall time"] = f"{time.perf_counter() - t0:.1f} s for {ran} episodes"
-    info["memory peak"] = ", ".join(f"{k} {v:.2f} GiB"
-                                    for k, v in runtime.memory_peak().items())
+    info["memory peak"] = runtime.peak_text(runtime.memory_peak(), digits=2)
     split = watch.split()
     info["time"] = (f"compile {split['compile']:.1f} s, run {split['run']:.1f} s, write cells "
                     f"{split['write']:.1f} s")

@@ -139,7 +139,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     # compile everything once, before the clock of the budget runs (from the first tracing)
     t0 = time.perf_counter()
     # every crop's rollout programs traced in processes side by side, where they are, each
-    # compiled here as it comes (`train.tracing`)
+    # compiled here as it comes (`train.tracing`); the processes end however this goes
     tracing = tr.start_tracing(log=log)
     try:
         lowered = tr.lower_blanks(k_reset)  # the blank worlds' programs (their shapes are the
@@ -174,10 +174,9 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             params, worlds, key, pools,
             {p: bc_opt if p == "bc" else ppo_opt for p in phases},
             lowered if restored is None else [], replay=replay, tracing=tracing)
-    except BaseException:
+    finally:
         if tracing is not None:
             tracing.close()
-        raise
     compile_s = time.perf_counter() - t0
     if on_compiled is not None:
         on_compiled()
@@ -207,7 +206,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
         + ", ".join(f"{k} {v:.1f} s" for k, v in parts["xla_s"].items())
         + ("" if restored is not None else
            f"; the first worlds (a rollout from blank ones, not trained on) {first_s:.1f} s")
-        + "; memory peak so far " + _peak_text(runtime.memory_peak()))
+        + "; memory peak so far " + runtime.peak_text(runtime.memory_peak()))
 
     # with a deadline, the budget is what it leaves (`train.schedule`): PPO's share comes in time
     budget = train_schedule.call_budget(cfg, elapsed,
@@ -334,10 +333,6 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             "steps_per_s": float(np.median([r[1] for r in steady])) if steady else math.nan,
             "memory_peak_gib": runtime.memory_peak(),
             "last": last, **({"saving": saving} if background_save else {})}
-
-
-def _peak_text(peak: dict[str, float]) -> str:
-    return ", ".join(f"{k} {v:.1f} GiB" for k, v in peak.items())
 
 
 def compile_parts(times: dict, t0: float) -> dict:

@@ -167,8 +167,8 @@ class Trainer:
         `PARTS`, and the network's value and `rollout.join`, which all share), and the update
         of every phase in `opts` ({'bc' or 'ppo': its optimiser state}; BC's with the `replay`
         buffer, or None: `train.bc.replay_mix`). With `tracing` (`start_tracing`'s) each
-        rollout program is lowered and compiled as its process reports it kept, and the
-        processes are ended here. Returns ([blank executables],
+        rollout program is lowered and compiled as its process reports it kept (the caller
+        ends the processes: `Tracing.close`). Returns ([blank executables],
         [`rollout.Stepwise` of each environment], {phase: update executable}, join's
         executable); the times are in `compile_times`."""
         n = len(blanks) + len(PARTS) * len(self.parts) + 2 + len(opts)
@@ -178,16 +178,12 @@ class Trainer:
             args = [rollout_args(params, st, key, i, pool)
                     for i, (st, pool) in enumerate(zip(worlds, pools, strict=True))]
             outs = {}
-            try:
-                for i, part in (tracing.ready() if tracing is not None else
-                                ((i, p) for i in range(len(args)) for p in PARTS)):
-                    low = self.rollout_programs(i, args[i], (part,))[part].lower(*args[i][part])
-                    futures[(part, i)] = ex.submit(_timed, low.compile)
-                    if part == "advance":
-                        outs[i] = low.out_info
-            finally:
-                if tracing is not None:
-                    tracing.close()
+            for i, part in (tracing.ready() if tracing is not None else
+                            ((i, p) for i in range(len(args)) for p in PARTS)):
+                low = self.rollout_programs(i, args[i], (part,))[part].lower(*args[i][part])
+                futures[(part, i)] = ex.submit(_timed, low.compile)
+                if part == "advance":
+                    outs[i] = low.out_info
             outs = [outs[i] for i in range(len(args))]
             low_v = self.value.lower(params, worlds[0].obs)
             futures[("value", None)] = ex.submit(_timed, low_v.compile)
