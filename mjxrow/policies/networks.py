@@ -8,6 +8,13 @@ mean float32 [..., 2] (the action's mean, not squashed: the environment clips to
 log_std float32 [2] (state-independent), value float32 [...]. Images: uint8 (RGB, mask) are
 scaled to [-0.5, 0.5]; float features pass as they are. Convolutions pad SAME, so any image
 size works (a 16 × 16 test image included).
+
+With `symmetric` the network is left-right equivariant by construction: it runs its torso on
+the observation and on its mirror image (the image flipped along its width, ω negated in the
+proprioception: `observe.PROPRIO_MIRROR`) and averages, ω's mean antisymmetrically, so that
+the mirrored world gets the mirrored action and the same value. A world that looks the same in
+a mirror (a straight lane, seen from its centre) then gets ω = 0 exactly: no left-right bias
+is left for training to remove.
 """
 
 from __future__ import annotations
@@ -20,6 +27,8 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from mjxrow.policies import observe
+
 
 @dataclasses.dataclass(frozen=True)
 class NetConfig:
@@ -30,6 +39,8 @@ class NetConfig:
     strides: tuple[int, ...] = (4, 2, 2)  # their strides
     hidden: int = 256  # units of the dense layer after the torso
     init_log_std: float = -1.0  # initial log std of the Gaussian policy (normalised actions)
+    symmetric: bool = False  # left-right equivariant: the torso sees the observation and its
+    # mirror image, ω's mean is their antisymmetric average (twice the torso's work)
 
     def __post_init__(self):
         object.__setattr__(self, "channels", tuple(int(c) for c in self.channels))
@@ -40,6 +51,8 @@ class NetConfig:
                              f"{self.channels}, {self.kernels}, {self.strides}")
         if int(self.hidden) < 1:
             raise ValueError(f"net.hidden: must be at least 1, got {self.hidden}")
+        if not isinstance(self.symmetric, bool):
+            raise ValueError(f"net.symmetric: must be true or false, got {self.symmetric!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v)
@@ -67,17 +80,26 @@ class PolicyNet(nn.Module):
         img = obs["image"]
         batch = img.shape[:-3]
         x = img.reshape((-1,) + img.shape[-3:])
+        n = x.shape[0]
+        p = obs["proprio"].reshape(n, -1) if "proprio" in obs else None
+        if self.cfg.symmetric:  # the observation and its mirror image, one batch
+            x = jnp.concatenate([x, jnp.flip(x, axis=-2)])
+            if p is not None:
+                p = jnp.concatenate([p, p * jnp.asarray(observe.PROPRIO_MIRROR, p.dtype)])
         x = x.astype(jnp.float32) / 255.0 - 0.5 if img.dtype == jnp.uint8 \
             else x.astype(jnp.float32)
         for c, k, s in zip(self.cfg.channels, self.cfg.kernels, self.cfg.strides, strict=True):
             x = nn.relu(nn.Conv(c, (k, k), (s, s), padding="SAME")(x))
         x = x.reshape(x.shape[0], -1)
-        if "proprio" in obs:
-            x = jnp.concatenate([x, obs["proprio"].reshape(x.shape[0], -1)], -1)
+        if p is not None:
+            x = jnp.concatenate([x, p], -1)
         x = nn.relu(nn.Dense(self.cfg.hidden)(x))
         mean = nn.Dense(2, kernel_init=nn.initializers.variance_scaling(
             0.01, "fan_in", "truncated_normal"))(x)
         value = nn.Dense(1)(x)[:, 0]
+        if self.cfg.symmetric:  # the mirror's action mirrored back, averaged
+            mean = 0.5 * (mean[:n] + mean[n:] * jnp.asarray(observe.ACTION_MIRROR))
+            value = 0.5 * (value[:n] + value[n:])
         log_std = self.param("log_std", nn.initializers.constant(self.cfg.init_log_std), (2,))
         return mean.reshape(batch + (2,)), log_std, value.reshape(batch)
 

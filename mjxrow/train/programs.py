@@ -64,9 +64,10 @@ class Trainer:
         self.cfg = cfg
         self.raw, self.envs = make_envs(cfg)
         self.spec = self.raw[0].spec
-        if cfg.bc.mirror and self.spec.kind == "features":
-            raise ValueError("bc.mirror: the segmenter's features of a mirrored image are not "
-                             "its features mirrored; mirror rgb or mask observations")
+        for key, on in (("bc.mirror", cfg.bc.mirror), ("net.symmetric", cfg.net.symmetric)):
+            if on and self.spec.kind == "features":
+                raise ValueError(f"{key}: the segmenter's features of a mirrored image are not "
+                                 "its features mirrored; mirror rgb or mask observations")
         self.net = policies_networks.PolicyNet(cfg.net)
         self.obs_example = self.raw[0].observation_structs()
         self.limits = tuple(float(x) for x in np.asarray(self.raw[0].limits))
