@@ -51,6 +51,8 @@
 #                   the cores split evenly); XLA_FLAGS_I: its XLA flags
 #   policy_surfaces SWEEP_ARGS: more sweep arguments
 #   compile_profile PRESET [pear], BATCH [3072], PARTS [rollout]: env_parts.py's parts
+#   sun             SUN_CONTROLLERS [segzeros policy], SUN_CHECKPOINT [shipped] (the policy's),
+#                   SUN_LABEL [none]: added to the outputs' names
 set -uo pipefail
 OUT=${OUT:-/tmp/gpu_out}; WORK=${WORK:-/tmp/gpu_work}
 [[ $OUT == /* ]] || OUT="$PWD/$OUT"; [[ $WORK == /* ]] || WORK="$PWD/$WORK"
@@ -60,7 +62,7 @@ cd "$root" || exit 2
 sets=(time_to_result determinism surfaces scaling table3 table3_kernels speed_round loop_224
       compile_flags mjwarp seg_speed shading suite_bench suite_tables suite_final train_policy
       policy_surfaces seg_variety search_segzeros search_oracle variety_surfaces render_curved
-      scale_out train_side compile_profile)
+      scale_out train_side compile_profile sun)
 declare -A about=(
   [time_to_result]="sweeps.yaml cold / warm, closed loop 64 / 224 px, Table 3 block and whole"
   [determinism]="sweeps.yaml cold, warm, warm; the same with XLA's deterministic ops; diffs"
@@ -77,6 +79,7 @@ declare -A about=(
   [variety_surfaces]="the curvature x gaps and weeds sweeps, SegZeros and the oracle"
   [render_curved]="render accuracy and frames/s on straight, arc and sine rows with weeds"
   [compile_flags]="the sweep's closed-loop program compiled and run under XLA flag sets"
+  [sun]="sweeps/sun.yaml (pear, the sun's azimuth) for SegZeros and a policy checkpoint"
   [mjwarp]="MuJoCo's batch renderer (MJX, Warp) beside ours (needs warp-lang)"
   [seg_speed]="segmenter implementations; where a 224-px step and frame spend their time"
   [shading]="renderer settle variants at 64 / 128 / 224 px, profiles, closed loop 224 px"
@@ -698,6 +701,20 @@ set_policy_surfaces() {  # NAME.log, surfaces.tgz
     "${py[@]}" -m mjxrow.sweep "$y" --out "$work/$name" --no-progress "${args[@]}" 2>&1 | tee "$out/$name.log"
   done
   tar -czf "$out/surfaces.tgz" -C "$work" policy policy_slope_roughness
+}
+
+set_sun() {  # sun_CONTROLLER[_LABEL].log, sun.tgz: sweeps/sun.yaml (pear, the sun turned about
+  # the rows) for each of SUN_CONTROLLERS, the policy's checkpoint SUN_CHECKPOINT
+  local c name status=0 names=()
+  for c in ${SUN_CONTROLLERS:-segzeros policy}; do
+    name=sun_$c${SUN_LABEL:+_$SUN_LABEL}; names+=("$name")
+    "${py[@]}" -m mjxrow.sweep sweeps/sun.yaml --out "$work/$name" --no-progress \
+      --set controller.name="$c" --set controller.checkpoint="${SUN_CHECKPOINT:-shipped}" \
+      2>&1 | tee "$out/$name.log"
+    [ "${PIPESTATUS[0]}" = 0 ] || status=1
+  done
+  tar -czf "$out/sun.tgz" -C "$work" --exclude='cells' "${names[@]}"
+  return "$status"
 }
 
 set_compile_profile() {  # compile_profile.log (the operations, then XLA's events),

@@ -327,3 +327,26 @@ def test_the_shipped_throughput_is_that_of_benchmarks_jsonl():
     assert json.loads(estimate.THROUGHPUT.read_text()) == estimate.rates(
         record.read_text().splitlines())
     assert estimate._rate("cpu")[0] > 0 and estimate._rate("no such device") is None
+
+
+def test_the_sun_azimuth_is_a_traced_key_that_turns_the_sun_about_the_rows():
+    from mjxrow import render
+    from mjxrow.rollout import episode as E
+    from mjxrow.rollout.config import build_run
+
+    raw = {**BASE, "field": {}, "perception": {"source": "ground_truth",
+                                                "sun_azimuth": [35.0, -35.0, 215.0]}}
+    groups = SG.plan(C.from_dict(raw))
+    assert len(groups) == 1  # traced: one group, one compile
+    g = groups[0]
+    built = B.build([c.cfg for c in g.cells], g.shape)
+    batch = E.stack_params([built.policy_params(c.cfg) for c in g.cells], built.axes)
+    sun = np.asarray(batch[0].cond.sun_dir)
+    np.testing.assert_allclose(sun[0], render.conditions("sunny").sun_dir, atol=1e-6)  # default
+    np.testing.assert_allclose(sun[1], sun[0] * [1, -1, 1], atol=1e-6)  # mirrored about the row
+    np.testing.assert_allclose(sun[2], sun[0] * [-1, -1, 1], atol=1e-6)  # from behind
+    for bad in ("north", float("nan")):
+        with pytest.raises(C.ConfigError, match="perception.sun_azimuth"):
+            C.from_dict({**BASE, "perception": {"sun_azimuth": bad}})
+    with pytest.raises(ValueError, match="perception.sun_azimuth"):  # the run's own check
+        build_run({"preset": "zucchini", "perception.sun_azimuth": float("inf")})

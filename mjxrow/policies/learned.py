@@ -129,7 +129,7 @@ def make_policy(run, shape) -> tuple[Policy, Any]:
     policy = image_policy(ck.net, ck.spec, None if seg is None else seg.module, shape, run.camera,
                           run.render, ck.limits, run.episode.control_dt)
     variables = {"policy": ck.variables, "segmenter": None if seg is None else seg.variables}
-    return policy, perception.perception_params(run.perception.condition,
+    return policy, perception.perception_params(run.perception.conditions(),
                                                 run.perception.threshold, variables)
 
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from typing import Any, ClassVar
 
 import jax
@@ -45,8 +46,10 @@ class PerceptionConfig:
     # but the weights are traced, so checkpoints of one architecture share one compile
     threshold: float = 0.7  # -, a pixel is a plant where the segmenter's sigmoid exceeds this
     condition: str = "sunny"  # sky / lighting condition of the rendered images
+    sun_azimuth: float = render.SUN_AZIMUTH_DEG  # degrees, the sun's direction from +x
+    # (along the rows) toward +y; shadows fall the opposite way
 
-    TRACED: ClassVar[tuple[str, ...]] = ("threshold", "condition")
+    TRACED: ClassVar[tuple[str, ...]] = ("threshold", "condition", "sun_azimuth")
     CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"source": SOURCES,
                                                      "condition": CONDITION_NAMES}
 
@@ -59,6 +62,13 @@ class PerceptionConfig:
                              f"{', '.join(CONDITION_NAMES)}")
         if not 0.0 <= self.threshold <= 1.0:
             raise ValueError(f"perception.threshold: must be in [0, 1], got {self.threshold}")
+        if not math.isfinite(self.sun_azimuth):
+            raise ValueError(f"perception.sun_azimuth: must be a finite angle in degrees, got "
+                             f"{self.sun_azimuth}")
+
+    def conditions(self) -> render.Conditions:
+        """The rendered images' sky and lighting: `condition` with the sun at `sun_azimuth`."""
+        return render.conditions(self.condition, azimuth_deg=self.sun_azimuth)
 
 
 @struct.dataclass

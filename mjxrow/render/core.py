@@ -48,6 +48,7 @@ from mjxrow.render.shade import (
     PLANT,
     SKY,
     SOIL,
+    SUN_AZIMUTH_DEG,
     WEED,
     Conditions,
     condition_by_index,
@@ -55,7 +56,7 @@ from mjxrow.render.shade import (
 )
 
 __all__ = ["CONDITIONS", "DEFAULT_CONFIG", "Conditions", "Frame", "Intrinsics", "PlantTable",
-           "RenderConfig", "SKY_DEPTH", "WEED", "geometry", "plant_table",
+           "RenderConfig", "SKY_DEPTH", "SUN_AZIMUTH_DEG", "WEED", "geometry", "plant_table",
            "camera_rot", "condition_by_index", "conditions", "render"]
 
 INF = jnp.inf

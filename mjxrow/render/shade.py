@@ -44,22 +44,24 @@ _TABLE = {
     "long_shadows": ((9.0, 20.0), (1.20, 1.05, 0.85), (0.24, 0.28, 0.38), (0.15, 0.30, 0.68),
                      (0.70, 0.72, 0.78), 0.10, 180.0, 0.012),
 }
-_SUN_AZIMUTH_DEG = 35.0  # nominal sun azimuth (from +x toward +y)
+SUN_AZIMUTH_DEG = 35.0  # nominal sun azimuth (from +x toward +y)
 
 
 def _vec(x) -> jax.Array:
     return jnp.asarray(x, jnp.float32)
 
 
-def conditions(name: str, key: jax.Array | None = None) -> Conditions:
-    """Nominal conditions of `name` (one of CONDITIONS), or, with a key, a random variant of
-    them: sun azimuth anywhere, elevation inside the condition's range, colours, haze, soil and
-    leaf tints and exposure jittered. Jittable (name is static)."""
+def conditions(name: str, key: jax.Array | None = None,
+               azimuth_deg: float = SUN_AZIMUTH_DEG) -> Conditions:
+    """Nominal conditions of `name` (one of CONDITIONS) with the sun at `azimuth_deg` (degrees
+    from +x, the rows' direction, toward +y), or, with a key, a random variant of them: sun
+    azimuth anywhere, elevation inside the condition's range, colours, haze, soil and leaf tints
+    and exposure jittered. Jittable (name is static)."""
     if name not in _TABLE:
         raise ValueError(f"condition: unknown condition {name!r}; expected one of {CONDITIONS}")
     (e_lo, e_hi), sun, amb, zen, hor, cloud, haze, noise = _TABLE[name]
     if key is None:  # host values (numpy float32): no device program per operation
-        az, el = np.deg2rad(_SUN_AZIMUTH_DEG), np.deg2rad(0.5 * (e_lo + e_hi))
+        az, el = np.deg2rad(azimuth_deg), np.deg2rad(0.5 * (e_lo + e_hi))
         h = lambda x: np.asarray(x, np.float32)  # noqa: E731
         return Conditions(
             sun_dir=h([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)]),

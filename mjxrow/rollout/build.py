@@ -181,12 +181,12 @@ class Built:
             ctrl = self.fillers[:i] + (cparams,) + self.fillers[i + 1:]
             p = run.perception
             perc = None if self.base is None else perception.perception_params(
-                p.condition, p.threshold, self.base.variables)
+                p.conditions(), p.threshold, self.base.variables)
             return perception.MixParams(np.int32(i), perc, ctrl)
         if self.base is None:
             return cparams
         p = run.perception
-        return (perception.perception_params(p.condition, p.threshold, self.base.variables),
+        return (perception.perception_params(p.conditions(), p.threshold, self.base.variables),
                 cparams)
 
     def _put_params(self, params: Any) -> Any:

@@ -94,7 +94,7 @@ class Evaluator:
         for i, r in enumerate(runs):
             one = jax.tree.map(lambda x, i=i: x[i], (batch.fields, batch.lanes, batch.keys,
                                                      batch.noise))
-            rgb, mask = fn(self.built.mx, *one, render.conditions(r.perception.condition),
+            rgb, mask = fn(self.built.mx, *one, r.perception.conditions(),
                            np.float32(r.perception.threshold), variables)
             out.append((np.asarray(rgb), np.asarray(mask)))
         return out
