@@ -43,7 +43,7 @@ from mjxrow.render.core import (
 )
 
 __all__ = ["CONDITIONS", "DEFAULT_CONFIG", "KERNELS", "OBSTACLE", "PLANT", "SETTLES", "SKY",
-           "SKY_DEPTH", "SOIL", "SUN_AZIMUTH_DEG", "WEED", "Conditions", "Frame", "Intrinsics", "PlantTable",
-           "RenderConfig",
+           "SKY_DEPTH", "SOIL", "SUN_AZIMUTH_DEG", "WEED", "Conditions", "Frame", "Intrinsics",
+           "PlantTable", "RenderConfig",
            "camera_rot", "condition_by_index", "conditions", "default_kernel", "default_tile",
            "geometry", "pixel_rays", "plant_table", "render", "resolve"]
