@@ -62,7 +62,8 @@ def plot(runs: list[dict], rollouts: list[dict], out: Path, n: int) -> Path:
     import matplotlib.pyplot as plt
 
     recipes = list(dict.fromkeys(r["recipe"] for r in runs))
-    colors = dict(zip(recipes, plt.cm.tab10.colors, strict=False))
+    palette = plt.cm.tab20.colors  # more recipes than tab10 has colours
+    colors = {r: palette[i % len(palette)] for i, r in enumerate(recipes)}
     commands = list(dict.fromkeys((r["date"], r["device"], r["recipe"], r["seed"],
                                    r["iterations"]) for r in runs))
     # the commands above (as wide as they need), the training rollouts below
