@@ -114,13 +114,13 @@ def plot(runs: list[dict], rollouts: list[dict], out: Path, n: int) -> Path:
     return out
 
 
-def _ours(path: Path) -> bool:
-    """Whether `path` is a PNG this script wrote."""
+def written_by(path: Path, tag: str = TAG) -> bool:
+    """Whether `path` is a PNG whose `Software` entry is `tag` (this script's by default)."""
     from PIL import Image
 
     try:
         with Image.open(path) as im:
-            return im.info.get("Software") == TAG
+            return im.info.get("Software") == tag
     except (OSError, ValueError):
         return False
 
@@ -138,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.episodes < 1:
             raise ValueError(f"--episodes: must be ≥ 1, got {args.episodes}")
-        if out.exists() and not _ours(out):
+        if out.exists() and not written_by(out):
             raise ValueError(f"--out: {out} exists and was not written by this script; "
                              "choose another path")
         runs, rollouts = _read(args.runs, "--runs"), _read(args.rollouts, "--rollouts")
