@@ -89,10 +89,11 @@ def plot(rows: list[dict], out: Path) -> Path:
     ax.set_ylim(0, 1.05)
     bx.set_ylabel("CHA [rad] (95 % CI)")
     bx.axhline(0.0, color="k", lw=0.6, ls=":")
-    ax.legend(fontsize=7, loc="lower left")
     fig.suptitle("pear at its default geometry, sunny, the sun turned about the rows "
                  "(sweeps/sun.yaml)", fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.08, 1, 1))  # room below for the legend
+    handles, names = ax.get_legend_handles_labels()
+    fig.legend(handles, names, fontsize=8, loc="lower center", ncol=min(3, len(names)))
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110, metadata={"Software": TAG})
     plt.close(fig)
