@@ -5,7 +5,8 @@ the table: one command on one GPU.
         [--deadline-minutes 8.5] [--eval-reserve-minutes M] [--presets P ...] [--num-envs 15360]
         [--episodes 100] [--bc-fraction 0.5] [--observation rgb] [--teacher oracle]
         [--seed 0] [--eval-seed 0] [--iterations N] [--init CHECKPOINT] [--curriculum SEARCH.yaml]
-        [--set KEY=VALUE ...] [--no-eval] [--eval-only] [--eval-last] [--ship] [--smoke]
+        [--set KEY=VALUE ...] [--no-eval] [--eval-only] [--eval-last] [--eval-sun DEG ...]
+        [--ship] [--smoke]
 
 Training (mjxrow.train.loop): behaviour cloning / DAgger from the teacher (`--teacher`, the
 oracle's pure pursuit by default) for the first `--bc-fraction` of the budget, then PPO, in
@@ -34,7 +35,9 @@ its failing fields; OUT/adversary.jsonl and OUT/adversary.png give the failure r
 Evaluation (mjxrow.train.evaluate, through the run builder, i.e. the sweep's episodes and
 metrics): `--episodes` episodes per preset at its default geometry in the Table 3 scenario
 (mjxrow/sweep/presets.yaml) for the trained policy, SegZeros with the learned segmenter and the
-oracle; success with its 95 % Wilson interval. On a GPU the evaluation programs compile in a
+oracle; success with its 95 % Wilson interval. `--eval-sun 80 260` runs the policy's blocks
+again with the sun at those azimuths (Table 3's is 35°: pear's learned policies drift with the
+sun to the side, docs/training.md). On a GPU the evaluation programs compile in a
 thread while the policy trains, started once the trainer's programs are compiled (the weights
 are traced, so the trained ones run in a program compiled for an untrained copy).
 
@@ -64,6 +67,7 @@ import argparse
 import dataclasses
 import datetime
 import json
+import math
 import os
 import shutil
 import sys
@@ -87,11 +91,12 @@ BLOCK_MINUTES = 0.15
 
 def eval_blocks(args) -> int:
     """The blocks of episodes the command's evaluation runs (a preset and controller each;
-    `--eval-last` adds the last weights on every preset)."""
+    `--eval-last` adds the last weights on every preset, `--eval-sun` the policy under each
+    azimuth)."""
     if args.no_eval:
         return 0
-    return len(args.presets) * (len(args.controllers)
-                                + int(args.eval_last and "policy" in args.controllers))
+    return len(args.presets) * (len(args.controllers) + (
+        int(args.eval_last) + len(args.eval_sun) if "policy" in args.controllers else 0))
 
 
 def parser() -> argparse.ArgumentParser:
@@ -144,6 +149,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--eval-last", action="store_true",
                    help="also evaluate OUT/policy_last (the last weights, beside their moving "
                         "average in OUT/policy)")
+    p.add_argument("--eval-sun", nargs="+", type=float, default=[], metavar="DEG",
+                   help="also evaluate the policy with the sun at these azimuths "
+                        "(perception.sun_azimuth, degrees; Table 3's is 35), e.g. 80 260: the "
+                        "sun to the side of the rows, in the programs compiled for the policy")
     p.add_argument("--overlap", choices=("auto", "on", "off"), default="auto",
                    help="compile the evaluation while training (auto: on a GPU)")
     p.add_argument("--ship", action="store_true",
@@ -207,6 +216,9 @@ def main(argv: list[str] | None = None) -> int:
             if getattr(args, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')}: must be ≥ 1, got "
                                  f"{getattr(args, name)}")
+        for a in args.eval_sun:
+            if not math.isfinite(a):
+                raise ValueError(f"--eval-sun: must be finite angles in degrees, got {a}")
         for name in ("budget_minutes", "deadline_minutes", "eval_reserve_minutes"):
             if getattr(args, name) is not None and not 0 <= getattr(args, name) < 1e6:
                 raise ValueError(f"--{name.replace('_', '-')}: must be a number of minutes ≥ 0, "
@@ -295,9 +307,13 @@ def _work(args, cfg, values, out: Path, t_start: float) -> int:
             CK.resolve(out / "policy", key="--out")
             blocks = evaluation.run(log=lambda m: print(m, flush=True))
             if args.eval_last and (out / "policy_last").is_dir():  # beside the average
-                blocks += evaluation.run_checkpoint(str(out / "policy_last"),
-                                                    "learned policy, last weights",
-                                                    log=lambda m: print(m, flush=True))
+                blocks += evaluation.run_policy("learned policy, last weights",
+                                                str(out / "policy_last"),
+                                                log=lambda m: print(m, flush=True))
+            for a in args.eval_sun if "policy" in args.controllers else ():
+                blocks += evaluation.run_policy(f"learned policy, sun at {a:g}°",
+                                                values={"perception.sun_azimuth": a},
+                                                log=lambda m: print(m, flush=True))
     except ValueError as e:
         print(f"error: {str(e).splitlines()[0]}", file=sys.stderr)
         return 2

@@ -825,6 +825,9 @@ def test_the_evaluation_reserve_follows_its_blocks():
     assert tp.eval_blocks(parse("--controllers", "policy", "--eval-last")) == 10
     assert tp.eval_blocks(parse("--controllers", "oracle", "--eval-last")) == 5
     assert tp.eval_blocks(parse("--presets", "pear", "--no-eval")) == 0
+    assert tp.eval_blocks(parse("--controllers", "policy", "--eval-sun", "80", "260")) == 15
+    assert tp.eval_blocks(parse("--controllers", "oracle", "--eval-sun", "80")) == 5
+    assert tp.main(["--out", "x", "--eval-sun", "nan"]) == 2 and not Path("x").exists()
     assert tp.BLOCK_MINUTES * tp.eval_blocks(parse("--eval-last")) == pytest.approx(3.0)
 
 
@@ -852,3 +855,29 @@ def test_the_evaluation_draws_its_episodes_from_eval_seed_not_seed(tmp_path, mon
         with pytest.raises(Stop):
             tp.main(["--smoke", "--no-progress", "--out", str(tmp_path / f"o{want}"), *argv])
     assert seen == [0, 5]
+
+
+def test_the_policy_runs_again_under_other_traced_values_in_its_compiled_program(monkeypatch):
+    """Evaluation.run_policy: the policy's blocks again with another checkpoint and/or other
+    traced run keys (train_policy.py --eval-last, --eval-sun), in the programs compiled for
+    them; the other controllers' blocks are left alone."""
+    from mjxrow.train import evaluate as EV
+
+    values = EV.scenario_values()
+    ev = EV.Evaluation(["vineyard", "pear"], ["policy", "oracle"], values, "shipped", 2)
+    for b in ev.blocks:
+        b.exe = ("program", b.preset, b.controller)
+    ran = []
+    monkeypatch.setattr(ev, "_run_one", lambda b, log: ran.append(b))
+    new = ev.run_policy("learned policy, sun at 80°", values={"perception.sun_azimuth": 80.0})
+    assert [(b.preset, b.controller, b.label) for b in new] == [
+        ("vineyard", "policy", "learned policy, sun at 80°"),
+        ("pear", "policy", "learned policy, sun at 80°")]
+    assert ran == new and [b.exe for b in new] == [("program", "vineyard", "policy"),
+                                                   ("program", "pear", "policy")]
+    assert all(b.run.perception.sun_azimuth == 80.0 for b in new)
+    assert all(b.run.perception.sun_azimuth == 35.0 for b in ev.blocks)  # left as they were
+    assert all(b.run.controller.params.checkpoint == "shipped" for b in new)
+    last = ev.run_policy("last weights", checkpoint="elsewhere")
+    assert [b.run.controller.params.checkpoint for b in last] == ["elsewhere", "elsewhere"]
+    assert all(b.run.perception.sun_azimuth == 35.0 for b in last)

@@ -78,7 +78,7 @@ class Evaluation:
                  seed: int = 0, compile_checkpoint: str | None = None):
         self.blocks = [Block(p, c, run_config(p, c, values, checkpoint, seed), n)
                        for p in presets for c in controllers]
-        self.values, self.seed = values, seed
+        self.values, self.seed, self.checkpoint = values, seed, checkpoint
         self.compile_checkpoint = compile_checkpoint
 
     def _build(self, b: Block, run: RunConfig):
@@ -133,17 +133,20 @@ class Evaluation:
         log(f"{b.label or b.controller} on {b.preset}: success {a['mean']:.2f} "
             f"[{a['lo']:.2f}, {a['hi']:.2f}] ({b.n} episodes, {b.run_s:.1f} s)")
 
-    def run_checkpoint(self, checkpoint: str, label: str, log=print) -> list[Block]:
-        """The policy's blocks again with another checkpoint of the same architecture (e.g. the
-        last weights beside their moving average), in the programs `run` compiled (the weights
-        are traced): new blocks named `label` in the table."""
+    def run_policy(self, label: str, checkpoint: str | None = None,
+                   values: dict[str, Any] | None = None, log=print) -> list[Block]:
+        """The policy's blocks again, in the programs `run` compiled, with another checkpoint
+        of the same architecture (e.g. the last weights beside their moving average) and/or
+        other values of traced run keys (e.g. `{"perception.sun_azimuth": 80.0}`): new blocks
+        named `label` in the table."""
         extra = []
+        sets = {**self.values, **(values or {})}
         for b in self.blocks:
             if b.controller != "policy" or b.exe is None:
                 continue
-            e = Block(b.preset, "policy", run_config(b.preset, "policy", self.values,
-                                                     checkpoint, self.seed), b.n, exe=b.exe,
-                      label=label)
+            e = Block(b.preset, "policy", run_config(b.preset, "policy", sets,
+                                                     checkpoint or self.checkpoint, self.seed),
+                      b.n, exe=b.exe, label=label)
             self._run_one(e, log)
             extra.append(e)
         return extra
