@@ -85,6 +85,29 @@ _PIPE = (r"^(compilation and four iterations|one command from a fresh network), 
 _PIPE1 = (r"^one command from a fresh network, three programs a step, the worlds donated, a host "
           r"thread per crop, XLA started on each program as it is traced")
 
+
+def _trainer_round(what: str, short: str, rows: str, one: str, n: str,
+                   policy: str) -> list[Figure]:
+    """One round of the five-crop trainer on a one-GPU H100 machine: its compilation from an
+    empty cache, env-steps/s with the updates and the GPU's memory peak (medians of the `n`
+    commands matching `rows`), and the wall time of its one command (`one`) with its policy."""
+    head = "policy training, five crops, "
+    return [
+        Figure(f"{head}{what}: compilation from an empty cache, a one-GPU H100 machine alone "
+               f"(median of {n} commands)", "train_policy", rows, GPU, batch=15360,
+               pick="median", field="compile_s", unit="s", goal=("<=", 90)),
+        Figure(f"{head}{short}: env-steps/s with the updates (median of {n} commands)",
+               "train_policy", rows, GPU, batch=15360, pick="median",
+               field="steps_per_s_with_updates", unit="env-steps/s", fmt="{:,.0f}",
+               goal=(">=", 50000)),
+        Figure(f"{head}{short}: the GPU's memory peak (median of {n} commands)",
+               "train_policy", rows, GPU, batch=15360, pick="median", field="device_peak_gib",
+               unit="GiB", fmt="{:.1f}"),
+        Figure(f"{head}{short}: one command from a fresh network and an empty cache to a "
+               f"checkpoint, wall time (its policy: {policy})", "train_policy", one, GPU,
+               batch=15360, field="wall_s", unit="s wall", fmt="{:.0f}", goal=("<=", 600)),
+    ]
+
 HEADLINES = [
     Figure("Table 3, the paper's 15 blocks × 100 episodes, empty cache", "table3",
            r"^the paper's 15 blocks", goal=("<=", 180)),
@@ -225,39 +248,13 @@ HEADLINES = [
     Figure("policy training, five crops, one GPU and 16 cores: env-steps/s with the updates "
            "(median of three commands)", "train_policy", _BLANK, GPU, batch=15360,
            pick="median", goal=(">=", 50000)),
-    Figure("policy training, five crops, the trainer's configuration (three programs a step, "
-           "the worlds donated, a host thread per crop, XLA started on each program as it is "
-           "traced): compilation from an empty cache, a one-GPU H100 machine alone (median of "
-           "three commands)", "train_policy", _PIPE, GPU, batch=15360, pick="median",
-           field="compile_s", unit="s", goal=("<=", 90)),
-    Figure("policy training, five crops, the trainer's configuration: env-steps/s with the "
-           "updates (median of three commands)", "train_policy", _PIPE, GPU, batch=15360,
-           pick="median", field="steps_per_s_with_updates", unit="env-steps/s",
-           fmt="{:,.0f}", goal=(">=", 50000)),
-    Figure("policy training, five crops, the trainer's configuration: the GPU's memory peak "
-           "(median of three commands)", "train_policy", _PIPE, GPU, batch=15360,
-           pick="median", field="device_peak_gib", unit="GiB", fmt="{:.1f}"),
-    Figure("policy training, five crops, the trainer's configuration: one command from a "
-           "fresh network and an empty cache to a checkpoint, wall time (its policy: zucchini "
-           "0.94, vineyard 0.97, pear 0.72, lettuce 1.00, chard 0.99)", "train_policy",
-           _PIPE1, GPU, batch=15360, field="wall_s", unit="s wall", fmt="{:.0f}",
-           goal=("<=", 600)),
-    Figure("policy training, five crops, three programs a step, the worlds donated, a host "
-           "thread per crop, XLA after all tracing: compilation from an empty cache, a "
-           "one-GPU H100 machine alone (median of two commands)", "train_policy", _H100D, GPU,
-           batch=15360, pick="median", field="compile_s", unit="s", goal=("<=", 90)),
-    Figure("policy training, five crops, XLA after all tracing: env-steps/s with the "
-           "updates (median of two commands)", "train_policy", _H100D, GPU, batch=15360,
-           pick="median", field="steps_per_s_with_updates", unit="env-steps/s",
-           fmt="{:,.0f}", goal=(">=", 50000)),
-    Figure("policy training, five crops, XLA after all tracing: the GPU's memory peak "
-           "(median of two commands)", "train_policy", _H100D, GPU, batch=15360,
-           pick="median", field="device_peak_gib", unit="GiB", fmt="{:.1f}"),
-    Figure("policy training, five crops, XLA after all tracing: one command from a "
-           "fresh network and an empty cache to a checkpoint, wall time (its policy: zucchini "
-           "0.98, vineyard 0.98, pear 0.94, lettuce 1.00, chard 0.99)", "train_policy",
-           _H100D1, GPU, batch=15360, field="wall_s", unit="s wall", fmt="{:.0f}",
-           goal=("<=", 600)),
+    *_trainer_round("the trainer's configuration (three programs a step, the worlds donated, a "
+                    "host thread per crop, XLA started on each program as it is traced)",
+                    "the trainer's configuration", _PIPE, _PIPE1, "three",
+                    "zucchini 0.94, vineyard 0.97, pear 0.72, lettuce 1.00, chard 0.99"),
+    *_trainer_round("three programs a step, the worlds donated, a host thread per crop, XLA "
+                    "after all tracing", "XLA after all tracing", _H100D, _H100D1, "two",
+                    "zucchini 0.98, vineyard 0.98, pear 0.94, lettuce 1.00, chard 0.99"),
     Figure("policy training, five crops, a rollout step as three programs (advance, reset, "
            "observe), no donation, one host thread: compilation from an empty cache, a one-GPU "
            "machine alone (median of two commands)", "train_policy", _STEP3 + r".*empty cache",
