@@ -14,7 +14,7 @@ import plot_one_command as P  # noqa: E402
 def test_the_figure_of_the_repositorys_commands_and_rewriting_its_own_png(tmp_path, capsys):
     png = tmp_path / "pear.png"
     assert P.main(["--out", str(png)]) == 0
-    assert png.stat().st_size > 10_000 and P._ours(png)
+    assert png.stat().st_size > 10_000 and P.written_by(png)
     assert P.main(["--out", str(png)]) == 0  # its own PNG is replaced
     lo, hi = P.interval(0.88, 100)
     assert lo == pytest.approx(0.8018, abs=1e-3) and hi == pytest.approx(0.9306, abs=1e-3)
