@@ -310,7 +310,7 @@ def _work(args, cfg, values, out: Path, t_start: float) -> int:
                 blocks += evaluation.run_policy("learned policy, last weights",
                                                 str(out / "policy_last"),
                                                 log=lambda m: print(m, flush=True))
-            for a in args.eval_sun if "policy" in args.controllers else ():
+            for a in args.eval_sun:  # run_policy runs the policy's blocks only
                 blocks += evaluation.run_policy(f"learned policy, sun at {a:g}°",
                                                 values={"perception.sun_azimuth": a},
                                                 log=lambda m: print(m, flush=True))
