@@ -373,6 +373,29 @@ def test_pool_puts_its_share_into_every_batch_of_resets(max_resets):
         RZ.make_pool(np.zeros((1, 1)), 4, 1.5)
 
 
+def test_a_pooled_reset_takes_its_field_values_and_its_sun(tiny):
+    """A reset's `given` row (`pool_keys`: the ranged field values, then the sun's azimuth)
+    replaces those draws where it is not NaN: the field value, and the sun turned to the
+    azimuth at the elevation drawn; an all-NaN row is the plain draw."""
+    env = tiny[0]
+    assert RZ.pool_keys(env.ranges) == ("field.d_RR", "field.terrain_dh",
+                                        "perception.sun_azimuth")
+    reset = jax.jit(env.reset_world)
+    key = jax.random.key(5)
+    drawn, nan = reset(key), reset(key, jnp.full(3, jnp.nan))
+    for a, b in zip(jax.tree.leaves((drawn.data.field, drawn.data.cond)),
+                    jax.tree.leaves((nan.data.field, nan.data.cond)), strict=True):
+        np.testing.assert_array_equal(a, b)
+    given = reset(key, jnp.array([2.6, jnp.nan, 80.0]))
+    np.testing.assert_allclose(given.data.field.params.d_RR, 2.6)
+    np.testing.assert_array_equal(given.data.field.params.terrain_dh,
+                                  drawn.data.field.params.terrain_dh)
+    sun, sun0 = np.asarray(given.data.cond.sun_dir), np.asarray(drawn.data.cond.sun_dir)
+    assert np.degrees(np.arctan2(sun[1], sun[0])) == pytest.approx(80.0, abs=1e-3)
+    assert sun[2] == pytest.approx(sun0[2]) and np.linalg.norm(sun) == pytest.approx(1.0)
+    np.testing.assert_array_equal(given.data.cond.sun_rgb, drawn.data.cond.sun_rgb)
+
+
 def test_given_values_replace_the_draw_within_the_ranges():
     base = F.make_params("vineyard", terrain_width=5.0, terrain_length=14.0, row_length=10.0)
     key = jax.random.key(3)

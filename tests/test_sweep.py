@@ -4,6 +4,7 @@ summary, PNGs, report; resume after a finished run and after an interrupt; CLI e
 import math
 import os
 import signal
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -210,6 +211,16 @@ def test_cli_smoke_with_fake_evaluator(tmp_path, monkeypatch):
     results = pd.read_csv(tmp_path / "o" / "results.csv")
     assert len(results) == 4 * 2 and len(fake.groups) == 1
     assert sorted(set(results["field.d_rr"])) == [1.6, 2.4]
+
+
+def test_smoke_keeps_the_camera_a_learned_policy_was_trained_on():
+    """--smoke shrinks the images to 16 px, except where a cell runs the `policy` controller:
+    its network takes the size it was trained on (sweeps/sun.yaml's policy at 64 px)."""
+    sun = Path(__file__).resolve().parents[1] / "sweeps" / "sun.yaml"
+    for names, px in (("policy", 64), ("segzeros", 16), ("[segzeros, policy]", 64)):
+        cfg = C.shrink(C.load(sun, [f"controller.name={names}"]))
+        assert (cfg.camera.width, cfg.camera.height) == (px, px), names
+        assert cfg.seeds == 2 and dict(cfg.values)["sim.path_length"] == 1.5
 
 
 # ---------------------------------------------------------------------------------------------

@@ -9,6 +9,7 @@ worlds) trains once for the module (its compiled programs cached on disk for the
 import dataclasses
 import json
 import re
+import types
 from pathlib import Path
 
 import jax
@@ -513,10 +514,11 @@ def test_curriculum_checks_its_search_and_fills_the_pool_of_its_preset():
     cur = CU.Curriculum(cfg, ("vineyard", "zucchini"), ranges)
     assert cur.target == 1 and [cur.due(i) for i in range(7)] == [False, False, False, True,
                                                                    False, False, True]
-    names = [n for n, _, _ in ranges[1]]
+    names = [n for n, _, _ in ranges[1]] + ["sun"]  # the columns: pool_keys
     n = cur.add([{"field.row_curvature": 0.01, "field.gap_rate": 1.2},
-                 {"field.row_curvature": 0.002, "field.weed_density": 1.5}])
+                 {"field.row_curvature": 0.002, "perception.sun_azimuth": 80.0}])
     assert n == 2
+    assert cur.pools()[1].values[1, names.index("sun")] == pytest.approx(80.0)
     assert cur.add([{"field.d_rr": 2.0}, {"field.d_rr": 2.2}]) == 3  # the oldest drops out
     pools = cur.pools()
     assert int(pools[0].count) == 0 and float(pools[0].share) == 0.0
@@ -540,6 +542,16 @@ def test_curriculum_checks_its_search_and_fills_the_pool_of_its_preset():
         CU.Curriculum(cfg, ("vineyard", "zucchini"), short)
     with pytest.raises(ValueError, match="train.curriculum.share: must lie in"):
         CU.CurriculumConfig(search=search, share=2.0)
+    # the sun's azimuth seeds resets too, at any angle; pear's search is checked against pear
+    sun = CU.CurriculumConfig(search=str(Path(search).with_name("policy_sun.yaml")))
+    pear = [E.default_ranges("pear")]
+    assert CU.Curriculum(sun, ("pear",), pear).target == 0
+    for key, choices in (("perception.condition", ("sunny", "cloudy")),
+                         ("perception.threshold", ())):
+        dim = types.SimpleNamespace(key=key, choices=choices, low=0.0, high=1.0)
+        with pytest.raises(ValueError, match=f"box key {key}: only numeric field keys and "
+                                             "perception.sun_azimuth"):
+            CU.check_box([dim], pear[0], "pear")
 
 
 def test_init_starts_from_a_checkpoint_of_the_same_network(saved):

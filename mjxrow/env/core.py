@@ -263,11 +263,15 @@ class Env:
 
     def reset_world(self, rng: jax.Array, given: jax.Array | None = None) -> State:
         """A new world and episode, not yet observed (`obs` and the teacher's action are
-        zeros until `observe`). `given` float32 [len(self.ranges)]: ranged field values to
-        take instead of the draw where not NaN (`env.randomize.sample_params`)."""
+        zeros until `observe`). `given` float32 [len(pool_keys(self.ranges))]: ranged field
+        values, then the sun's azimuth, to take instead of the draw where not NaN
+        (`env.randomize.sample_params`, `sample_condition`)."""
         rz, scfg = self.cfg.randomize, self.episode.sim
         ks = jax.random.split(rng, 8)
-        params = env_randomize.sample_params(self.base, self.ranges, ks[0], given)
+        n = len(self.ranges)
+        params = env_randomize.sample_params(self.base, self.ranges, ks[0],
+                                             None if given is None else given[:n])
+        sun = None if given is None else given[n]  # the sun's azimuth [deg] (NaN: drawn)
         field = mjxrow_field.generate(params, self.shape, ks[1])
         lane = mjxrow_field.robot_lane(field)
         m = sim.world_model(self.mx, field, lane, scfg)
@@ -284,7 +288,7 @@ class Env:
             table=tuple(jax.tree.leaves(render.plant_table(field, self.shape))),
             lane=lane,
             lane_line=lane_line,
-            cond=env_randomize.sample_condition(rz, ks[4]),
+            cond=env_randomize.sample_condition(rz, ks[4], sun),
             jitter=env_randomize.sample_jitter(rz, ks[5]),
             key=ks[6],
             prev_action=jnp.zeros(2),

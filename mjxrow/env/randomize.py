@@ -145,16 +145,32 @@ def sample_params(base: field.FieldParams, ranges, key: jax.Array,
     return base.replace(**{name: x[i] for i, (name, _, _) in enumerate(ranges)})
 
 
-def sample_condition(rz: Randomize, key: jax.Array) -> shade.Conditions:
+def sample_condition(rz: Randomize, key: jax.Array,
+                     azimuth: jax.Array | None = None) -> shade.Conditions:
     """Sky / lighting of one episode: one of `rz.conditions`, jittered with
-    `rz.condition_jitter`."""
+    `rz.condition_jitter`; `azimuth` float32 [] (degrees; NaN: as drawn): the sun turned
+    there (a searched sun of the adversarial curriculum)."""
     ki, kj = jax.random.split(key)
     jk = kj if rz.condition_jitter else None
     if len(rz.conditions) == 1:
-        return shade.conditions(rz.conditions[0], jk)
-    all_c = [shade.conditions(n, jk) for n in rz.conditions]
-    i = jax.random.randint(ki, (), 0, len(rz.conditions))
-    return jax.tree.map(lambda *xs: jnp.stack(xs)[i], *all_c)
+        c = shade.conditions(rz.conditions[0], jk)
+    else:
+        all_c = [shade.conditions(n, jk) for n in rz.conditions]
+        i = jax.random.randint(ki, (), 0, len(rz.conditions))
+        c = jax.tree.map(lambda *xs: jnp.stack(xs)[i], *all_c)
+    return c if azimuth is None else shade.turn_sun(c, azimuth)
+
+
+# a pool's columns after the ranged field values: run keys that a searched failure may set for
+# a reset besides its field (the sun's azimuth in degrees: where the learned policies break on
+# pear, docs/training.md)
+POOL_EXTRA = ("perception.sun_azimuth",)
+
+
+def pool_keys(ranges) -> tuple[str, ...]:
+    """The dotted run keys of the columns of a pool (and of a reset's `given` values) for an
+    environment of `ranges`: its ranged field values in order, then POOL_EXTRA."""
+    return tuple(f"field.{n}" for n, _, _ in ranges) + POOL_EXTRA
 
 
 def sample_jitter(rz: Randomize, key: jax.Array) -> jax.Array:
@@ -167,8 +183,8 @@ def sample_jitter(rz: Randomize, key: jax.Array) -> jax.Array:
 @struct.dataclass
 class Pool:
     """Fields that resets take besides the uniform draws (the adversarial curriculum's
-    searched failures): `values` float32 [P, k] in the order of the environment's ranges (NaN:
-    that value is drawn), its first `count` rows valid; a `share` of every batch of resets
+    searched failures): `values` float32 [P, k] in the order of `pool_keys` (NaN: that value
+    is drawn), its first `count` rows valid; a `share` of every batch of resets
     takes a random valid row. Traced: a new pool runs in the same compiled program."""
 
     values: jax.Array  # float32 [P, k]

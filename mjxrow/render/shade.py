@@ -89,6 +89,15 @@ def conditions(name: str, key: jax.Array | None = None,
         exposure=_vec(exposure), noise=_vec(noise))
 
 
+def turn_sun(c: Conditions, azimuth_deg: jax.Array) -> Conditions:
+    """`c` with its sun turned to `azimuth_deg` (degrees from +x toward +y) at the same
+    elevation; a NaN azimuth leaves `c` as it is. Traced (one world's conditions)."""
+    az = jnp.deg2rad(jnp.asarray(azimuth_deg, jnp.float32))
+    h = jnp.hypot(c.sun_dir[0], c.sun_dir[1])
+    turned = jnp.stack([h * jnp.cos(az), h * jnp.sin(az), c.sun_dir[2]])
+    return c.replace(sun_dir=jnp.where(jnp.isnan(az), c.sun_dir, turned).astype(jnp.float32))
+
+
 def condition_by_index(index: jax.Array, key: jax.Array | None = None) -> Conditions:
     """`conditions(CONDITIONS[index], key)` for a traced int index (vmappable)."""
     all_c = [conditions(n, key) for n in CONDITIONS]

@@ -299,8 +299,11 @@ def is_static(dotted: str) -> bool:
 
 def shrink(cfg: SweepConfig) -> SweepConfig:
     """--smoke: the first and last value of the first two axes, the first of any other axis,
-    and the SMOKE settings for every key that is not an axis."""
+    and the SMOKE settings for every key that is not an axis (the camera's size stays where a
+    cell runs a learned policy: its network takes the images it was trained on)."""
     vals = dict(cfg.values)
+    names = vals.get("controller.name", "segzeros")
+    policy = "policy" in (names if isinstance(names, tuple) else (names,))
     axes = []
     for i, key in enumerate(cfg.axis_order):
         v = vals[key]
@@ -313,6 +316,8 @@ def shrink(cfg: SweepConfig) -> SweepConfig:
     for key, v in SMOKE.items():
         if key in ("seeds", "batch_size"):
             top[key] = v
+        elif policy and key.startswith("camera."):
+            continue
         elif key not in cfg.axis_order and (free_x or not key.startswith("field.")):
             cur = vals.get(key)
             vals[key] = v if cur is None or not key.startswith("field.") else min(cur, v)

@@ -18,7 +18,8 @@ failure rate the search finds against the policy over the training run, plotted 
 learning curve.
 
 The pool holds the searched values of the box's keys for the environment of the search's
-preset; every other field value of a pooled reset is drawn as usual. The box must lie inside
+preset (its field keys, and `perception.sun_azimuth`: the sun turned there in whichever sky
+the reset draws); every other value of a pooled reset is drawn as usual. The box must lie inside
 that environment's randomisation ranges (checked when the curriculum is built), so a searched
 field is a field the environment can hold.
 """
@@ -79,12 +80,12 @@ def search_config(cfg: CurriculumConfig, checkpoint: str | Path | None, seed: in
 
 def pool_rows(failing: list[dict[str, Any]], ranges) -> np.ndarray:
     """Pool rows [n, k] (NaN: drawn) of failing candidates ({dotted key: value}), in the order
-    of an environment's `ranges` ((name, lo, hi), ...)."""
-    names = [n for n, _, _ in ranges]
-    rows = np.full((len(failing), len(names)), np.nan, np.float32)
+    of `env.randomize.pool_keys` of an environment's `ranges` ((name, lo, hi), ...)."""
+    keys = env_randomize.pool_keys(ranges)
+    rows = np.full((len(failing), len(keys)), np.nan, np.float32)
     for i, cand in enumerate(failing):
-        for j, n in enumerate(names):
-            v = cand.get(f"field.{n}")
+        for j, key in enumerate(keys):
+            v = cand.get(key)
             if v is not None:
                 rows[i, j] = float(v)
     return rows
@@ -92,13 +93,17 @@ def pool_rows(failing: list[dict[str, Any]], ranges) -> np.ndarray:
 
 def check_box(box, ranges, preset: str) -> None:
     """ValueError naming the first box key that the environment of `preset` does not randomise,
-    or whose searched range reaches outside the environment's."""
+    or whose searched range reaches outside the environment's (the sun's azimuth, an angle, is
+    taken anywhere)."""
     have = {n: (lo, hi) for n, lo, hi in ranges}
     for d in box:
         section, _, name = d.key.partition(".")
+        if d.key in env_randomize.POOL_EXTRA and not d.choices:
+            continue
         if section != "field" or d.choices:
             raise ValueError(f"train.curriculum.search: box key {d.key}: only numeric field "
-                             "keys can seed training resets")
+                             f"keys and {', '.join(env_randomize.POOL_EXTRA)} can seed "
+                             "training resets")
         if name not in have:
             raise ValueError(f"train.curriculum.search: box key {d.key} is not randomised by "
                              f"the {preset} environment (env.randomize.ranges)")
@@ -118,7 +123,8 @@ class Curriculum:
                  checkpoint: str | Path | None = None):
         self.cfg = cfg
         self.ranges = tuple(ranges)
-        self.rows = [np.zeros((0, len(r)), np.float32) for r in self.ranges]
+        self.rows = [np.zeros((0, len(env_randomize.pool_keys(r))), np.float32)
+                     for r in self.ranges]
         self.target = None
         if cfg.on:  # the search's config checked against a checkpoint of this run's network
             scfg = search_config(cfg, checkpoint)
