@@ -23,7 +23,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="output directory (default: the YAML's `out`)")
     p.add_argument("--smoke", action="store_true",
                    help="generations of 8 candidates × 1 episode, 16 episodes, short episodes, "
-                   "tiny images: a quick check")
+                   "tiny images (a learned policy keeps its own): a quick check")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a dotted key, e.g. --set budget.episodes=2000 or "
                    "--set box.field.d_rr=[1.2,2.4] (repeatable)")

@@ -22,7 +22,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("config", help="sweep YAML file")
     p.add_argument("--out", help="output directory (default: the YAML's `out`)")
     p.add_argument("--smoke", action="store_true",
-                   help="2 × 2 cells, 2 seeds, short episodes, tiny images: a quick check")
+                   help="2 × 2 cells, 2 seeds, short episodes, tiny images (a learned policy keeps "
+                   "its own): a quick check")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a dotted key, e.g. --set field.d_rr=[1.2,1.8] (repeatable)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
