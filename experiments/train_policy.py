@@ -56,7 +56,9 @@ mjxrow/checkpoints/policy/.
 `train.average=0`: policy/ holds the last weights).
 
 `--smoke`: a CPU check in a few minutes: a tiny vineyard field, 16 × 16 images, 4 worlds, a
-tiny network, 20 s of training, 2 episodes per controller (SegZeros on the ground-truth mask).
+tiny network, 20 s of training, 2 episodes per controller (SegZeros on the ground-truth mask);
+with `--curriculum`, the search's preset in its default field and ranges, its searches as
+with the search's `--smoke`.
 
 Exit codes: 0 done, 2 invalid configuration or checkpoint (the key is named), 130 interrupted.
 """
@@ -185,15 +187,20 @@ def configure(args) -> tuple:
                       iterations=args.iterations, init=args.init,
                       curriculum=CurriculumConfig(search=args.curriculum))
     if args.smoke:
-        run.update(SMOKE_RUN)
-        values.update(SMOKE_RUN)
-        rz = E.Randomize(ranges=(("terrain_dh", 0.0, 0.1), ("d_RR", 2.5, 2.9)),
-                         start_progress=0.2)
-        cfg = dataclasses.replace(cfg, presets=("vineyard",), num_envs=4, unroll=4,
+        # with a curriculum, the search's preset in its own field and ranges (which hold the
+        # search's box), else a tiny vineyard field
+        small = {k: v for k, v in SMOKE_RUN.items()
+                 if not (args.curriculum and k.startswith("field."))}
+        run.update(small)
+        values.update(small)
+        rz = E.Randomize(ranges=None if args.curriculum else (
+            ("terrain_dh", 0.0, 0.1), ("d_RR", 2.5, 2.9)), start_progress=0.2)
+        cfg = dataclasses.replace(cfg, presets=tuple(args.presets), num_envs=4, unroll=4,
                                   budget_minutes=min(args.budget_minutes, 1 / 3), net=TINY,
                                   env=dataclasses.replace(cfg.env, randomize=rz),
                                   bc=BCConfig(minibatches=2),
-                                  ppo=PPOConfig(minibatches=2, epochs=2), save_every=10)
+                                  ppo=PPOConfig(minibatches=2, epochs=2), save_every=10,
+                                  curriculum=dataclasses.replace(cfg.curriculum, smoke=True))
     cfg, run_sets = TC.apply_sets(cfg, args.set)
     run.update(run_sets)
     values.update(run_sets)
@@ -236,7 +243,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.smoke:
         args.ship = False  # a tiny smoke policy never replaces the shipped one
         args.episodes = min(args.episodes, 2)
-        args.presets = ["vineyard"]
+        args.presets = ["vineyard"]  # or, with a curriculum, the preset its search drives
+        if args.curriculum:
+            from mjxrow.search import config as search_config
+            try:
+                args.presets = [search_config.load(args.curriculum).scenario.preset]
+            except (search_config.ConfigError, OSError) as e:
+                print(f"error: --curriculum: {args.curriculum}: {e}", file=sys.stderr)
+                return 2
         args.controllers = list(dict.fromkeys(
             "segzeros_gt" if c == "segzeros" else c for c in args.controllers))
     try:

@@ -46,6 +46,7 @@ class CurriculumConfig:
     episodes: int = 512  # the search's budget per round, in episodes (equal every round)
     pool: int = 64  # rows in the pool: the failures of the latest rounds, newest first
     sets: tuple[str, ...] = ()  # `--set` overrides of the search config (KEY=VALUE)
+    smoke: bool = False  # the search's --smoke settings (a CPU check of the training command)
 
     def __post_init__(self):
         if self.every < 1:
@@ -62,18 +63,22 @@ class CurriculumConfig:
         return bool(str(self.search).strip())
 
 
-def search_config(cfg: CurriculumConfig, checkpoint: str | Path | None, seed: int = 0):
+def search_config(cfg: CurriculumConfig, checkpoint: str | Path | None, seed: int = 0,
+                  image: tuple[int, int] | None = None):
     """The SearchConfig of one round: the YAML's search against the `policy` controller on
     `checkpoint` (None: the shipped one, for checks before training), `cfg.episodes`
-    episodes, no baseline, seed `seed`."""
+    episodes, no baseline, seed `seed`; `image` (height, width): the camera's size in pixels,
+    the images the policy is trained on (None: the YAML's)."""
     from mjxrow.search import config as search_config
 
     sets = [*cfg.sets, "controller.name=policy",
             f"controller.checkpoint={checkpoint or 'shipped'}",
             f"budget.episodes={cfg.episodes}", "budget.minutes=null",
             "budget.failures=null", "baseline=none", f"seed={seed}"]
+    if image is not None:
+        sets += [f"camera.height={int(image[0])}", f"camera.width={int(image[1])}"]
     try:
-        return search_config.load(cfg.search, sets)
+        return search_config.load(cfg.search, sets, smoke=cfg.smoke)
     except (search_config.ConfigError, OSError) as e:
         raise ValueError(f"train.curriculum.search: {cfg.search}: {e}") from None
 
@@ -117,17 +122,19 @@ def check_box(box, ranges, preset: str) -> None:
 class Curriculum:
     """The pools of a training run's environments and the rounds that fill them (module doc).
     `presets` and `ranges` are the training environments', in order; `checkpoint` a policy of
-    the run's observation and network (None: the shipped one) to check the search against."""
+    the run's observation and network (None: the shipped one) to check the search against;
+    `image` (height, width) the run's camera size, which the searches take."""
 
     def __init__(self, cfg: CurriculumConfig, presets, ranges,
-                 checkpoint: str | Path | None = None):
+                 checkpoint: str | Path | None = None, image: tuple[int, int] | None = None):
         self.cfg = cfg
+        self.image = image
         self.ranges = tuple(ranges)
         self.rows = [np.zeros((0, len(env_randomize.pool_keys(r))), np.float32)
                      for r in self.ranges]
         self.target = None
         if cfg.on:  # the search's config checked against a checkpoint of this run's network
-            scfg = search_config(cfg, checkpoint)
+            scfg = search_config(cfg, checkpoint, image=image)
             preset = scfg.scenario.preset
             if preset not in presets:
                 raise ValueError(f"train.curriculum.search: the search's preset {preset!r} is "
@@ -163,7 +170,7 @@ class Curriculum:
         from mjxrow.search import run as search_run
 
         k = iteration // self.cfg.every
-        scfg = search_config(self.cfg, checkpoint, seed=k)
+        scfg = search_config(self.cfg, checkpoint, seed=k, image=self.image)
         res = search_run.run(scfg, Path(folder) / f"round_{k:03d}", progress=False,
                              figures=False)
         cands = res["candidates"]

@@ -133,7 +133,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
         live = Path(policies_checkpoint.save(out / "adversary" / "policy", params, tr.spec,
                                              cfg.net, tr.limits)).resolve()
     cur = train_curriculum.Curriculum(cfg.curriculum, cfg.presets, [e.ranges for e in tr.raw],
-                                      live)
+                                      live, (tr.spec.height, tr.spec.width))
     pools = cur.pools()
     k_reset, key_after = jax.random.split(key)
     # compile everything once, before the clock of the budget runs (from the first tracing)

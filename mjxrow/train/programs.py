@@ -315,8 +315,9 @@ def _trace_one(cfg: TrainConfig, i: int, cache: str) -> None:
     dev = jax.sharding.SingleDeviceSharding(jax.devices()[0])
     params = jax.tree.map(lambda s: jax.ShapeDtypeStruct(s.shape, s.dtype, sharding=dev),
                           jax.eval_shape(tr.fresh_params, key))
-    pools = train_curriculum.Curriculum(one.curriculum, one.presets,
-                                        [e.ranges for e in tr.raw]).pools()  # as `train`'s
+    # pools of `train`'s shapes (an empty one: this crop need not be the search's)
+    off = dataclasses.replace(one.curriculum, search="")
+    pools = train_curriculum.Curriculum(off, one.presets, [e.ranges for e in tr.raw]).pools()
     worlds = jax.eval_shape(tr.blanks[0], key)
     args = rollout_args(params, worlds, key, i, pools[0])
     for part in train_tracing.ORDER:
