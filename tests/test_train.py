@@ -893,3 +893,11 @@ def test_the_policy_runs_again_under_other_traced_values_in_its_compiled_program
     last = ev.run_policy("last weights", checkpoint="elsewhere")
     assert [b.run.controller.params.checkpoint for b in last] == ["elsewhere", "elsewhere"]
     assert all(b.run.perception.sun_azimuth == 35.0 for b in last)
+    # as the command adds them up (--eval-sun 80 260): each azimuth once, on the policy's blocks
+    ran.clear()
+    blocks = ev.run()
+    for a in (80.0, 260.0):
+        blocks += ev.run_policy(f"sun at {a:g}°", values={"perception.sun_azimuth": a})
+    assert [(b.label, b.run.perception.sun_azimuth) for b in blocks[4:]] == [
+        ("sun at 80°", 80.0), ("sun at 80°", 80.0), ("sun at 260°", 260.0),
+        ("sun at 260°", 260.0)] and len(blocks) == 8 and len(ev.blocks) == 4

@@ -120,7 +120,7 @@ class Evaluation:
                 b.exe = built.executable(batch.args(built.mx))
                 b.compile_s = time.perf_counter() - t0
             self._run_one(b, log)
-        return self.blocks
+        return list(self.blocks)  # a new list: a caller's additions stay out of self.blocks
 
     def _run_one(self, b: Block, log) -> None:
         """Run block `b`'s episodes in its compiled program; log its success under its label
@@ -142,7 +142,7 @@ class Evaluation:
         extra = []
         sets = {**self.values, **(values or {})}
         for b in self.blocks:
-            if b.controller != "policy" or b.exe is None:
+            if b.controller != "policy" or b.exe is None or b.label is not None:
                 continue
             e = Block(b.preset, "policy", run_config(b.preset, "policy", sets,
                                                      checkpoint or self.checkpoint, self.seed),
