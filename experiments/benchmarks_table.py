@@ -64,6 +64,7 @@ _SCALING = r"^sweeps\.yaml, 114 seeds = 4,104 episodes in 3 calls of 1,368 .*, "
 _MJWARP = r"^zucchini 64x64, fovy 42, shadows, one field, lane poses, "
 _PPO_CUR = r"^PPO from BC/DAgger with the adversarial curriculum"
 _EQUAL = r"^equal budget, 2,048 episodes: "
+_SUN = r"^equal budget, 320 episodes: "
 _FIVE = r"^five crops "
 _PPO_TEACHER = r"^PPO with the teacher term from the shipped policy, five crops "
 _KEPT = r"^one command from a fresh network, programs kept, five crops "
@@ -342,6 +343,11 @@ HEADLINES = [
            _EQUAL + r"the five-crop policy of one command .*distinct", GPU, unit="×",
            fmt="{:.2f}", goal=("<=", 0.5),
            over=Figure("", "search", _EQUAL + r"SegZeros .*distinct", GPU)),
+    Figure("failure search at an equal budget (320 episodes) on pear over the sun's azimuth, "
+           "d_RR and |ΔH| (searches/policy_sun.yaml): distinct failing fields against the "
+           "shipped policy ÷ against SegZeros", "search",
+           _SUN + r"the shipped policy .*distinct", "cpu", unit="×", fmt="{:.0f}",
+           goal=("<=", 0.5), over=Figure("", "search", _SUN + r"SegZeros .*distinct", "cpu")),
     Figure("field generation", "fields", "", GPU, batch=1024),
 ]
 
