@@ -105,7 +105,7 @@ def test_sweep_parser_is_run_mains(capsys):
 
 def test_light_choices_match_the_library():
     """Choices a light parser lists without importing the heavy module that defines them."""
-    from mjxrow.seg import checkpoint, model, training
+    from mjxrow.seg import checkpoint, model, step
     from mjxrow.seg import train as seg_train_cli
     from mjxrow.worlds import cli as worlds_cli
     from mjxrow.worlds import export, sdf
@@ -115,7 +115,7 @@ def test_light_choices_match_the_library():
     assert worlds_cli.GAZEBO == export.GAZEBO
     assert worlds_cli.SDF_COLLISIONS == sdf.SDF_COLLISIONS
     assert seg_train_cli.ARCHS == model.ARCHS
-    assert seg_train_cli.LOSSES == tuple(training.LOSSES)
+    assert seg_train_cli.LOSSES == tuple(step.LOSSES)
     assert seg_train_cli.WEIGHT_DTYPES == checkpoint.WEIGHT_DTYPES
     assert paper_cli.CONTROLLERS == tuple(table3.CONTROLLERS)
 

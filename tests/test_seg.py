@@ -21,6 +21,7 @@ from mjxrow.seg import convs as SC
 from mjxrow.seg import data as D
 from mjxrow.seg import evaluation as E
 from mjxrow.seg import model as M
+from mjxrow.seg import step as ST
 from mjxrow.seg import training as T
 
 H, W = 32, 48
@@ -158,13 +159,13 @@ def test_iou_and_bce_losses_hand_computed():
     logits = jnp.stack([jnp.zeros((2, 2)), jnp.full((2, 2), math.log(3.0))])
     mask = jnp.array([[[True, False], [False, False]], [[True, True], [True, True]]])
     per_image = (1 - 0.5 / 2.5 + 1 - 3 / 4) / 2  # 0.525 (pooled would be 1 − 3.5/6.5)
-    assert float(T.iou_loss(logits, mask, smooth=0.0)) == pytest.approx(per_image, abs=1e-6)
+    assert float(ST.iou_loss(logits, mask, smooth=0.0)) == pytest.approx(per_image, abs=1e-6)
     smooth = (1 - 1.5 / 3.5 + 1 - 4 / 5) / 2
-    assert float(T.iou_loss(logits, mask)) == pytest.approx(smooth, abs=1e-6)
-    assert float(T.iou_loss(logits, mask, jnp.array([1.0, 0.0]), smooth=0.0)) == \
+    assert float(ST.iou_loss(logits, mask)) == pytest.approx(smooth, abs=1e-6)
+    assert float(ST.iou_loss(logits, mask, jnp.array([1.0, 0.0]), smooth=0.0)) == \
         pytest.approx(0.8, abs=1e-6)
     bce = (math.log(2.0) + math.log(4 / 3)) / 2
-    assert float(T.bce_loss(logits, mask)) == pytest.approx(bce, abs=1e-6)
+    assert float(ST.bce_loss(logits, mask)) == pytest.approx(bce, abs=1e-6)
     # hard metrics at 0.7: image 0 predicts nothing (0.5), image 1 everything (0.75)
     c = E.counts(logits, mask)
     assert {k: float(v) for k, v in c.items()} == {"inter": 4, "union": 5, "correct": 7,

@@ -16,7 +16,7 @@ from mjxrow import crops
 from mjxrow.bench.timing import time_call
 from mjxrow.seg import convs as seg_convs
 from mjxrow.seg import model as seg_model
-from mjxrow.seg import training as seg_train
+from mjxrow.seg import step as seg_step
 from mjxrow.seg.data import onthefly
 
 
@@ -27,7 +27,7 @@ def add_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--batch", type=int, nargs="+", default=[64])
     p.add_argument("--steps", type=int, default=20, help="steps chained in one timed call")
     p.add_argument("--repeats", type=int, default=5)
-    p.add_argument("--loss", default="iou", choices=tuple(seg_train.LOSSES))
+    p.add_argument("--loss", default="iou", choices=tuple(seg_step.LOSSES))
     p.add_argument("--dtype", default="float32", choices=("float32", "bfloat16"))
     p.add_argument("--dw-impl", default="auto", choices=("auto",) + seg_convs.DW_IMPLS,
                    help=f"depthwise conv implementation ({seg_convs.auto_rule('depthwise')})")
@@ -43,16 +43,16 @@ def run(args: argparse.Namespace) -> list[dict]:
     for size in args.size:
         module, variables = seg_model.create(args.arch, args.width, 0, size, dtype=args.dtype,
                                              dw_impl=args.dw_impl, pw_impl=args.pw_impl)
-        tx = seg_train.make_optimizer(seg_train.make_schedule(1e-3, 10_000, 100))
+        tx = seg_step.make_optimizer(seg_step.make_schedule(1e-3, 10_000, 100))
         for b in args.batch:
-            state = seg_train.init_state(variables, tx)
+            state = seg_step.init_state(variables, tx)
             if args.on_the_fly:
-                step = jax.jit(seg_train.make_step(module, tx, args.loss,
+                step = jax.jit(seg_step.make_step(module, tx, args.loss,
                                                    batch_fn=onthefly(args.crop, size, b)))
                 batch = ()
                 src = f"rendered {args.crop}"
             else:
-                step = jax.jit(seg_train.make_step(module, tx, args.loss))
+                step = jax.jit(seg_step.make_step(module, tx, args.loss))
                 batch = (jax.device_put(rng.integers(0, 256, (b, size, size, 3), np.uint8)),
                          jax.device_put(rng.random((b, size, size)) < 0.3))
                 src = "fixed batch"

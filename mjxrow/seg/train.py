@@ -24,7 +24,7 @@ from mjxrow.seg.synth import VARIETIES
 # the command's light half (mjxrow.commands): the parser and the hand-over to the heavy module
 RUN = "mjxrow.seg.training"  # the heavy module: its cli(argv) trains
 ARCHS = ("large", "small", "tiny")  # = seg.model.ARCHS
-LOSSES = ("iou", "bce")  # = seg.training.LOSSES
+LOSSES = ("iou", "bce")  # = seg.step.LOSSES
 WEIGHT_DTYPES = ("float32", "float16", "bfloat16")  # = seg.checkpoint.WEIGHT_DTYPES
 
 
