@@ -69,8 +69,9 @@ def plot(rows: list[dict], out: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 4.2))
     labels = list(dict.fromkeys(r["label"] for r in rows))
+    lines = -(-len(labels) // 2)  # the legend's rows, two labels a row
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 3.9 + 0.22 * lines))
     for i, label in enumerate(labels):
         mine = sorted((r for r in rows if r["label"] == label), key=lambda r: float(r["azimuth"]))
         x = [float(r["azimuth"]) for r in mine]
@@ -91,9 +92,9 @@ def plot(rows: list[dict], out: Path) -> Path:
     bx.axhline(0.0, color="k", lw=0.6, ls=":")
     fig.suptitle("pear at its default geometry, sunny, the sun turned about the rows "
                  "(sweeps/sun.yaml)", fontsize=10)
-    fig.tight_layout(rect=(0, 0.08, 1, 1))  # room below for the legend
+    fig.tight_layout(rect=(0, 0.05 * lines, 1, 1))  # room below for the legend
     handles, names = ax.get_legend_handles_labels()
-    fig.legend(handles, names, fontsize=8, loc="lower center", ncol=min(3, len(names)))
+    fig.legend(handles, names, fontsize=8, loc="lower center", ncol=min(2, len(names)))
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110, metadata={"Software": TAG})
     plt.close(fig)
