@@ -51,7 +51,8 @@ mjxrow/checkpoints/policy/.
 
 `--set` takes run keys for the environments and the evaluation (`camera.width=96`,
 `sim.path_length=20`) and training keys (`train.unroll=16`, `env.observation=mask`,
-`env.randomize.start_progress=0.5`, `env.reward.w_lateral=2`, `net.hidden=128`,
+`env.randomize.start_progress=0.5`, `env.randomize.shadow_strength=[0,1]`: cast shadows of
+random strength, `env.reward.w_lateral=2`, `net.hidden=128`,
 `ppo.learning_rate=1e-4`, `bc.dagger=false`, `bc.replay=8`: BC also on earlier rollouts,
 `train.average=0`: policy/ holds the last weights).
 

@@ -396,6 +396,23 @@ def test_a_pooled_reset_takes_its_field_values_and_its_sun(tiny):
     np.testing.assert_array_equal(given.data.cond.sun_rgb, drawn.data.cond.sun_rgb)
 
 
+def test_the_shadow_strength_is_drawn_in_its_range():
+    """`shadow_strength` (lo, hi): each reset's cast shadows at a strength uniform in it; the
+    default (1, 1) keeps full shadows and every other draw as it was; out of [0, 1] refused."""
+    key = jax.random.key(4)
+    full = RZ.sample_condition(RZ.Randomize(), key)
+    keys = jax.random.split(key, 64)
+    drawn = jax.vmap(lambda k: RZ.sample_condition(RZ.Randomize(shadow_strength=(0.2, 0.6)),
+                                                   k))(keys)
+    s = np.asarray(drawn.shadow)
+    assert float(full.shadow) == 1.0 and s.min() >= 0.2 and s.max() <= 0.6 and s.std() > 0.05
+    np.testing.assert_array_equal(drawn.sun_dir[0], np.asarray(
+        RZ.sample_condition(RZ.Randomize(), keys[0]).sun_dir))  # the other draws unchanged
+    for bad in ((0.5, 0.2), (-0.1, 1.0), (0.0, 1.5)):
+        with pytest.raises(ValueError, match=r"^env.randomize.shadow_strength: need \[lo, hi\]"):
+            RZ.Randomize(shadow_strength=bad)
+
+
 def test_given_values_replace_the_draw_within_the_ranges():
     base = F.make_params("vineyard", terrain_width=5.0, terrain_length=14.0, row_length=10.0)
     key = jax.random.key(3)

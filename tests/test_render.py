@@ -354,6 +354,32 @@ def test_plants_cast_shadows_away_from_the_sun(scene):
     assert 0.95 < ratio < 1.05
 
 
+def test_the_shadow_strength_fades_the_cast_shadows(scene):
+    """`Conditions.shadow` (training's `env.randomize.shadow_strength`) scales the cast
+    shadows: 0 draws the image without them (`render.shadows` off), 1 the usual one; soil in a
+    plant's shadow brightens as the strength falls, sunlit soil stays as it is."""
+    fld, shape, render = scene
+    lane = int(F.robot_lane(fld))
+    pos = np.array([0.0, float(fld.lane_y[lane]), 1.6], np.float32)
+    rot = np.asarray(RD.camera_rot(0.0, np.deg2rad(-65.0)))
+    sun = _sun(90.0)
+    cond = RD.conditions("sunny").replace(sun_dir=jnp.asarray(sun))
+    grey = {s: np.asarray(render(fld, pos, rot, cond.replace(shadow=np.float32(s))).rgb,
+                          np.float32).mean(-1) for s in (0.0, 0.5, 1.0)}
+    off = jax.jit(lambda f, p, r, c: RD.render(f, shape, p, r, INTR, c,
+                                               cfg=RD.RenderConfig(shadows=False)))
+    np.testing.assert_allclose(grey[0.0], np.asarray(off(fld, pos, rot, cond).rgb,
+                                                     np.float32).mean(-1), atol=1.0)
+    np.testing.assert_array_equal(grey[1.0], np.asarray(render(fld, pos, rot, cond).rgb,
+                                                        np.float32).mean(-1))
+    soil = np.asarray(render(fld, pos, rot, cond).classes) == RD.SOIL
+    lit = np.asarray(brute_force(fld, shape, pos, rot, sun)[2]).reshape(H, W)
+    shaded, sunlit = soil & ~lit, soil & lit
+    assert shaded.sum() > 30 and sunlit.sum() > 30
+    assert grey[1.0][shaded].mean() < grey[0.5][shaded].mean() < grey[0.0][shaded].mean()
+    assert abs(grey[1.0][sunlit].mean() - grey[0.0][sunlit].mean()) < 1.0
+
+
 def test_same_inputs_same_images(scene):
     fld, shape, render = scene
     pos, rot = lane_poses(fld)

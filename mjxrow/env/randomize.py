@@ -69,6 +69,8 @@ class Randomize:
     start_yaw_std_deg: float = 6.0  # degrees, std of the start heading
     start_progress: float = 0.6  # the start is drawn in [0, start_progress] · path_length
     # ahead of the sweep's start (so the row's end is seen often)
+    shadow_strength: tuple[float, float] = (1.0, 1.0)  # strength of the cast shadows, uniform
+    # in (lo, hi) (1: full, 0: none; e.g. (0, 1) so that a policy cannot steer by them)
 
     CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"conditions": shade.CONDITIONS}
 
@@ -90,6 +92,10 @@ class Randomize:
             if not getattr(self, name) >= 0:
                 raise ValueError(f"env.randomize.{name}: must be non-negative, got "
                                  f"{getattr(self, name)}")
+        lo, hi = (tuple(self.shadow_strength) + (None, None))[:2]
+        if len(self.shadow_strength) != 2 or not 0.0 <= lo <= hi <= 1.0:
+            raise ValueError(f"env.randomize.shadow_strength: need [lo, hi] with 0 <= lo <= hi "
+                             f"<= 1, got {list(self.shadow_strength)}")
         if not 0.0 <= self.start_progress < 1.0:
             raise ValueError(f"env.randomize.start_progress: must lie in [0, 1), got "
                              f"{self.start_progress}")
@@ -148,8 +154,9 @@ def sample_params(base: field.FieldParams, ranges, key: jax.Array,
 def sample_condition(rz: Randomize, key: jax.Array,
                      azimuth: jax.Array | None = None) -> shade.Conditions:
     """Sky / lighting of one episode: one of `rz.conditions`, jittered with
-    `rz.condition_jitter`; `azimuth` float32 [] (degrees; NaN: as drawn): the sun turned
-    there (a searched sun of the adversarial curriculum)."""
+    `rz.condition_jitter`, its cast shadows' strength drawn in `rz.shadow_strength`; `azimuth`
+    float32 [] (degrees; NaN: as drawn): the sun turned there (a searched sun of the
+    adversarial curriculum)."""
     ki, kj = jax.random.split(key)
     jk = kj if rz.condition_jitter else None
     if len(rz.conditions) == 1:
@@ -158,6 +165,10 @@ def sample_condition(rz: Randomize, key: jax.Array,
         all_c = [shade.conditions(n, jk) for n in rz.conditions]
         i = jax.random.randint(ki, (), 0, len(rz.conditions))
         c = jax.tree.map(lambda *xs: jnp.stack(xs)[i], *all_c)
+    lo, hi = rz.shadow_strength
+    if (lo, hi) != (1.0, 1.0):  # (a key of its own: the other draws stay as they were)
+        u = jax.random.uniform(jax.random.fold_in(key, 0x5AD0))
+        c = c.replace(shadow=jnp.float32(lo) + (hi - lo) * u)
     return c if azimuth is None else shade.turn_sun(c, azimuth)
 
 

@@ -388,8 +388,11 @@ def render(
     if cfg.settle == "barrier":
         p, normal, local = jax.lax.optimization_barrier((p, normal, local))
     with jax.named_scope("rd_shadow"):
-        vis = (_shadow(field, shape, tab, obst, wtab, p, normal, cls, cond, cfg,
-                       tiles[0] * tiles[1]) if cfg.shadows else jnp.ones_like(t))
+        if cfg.shadows:  # the sun's visibility, the shadow weakened by cond.shadow
+            vis = 1.0 - cond.shadow * (1.0 - _shadow(field, shape, tab, obst, wtab, p, normal,
+                                                     cls, cond, cfg, tiles[0] * tiles[1]))
+        else:
+            vis = jnp.ones_like(t)
 
     albedo, normal, sky = shade.surfaces(shape.crop, cls, surf.material, p, local,
                                          surf.base[:, 2], surf.item, surf.k, is_branch, normal,

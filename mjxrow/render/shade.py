@@ -31,6 +31,8 @@ class Conditions:
     leaf_tint: jax.Array  # float32 [3], factor on the plant albedo
     exposure: jax.Array  # float32 [], factor on the radiance before the gamma
     noise: jax.Array  # float32 [], sensor noise std in 8-bit units / 255 (used with a key)
+    shadow: jax.Array  # float32 [], strength of the cast shadows: 1 full, 0 none (training's
+    # randomisation: `env.randomize.shadow_strength`)
 
 
 # name: (sun elevation range [deg], sun rgb, ambient, zenith, horizon, cloud, haze [m], noise)
@@ -67,7 +69,7 @@ def conditions(name: str, key: jax.Array | None = None,
             sun_dir=h([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)]),
             sun_rgb=h(sun), ambient=h(amb), sky_zenith=h(zen), sky_horizon=h(hor),
             cloud=h(cloud), haze=h(haze), soil_tint=h(np.ones(3)), leaf_tint=h(np.ones(3)),
-            exposure=h(1.0), noise=h(noise))
+            exposure=h(1.0), noise=h(noise), shadow=h(1.0))
     ks = jax.random.split(key, 9)
     az = jax.random.uniform(ks[0], (), maxval=2 * jnp.pi)
     el = jnp.deg2rad(jax.random.uniform(ks[1], (), minval=e_lo, maxval=e_hi))
@@ -86,7 +88,7 @@ def conditions(name: str, key: jax.Array | None = None,
         sun_dir=sun_dir.astype(jnp.float32), sun_rgb=_vec(sun) * j3(), ambient=_vec(amb) * j3(),
         sky_zenith=_vec(zen) * sky_j, sky_horizon=_vec(hor) * sky_j, cloud=_vec(cloud),
         haze=_vec(haze) * jitter, soil_tint=_vec(soil), leaf_tint=_vec(leaf),
-        exposure=_vec(exposure), noise=_vec(noise))
+        exposure=_vec(exposure), noise=_vec(noise), shadow=_vec(1.0))
 
 
 def turn_sun(c: Conditions, azimuth_deg: jax.Array) -> Conditions:
