@@ -92,8 +92,8 @@ class Randomize:
             if not getattr(self, name) >= 0:
                 raise ValueError(f"env.randomize.{name}: must be non-negative, got "
                                  f"{getattr(self, name)}")
-        lo, hi = (tuple(self.shadow_strength) + (None, None))[:2]
-        if len(self.shadow_strength) != 2 or not 0.0 <= lo <= hi <= 1.0:
+        s = tuple(self.shadow_strength)
+        if len(s) != 2 or not 0.0 <= s[0] <= s[1] <= 1.0:
             raise ValueError(f"env.randomize.shadow_strength: need [lo, hi] with 0 <= lo <= hi "
                              f"<= 1, got {list(self.shadow_strength)}")
         if not 0.0 <= self.start_progress < 1.0:
@@ -165,10 +165,9 @@ def sample_condition(rz: Randomize, key: jax.Array,
         all_c = [shade.conditions(n, jk) for n in rz.conditions]
         i = jax.random.randint(ki, (), 0, len(rz.conditions))
         c = jax.tree.map(lambda *xs: jnp.stack(xs)[i], *all_c)
-    lo, hi = rz.shadow_strength
-    if (lo, hi) != (1.0, 1.0):  # (a key of its own: the other draws stay as they were)
-        u = jax.random.uniform(jax.random.fold_in(key, 0x5AD0))
-        c = c.replace(shadow=jnp.float32(lo) + (hi - lo) * u)
+    lo, hi = rz.shadow_strength  # a key of its own: the other draws stay as they were
+    u = jax.random.uniform(jax.random.fold_in(key, 0x5AD0))
+    c = c.replace(shadow=jnp.float32(lo) + (hi - lo) * u)  # (1, 1): exactly 1, full shadows
     return c if azimuth is None else shade.turn_sun(c, azimuth)
 
 

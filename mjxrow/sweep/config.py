@@ -302,7 +302,7 @@ def shrink(cfg: SweepConfig) -> SweepConfig:
     and the SMOKE settings for every key that is not an axis (the camera's size stays where a
     cell runs a learned policy: its network takes the images it was trained on)."""
     vals = dict(cfg.values)
-    names = vals.get("controller.name", "segzeros")
+    names = cfg.controller.name  # a name, or a tuple of them on an axis
     policy = "policy" in (names if isinstance(names, tuple) else (names,))
     axes = []
     for i, key in enumerate(cfg.axis_order):

@@ -142,7 +142,7 @@ class Evaluation:
         extra = []
         sets = {**self.values, **(values or {})}
         for b in self.blocks:
-            if b.controller != "policy" or b.exe is None or b.label is not None:
+            if b.controller != "policy" or b.exe is None:
                 continue
             e = Block(b.preset, "policy", run_config(b.preset, "policy", sets,
                                                      checkpoint or self.checkpoint, self.seed),
