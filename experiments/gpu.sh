@@ -629,7 +629,7 @@ train_one() {
   "${py[@]}" experiments/train_policy.py --out "$w" --budget-minutes 5 --deadline-minutes 9 \
     --bc-fraction 1 "$@" 2>&1 | tee -a "$o/train.log"
   status=${PIPESTATUS[0]}
-  [ -e "$w/learning_curve.png" ] && cp "$w/learning_curve.png" "$o/"
+  for f in learning_curve.png adversary.png; do [ -e "$w/$f" ] && cp "$w/$f" "$o/"; done
   logs=()
   for f in train_log.jsonl adversary.jsonl eval.md eval.json summary.json benchmarks.jsonl; do
     [ -e "$w/$f" ] && logs+=("$f")
@@ -646,9 +646,9 @@ train_one() {
   return "$status"
 }
 
-set_train_policy() {  # train.log, policy.tgz, learning_curve.png, logs.tgz (train_one); the
-  # training state stays in WORK/train_policy (a second call resumes it), and the policy is
-  # shipped into mjxrow/checkpoints/policy/; the set's status is the training's
+set_train_policy() {  # train.log, policy.tgz, learning_curve.png (adversary.png), logs.tgz
+  # (train_one); the training state stays in WORK/train_policy (a second call resumes it), and
+  # the policy is shipped into mjxrow/checkpoints/policy/; the set's status is the training's
   read -r -a args <<<"${TRAIN_ARGS:-}"
   train_one "$out" "$work" --ship "${args[@]}"
 }

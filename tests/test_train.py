@@ -554,6 +554,23 @@ def test_curriculum_checks_its_search_and_fills_the_pool_of_its_preset():
             CU.check_box([dim], pear[0], "pear")
 
 
+def test_a_curriculum_without_its_search_fails_when_built(monkeypatch):
+    """The curriculum imports the failure search (and evosax) when it is built, so that a
+    missing dependency stops a training run before its compilation, not at its first round."""
+    import sys
+
+    import mjxrow.search
+    from mjxrow.train import curriculum as CU
+
+    search = str(Path(__file__).resolve().parents[1] / "searches" / "policy_sun.yaml")
+    monkeypatch.setitem(sys.modules, "mjxrow.search.run", None)  # as if it failed to import
+    monkeypatch.delattr(mjxrow.search, "run", raising=False)
+    with pytest.raises(ImportError):
+        CU.Curriculum(CU.CurriculumConfig(search=search), ("pear",), [E.default_ranges("pear")])
+    off = CU.Curriculum(CU.CurriculumConfig(), ("pear",), [E.default_ranges("pear")])
+    assert off.target is None
+
+
 def test_init_starts_from_a_checkpoint_of_the_same_network(saved):
     """`train.init` gives the run the checkpoint's weights; another network is a one-line error
     naming train.init (another observation: `CK.load`'s check, tested above)."""

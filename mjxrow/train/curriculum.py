@@ -134,6 +134,10 @@ class Curriculum:
                      for r in self.ranges]
         self.target = None
         if cfg.on:  # the search's config checked against a checkpoint of this run's network
+            # the search and its dependencies (evosax) imported now, not after the compilation
+            from mjxrow.search import run as search_run
+
+            self._search = search_run
             scfg = search_config(cfg, checkpoint, image=image)
             preset = scfg.scenario.preset
             if preset not in presets:
@@ -167,11 +171,9 @@ class Curriculum:
               log_path: str | Path | None = None) -> dict[str, Any]:
         """Search against the policy at `checkpoint`, refill the pool, append the summary to
         `log_path` (JSON lines). Returns the summary row."""
-        from mjxrow.search import run as search_run
-
         k = iteration // self.cfg.every
         scfg = search_config(self.cfg, checkpoint, seed=k, image=self.image)
-        res = search_run.run(scfg, Path(folder) / f"round_{k:03d}", progress=False,
+        res = self._search.run(scfg, Path(folder) / f"round_{k:03d}", progress=False,
                              figures=False)
         cands = res["candidates"]
         fails = cands[cands["outcome"] == "fail"] if len(cands) else cands
