@@ -27,7 +27,8 @@ takes over, and `--set ppo.teacher_cost=10` keeps PPO's mean action near the tea
 weights, e.g. PPO (`--bc-fraction 0`) on the shipped BC / DAgger policy. `--curriculum
 SEARCH.yaml` is the adversarial curriculum (mjxrow.train.curriculum): before the first
 iteration and every `train.curriculum.every` iterations (default 20) the failure search runs
-against the current policy (`train.curriculum.episodes` episodes, default 512), and a
+against the policy the run would ship (the weights' moving average with `train.average`),
+with `train.curriculum.episodes` episodes (default 512), and a
 `train.curriculum.share` (default 0.25) of every batch of resets of the searched preset takes
 its failing fields; OUT/adversary.jsonl and OUT/adversary.png give the failure rate per round.
 `--iterations` stops after that many iterations in all (besides the budget).

@@ -227,10 +227,12 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     window: collections.deque = collections.deque(maxlen=20)  # recent iterations' episodes
 
     def adversary_round():
-        """A search against the current policy, its failures into the pool (the curriculum)."""
+        """A search against the policy the run would ship now (the weights' moving average
+        where `train.average` > 0), its failures into the pool (the curriculum)."""
         nonlocal pools, search_s
         t0 = time.perf_counter()
-        policies_checkpoint.save(live, params, tr.spec, cfg.net, tr.limits,
+        policies_checkpoint.save(live, average if cfg.average > 0 else params, tr.spec,
+                                 cfg.net, tr.limits,
                                  meta=_meta(cfg, tr, it, env_steps, elapsed))
         rnd = cur.round(live, out / "adversary", it, out / "adversary.jsonl")
         pools = cur.pools()
