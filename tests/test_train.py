@@ -517,8 +517,12 @@ def test_curriculum_checks_its_search_and_fills_the_pool_of_its_preset():
     names = [n for n, _, _ in ranges[1]] + ["sun"]  # the columns: pool_keys
     n = cur.add([{"field.row_curvature": 0.01, "field.gap_rate": 1.2},
                  {"field.row_curvature": 0.002, "perception.sun_azimuth": 80.0}])
-    assert n == 2
-    assert cur.pools()[1].values[1, names.index("sun")] == pytest.approx(80.0)
+    assert n == 3  # the sun at 80° also mirrored across the rows: 280°
+    v = np.asarray(cur.pools()[1].values)
+    assert v[1, names.index("sun")] == pytest.approx(80.0)
+    assert v[2, names.index("sun")] == pytest.approx(280.0)
+    assert v[2, names.index("row_curvature")] == pytest.approx(0.002)
+    assert np.isnan(v[0, names.index("sun")])
     assert cur.add([{"field.d_rr": 2.0}, {"field.d_rr": 2.2}]) == 3  # the oldest drops out
     pools = cur.pools()
     assert int(pools[0].count) == 0 and float(pools[0].share) == 0.0
@@ -542,6 +546,16 @@ def test_curriculum_checks_its_search_and_fills_the_pool_of_its_preset():
         CU.Curriculum(cfg, ("vineyard", "zucchini"), short)
     with pytest.raises(ValueError, match="train.curriculum.share: must lie in"):
         CU.CurriculumConfig(search=search, share=2.0)
+    with pytest.raises(ValueError, match="train.curriculum.mirror_sun: must be true or false"):
+        CU.CurriculumConfig(search=search, mirror_sun="abc")
+    # the mirror: 360° − a after each sun; a sun along the rows (0°, 180°) and none stay single
+    sunny = [{"perception.sun_azimuth": a} for a in (80.0, 180.0, 0.0, 300.0)]
+    sun_col = names.index("sun")
+    m = CU.mirror_sun(CU.pool_rows(sunny, ranges[1]), ranges[1])[:, sun_col]
+    np.testing.assert_allclose(m, [80.0, 280.0, 180.0, 0.0, 300.0, 60.0])
+    plain = CU.Curriculum(dataclasses.replace(cfg, mirror_sun=False, pool=8),
+                          ("vineyard", "zucchini"), ranges)
+    assert plain.add(sunny) == 4
     # the sun's azimuth seeds resets too, at any angle; pear's search is checked against pear
     sun = CU.CurriculumConfig(search=str(Path(search).with_name("policy_sun.yaml")))
     pear = [E.default_ranges("pear")]

@@ -22,6 +22,12 @@ preset (its field keys, and `perception.sun_azimuth`: the sun turned there in wh
 the reset draws); every other value of a pooled reset is drawn as usual. The box must lie inside
 that environment's randomisation ranges (checked when the curriculum is built), so a searched
 field is a field the environment can hold.
+
+With `mirror_sun` (default), a failing candidate with a sun azimuth a (degrees from the rows'
+direction) enters the pool twice: as found, then with the sun at 360° − a, its mirror image
+across the rows. The fields are drawn alike on the left and the right, so a policy that fails
+with the sun on one side is trained with it on both sides too. Without the mirror, a search
+that finds one side first pulls the policy towards that side only.
 """
 
 from __future__ import annotations
@@ -47,12 +53,16 @@ class CurriculumConfig:
     pool: int = 64  # rows in the pool: the failures of the latest rounds, newest first
     sets: tuple[str, ...] = ()  # `--set` overrides of the search config (KEY=VALUE)
     smoke: bool = False  # the search's --smoke settings (a CPU check of the training command)
+    mirror_sun: bool = True  # a failing sun also pooled mirrored across the rows (module doc)
 
     def __post_init__(self):
         if self.every < 1:
             raise ValueError(f"train.curriculum.every: must be at least 1, got {self.every}")
         if not 0.0 <= self.share <= 1.0:
             raise ValueError(f"train.curriculum.share: must lie in [0, 1], got {self.share}")
+        if not isinstance(self.mirror_sun, bool):
+            raise ValueError(f"train.curriculum.mirror_sun: must be true or false, got "
+                             f"{self.mirror_sun!r}")
         for name in ("episodes", "pool"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"train.curriculum.{name}: must be at least 1, got "
@@ -94,6 +104,22 @@ def pool_rows(failing: list[dict[str, Any]], ranges) -> np.ndarray:
             if v is not None:
                 rows[i, j] = float(v)
     return rows
+
+
+def mirror_sun(rows: np.ndarray, ranges) -> np.ndarray:
+    """Pool rows (`pool_rows`'s) each followed by its mirror image across the rows: the sun's
+    azimuth a turned to 360° − a (mod 360). Rows without a sun, or with the sun along the
+    rows (0° or 180°, their own mirror), stay single."""
+    j = env_randomize.pool_keys(ranges).index("perception.sun_azimuth")
+    out = []
+    for r in rows:
+        out.append(r)
+        a = r[j]
+        if not np.isnan(a) and not np.isclose(np.mod(a, 180.0), 0.0):
+            m = r.copy()
+            m[j] = np.mod(360.0 - a, 360.0)
+            out.append(m)
+    return np.stack(out) if out else rows
 
 
 def check_box(box, ranges, preset: str) -> None:
@@ -160,10 +186,13 @@ class Curriculum:
         return self.target is not None and iteration > 0 and iteration % self.cfg.every == 0
 
     def add(self, failing: list[dict[str, Any]]) -> int:
-        """Put failing candidates first in their environment's pool (the oldest drop out of
-        its `pool` rows); returns the pool's size."""
+        """Put failing candidates (with their mirrored suns: `mirror_sun`) first in their
+        environment's pool (the oldest drop out of its `pool` rows); returns the pool's
+        size."""
         i = self.target
         new = pool_rows(failing, self.ranges[i])
+        if self.cfg.mirror_sun:
+            new = mirror_sun(new, self.ranges[i])
         self.rows[i] = np.concatenate([new, self.rows[i]], 0)[:self.cfg.pool]
         return len(self.rows[i])
 
