@@ -143,6 +143,44 @@ def test_a_minutes_budget_counts_generations_that_compile_nothing(tmp_path):
     assert table.loc["random", "episodes"] == table.loc["cma_es", "episodes"]
 
 
+def test_a_search_prepared_ahead_compiles_no_rollout_program(tmp_path):
+    """`search.run.prepare` compiles a search's program ahead (the adversarial curriculum does
+    it in a thread beside the training's compilation): with the compilation cache on, the
+    search then compiles neither the closed loop (`jit(batch)`) nor the fields' program
+    (`jit(gen)`), only the small programs of its method and summary."""
+    import logging
+
+    import jax
+
+    names: list[str] = []
+
+    class Catch(logging.Handler):
+        def emit(self, record):
+            msg = record.getMessage()
+            if msg.startswith("Compiling "):
+                names.append(msg.split()[1])
+
+    log = logging.getLogger("jax")
+    handler, level = Catch(), log.level
+    log.addHandler(handler)
+    log.setLevel(logging.WARNING)
+    cfg = _cfg(budget={"episodes": 4})
+    try:
+        runtime.enable_cache(tmp_path / "cache")
+        with jax.log_compiles(True):
+            assert search_run.prepare(cfg) > 0
+            ahead, names[:] = list(names), []
+            res = search_run.run(cfg, tmp_path / "out", progress=False, figures=False)
+    finally:
+        log.removeHandler(handler)
+        log.setLevel(level)
+        runtime.disable_cache()
+        runtime._EXPORTED.clear()
+    assert {"jit(batch)", "jit(gen)"} <= set(ahead), ahead  # the closed loop, the fields
+    assert not {"jit(batch)", "jit(gen)"} & set(names), names
+    assert len(res["candidates"]) == 8  # 4 of CMA-ES, 4 of the random baseline
+
+
 # -m slow (.ci/slow): 35-45 s of CPU (the command end to end with its figures); the suite
 # keeps the search's runs, resume and its one-line errors
 @pytest.mark.slow

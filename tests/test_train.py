@@ -568,6 +568,21 @@ def test_curriculum_checks_its_search_and_fills_the_pool_of_its_preset():
             CU.check_box([dim], pear[0], "pear")
 
 
+def test_a_compilation_ahead_is_reported_once_and_never_raises():
+    """The curriculum's search program compiled in a thread (`loop._Ahead`): `wait` joins it
+    and reports its time once; a failure is reported, not raised (the round compiles the
+    program itself and fails there with its own error)."""
+    from mjxrow.train import loop as L
+
+    logs: list[str] = []
+    ok = L._Ahead(lambda x: 2.0 * x, 1.5)
+    ok.wait(logs.append)
+    ok.wait(logs.append)
+    assert len(logs) == 1 and logs[0].endswith("in 3.0 s")
+    L._Ahead(lambda: 1 / 0).wait(logs.append)
+    assert "ZeroDivisionError" in logs[1] and logs[1].endswith("its first round compiles it")
+
+
 def test_a_curriculum_without_its_search_fails_when_built(monkeypatch):
     """The curriculum imports the failure search (and evosax) when it is built, so that a
     missing dependency stops a training run before its compilation, not at its first round."""

@@ -43,6 +43,14 @@ class Evaluator:
         self.built = rollout_build.build([self.run], cfg.shape)
         self.size = self.built.padded(cfg.generation)
 
+    def prepare(self) -> None:
+        """Compile the program every batch runs in (or load it: the compilation cache and
+        the kept traced programs), running no episode; a later Evaluator of the same search
+        then finds it there. The scenario's own run stands for the candidates: every searched
+        key is traced, so the program is theirs."""
+        batch = self.built.batch([(self.run, e) for e in range(self.size)], self.size)
+        self.built.executable(batch.args(self.built.mx))
+
     def _batch(self, items: Sequence[tuple[RunConfig, int]]) -> tuple[Any, Log]:
         batch = self.built.batch(list(items), self.size)
         return batch, jax.block_until_ready(self.built.rollout(batch))

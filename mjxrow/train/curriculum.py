@@ -196,6 +196,11 @@ class Curriculum:
         self.rows[i] = np.concatenate([new, self.rows[i]], 0)[:self.cfg.pool]
         return len(self.rows[i])
 
+    def prepare(self, checkpoint: str | Path) -> float:
+        """Compile the rounds' search program ahead (`search.run.prepare`) against the policy
+        at `checkpoint` (any weights of the run's network); returns the seconds it took."""
+        return self._search.prepare(search_config(self.cfg, checkpoint, image=self.image))
+
     def round(self, checkpoint: str | Path, folder: str | Path, iteration: int,
               log_path: str | Path | None = None) -> dict[str, Any]:
         """Search against the policy at `checkpoint`, refill the pool, append the summary to
