@@ -165,6 +165,8 @@ def test_a_search_prepared_ahead_compiles_no_rollout_program(tmp_path):
     log.addHandler(handler)
     log.setLevel(logging.WARNING)
     cfg = _cfg(budget={"episodes": 4})
+    jax.clear_caches()  # as a new process: the earlier tests' programs compiled in this one
+    runtime._EXPORTED.clear()
     try:
         runtime.enable_cache(tmp_path / "cache")
         with jax.log_compiles(True):
