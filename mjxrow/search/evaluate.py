@@ -97,7 +97,7 @@ class Evaluator:
         module = variables = None
         if learned:
             module, variables = perception.load_segmenter(run.checkpoint_path(), run.preset)
-        fn = _frame_fn(self.cfg.shape, run.camera, run.render, self.built.episode.sim, module)
+        fn = frame_fn(self.cfg.shape, run.camera, run.render, self.built.episode.sim, module)
         out = []
         for i, r in enumerate(runs):
             one = jax.tree.map(lambda x, i=i: x[i], (batch.fields, batch.lanes, batch.keys,
@@ -109,7 +109,7 @@ class Evaluator:
 
 
 @functools.lru_cache(maxsize=4)
-def _frame_fn(shape, intr, rcfg, scfg, segmenter):
+def frame_fn(shape, intr, rcfg, scfg, segmenter):
     """jit: one world's first camera frame and mask (reset → camera → render → segment)."""
 
     def frame(mx, field, lane, key, noise, cond, threshold, variables):

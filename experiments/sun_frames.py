@@ -1,0 +1,124 @@
+"""What a policy sees as the sun turns about the rows: the first camera frame of one episode of
+`sweeps/sun.yaml` (pear, 64 x 64) at each azimuth, with the renderer's cast shadows (top row)
+and without them (bottom row), in one PNG:
+
+    python experiments/sun_frames.py [--config sweeps/sun.yaml] [--azimuths 35 80 125 260]
+        [--episode 0] [--set KEY=VALUE ...] [--out docs/sun_frames_pear.png]
+
+The frames are the ones the controller's first step gets (the reset pose of episode
+`--episode` of the sweep's seed; the same field at every azimuth), drawn pixel for pixel. An
+existing --out is replaced only when this script wrote it (the PNG's `Software` entry names
+it). Exit codes: 0 done, 2 bad input (the key or file named).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import plot_one_command  # experiments/, the folder of this script
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))  # run from a checkout, uninstalled
+TAG = "mjxrow experiments/sun_frames.py"  # the PNG's Software entry
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--config", default=str(ROOT / "sweeps/sun.yaml"), help="a sun sweep YAML")
+    p.add_argument("--azimuths", nargs="+", type=float, default=[35.0, 80.0, 125.0, 260.0],
+                   metavar="DEG", help="the sun's azimuths (degrees from the rows' direction)")
+    p.add_argument("--episode", type=int, default=0, help="the episode of the sweep's seed")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a key of the sweep YAML (repeatable)")
+    p.add_argument("--out", default=str(ROOT / "docs/sun_frames_pear.png"))
+    return p
+
+
+def config(cfg_path: str, azimuths: list[float], sets: list[str], shadows: bool):
+    """The sweep config of the frames: the YAML with `sets`, the azimuths, the cast shadows on
+    or off, and the oracle as controller (the camera is every controller's; no checkpoint)."""
+    from mjxrow.sweep import config as sweep_config
+
+    return sweep_config.load(cfg_path, [*sets, "perception.sun_azimuth="
+                                        + str([float(a) for a in azimuths]),
+                                        f"render.shadows={str(shadows).lower()}",
+                                        "controller.name=oracle"])
+
+
+def frames(cfg_path: str, azimuths: list[float], episode: int, sets: list[str],
+           shadows: bool):
+    """(title of the run, [rgb uint8 [H, W, 3] per azimuth]) of the first frames."""
+    import jax
+    import numpy as np
+
+    from mjxrow.rollout import build as rollout_build
+    from mjxrow.search import evaluate as search_evaluate
+    from mjxrow.sweep import grid as sweep_grid
+
+    cfg = config(cfg_path, azimuths, sets, shadows)
+    runs = [c.cfg for c in sweep_grid.expand(cfg)]
+    built = rollout_build.build(runs)
+    batch = built.batch([(r, episode) for r in runs], len(runs))
+    fn = search_evaluate.frame_fn(built.shape, built.run.camera, built.run.render,
+                                  built.episode.sim, None)
+    out = []
+    for i, r in enumerate(runs):
+        one = jax.tree.map(lambda x, i=i: x[i], (batch.fields, batch.lanes, batch.keys,
+                                                 batch.noise))
+        rgb, _ = fn(built.mx, *one, r.perception.conditions(),
+                    np.float32(r.perception.threshold), None)
+        out.append(np.asarray(rgb))
+    return runs[0], out
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    out = Path(args.out)
+    try:
+        if args.episode < 0:
+            raise ValueError(f"--episode: must be at least 0, got {args.episode}")
+        if not Path(args.config).is_file():
+            raise ValueError(f"--config: {args.config}: no such file")
+        if out.exists() and not plot_one_command.written_by(out, TAG):
+            raise ValueError(f"--out: {out} exists and was not written by this script; "
+                             "choose another path")
+        config(args.config, args.azimuths, args.set, True)  # the YAML and --set, checked first
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = []
+    for shadows in (True, False):
+        run, imgs = frames(args.config, args.azimuths, args.episode, args.set, shadows)
+        rows.append((shadows, imgs))
+    n = len(args.azimuths)
+    fig, axes = plt.subplots(2, n, figsize=(2.1 * n, 4.6), squeeze=False)
+    for r, (shadows, imgs) in enumerate(rows):
+        for c, (az, img) in enumerate(zip(args.azimuths, imgs, strict=True)):
+            ax = axes[r][c]
+            ax.imshow(img, interpolation="nearest")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if r == 0:
+                ax.set_title(f"sun at {az:g}°", fontsize=10)
+            if c == 0:
+                ax.set_ylabel("cast shadows" if shadows else "no cast shadows", fontsize=10)
+    h, w = rows[0][1][0].shape[:2]
+    fig.suptitle(f"{run.preset}, episode {args.episode}: the first frame ({w} × {h} px), as "
+                 "the controller gets it", fontsize=10)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110, metadata={"Software": TAG})
+    plt.close(fig)
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
