@@ -10,6 +10,8 @@ kept from an earlier run would skip the traces some tests count)."""
 import os
 import tempfile
 
+import pytest
+
 os.environ.setdefault("MUJOCO_GL", "osmesa")
 os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
@@ -25,3 +27,39 @@ os.environ["MJXROW_CACHE_DIR"] = tempfile.mkdtemp(prefix="mjxrow-test-cache-")
 os.environ["XLA_FLAGS"] = " ".join(filter(None, [
     os.environ.get("XLA_FLAGS", ""), "--xla_backend_optimization_level=0",
     "--xla_llvm_disable_expensive_passes=true"]))
+
+
+@pytest.fixture
+def compiled():
+    """`compiled(fn, clear=True)`: the names of the XLA programs `fn()` compiles (JAX's
+    "Compiling NAME" log lines), with JAX's in-memory caches emptied first unless `clear` is
+    False (as a new process would start, but for the compilation cache on disk)."""
+    import logging
+
+    import jax
+
+    def names(fn, clear: bool = True) -> list[str]:
+        seen: list[str] = []
+
+        class Catch(logging.Handler):
+            def emit(self, record):
+                msg = record.getMessage()
+                if msg.startswith("Compiling "):
+                    seen.append(msg.split()[1])
+
+        log = logging.getLogger("jax")
+        handler, level = Catch(), log.level
+        log.addHandler(handler)
+        log.setLevel(logging.WARNING)
+        if clear:
+            jax.clear_caches()
+        try:
+            with jax.log_compiles(True):
+                fn()
+        finally:
+            log.removeHandler(handler)
+            log.setLevel(level)
+        return seen
+
+    return names
+

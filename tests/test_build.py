@@ -105,43 +105,15 @@ def test_a_mixed_group_runs_segzeros_as_its_own_program_does(runs):
         assert _close(got[m][:3], want[m]), m  # SegZeros as in its own program
 
 
-def _compiled(fn) -> list[str]:
-    """Names of the XLA programs `fn()` compiles with JAX's in-memory caches emptied."""
-    import logging
-
-    import jax
-
-    seen: list[str] = []
-
-    class Catch(logging.Handler):
-        def emit(self, record):
-            msg = record.getMessage()
-            if msg.startswith("Compiling "):
-                seen.append(msg.split()[1])
-
-    log = logging.getLogger("jax")
-    handler, level = Catch(), log.level
-    log.addHandler(handler)
-    log.setLevel(logging.WARNING)
-    jax.clear_caches()
-    try:
-        with jax.log_compiles(True):
-            fn()
-    finally:
-        log.removeHandler(handler)
-        log.setLevel(level)
-    return seen
-
-
-def test_checks_and_batch_assembly_compile_only_their_programs():
+def test_checks_and_batch_assembly_compile_only_their_programs(compiled):
     """The configuration checks run on the host, and a batch's keys, fields and lanes take one
     program each: no program per small array operation (each costs a compile or a cache
     load, which on a GPU is tenths of a second)."""
     cfg = C.from_dict({**TINY, "field": {**TINY["field"], "d_rr": [2.0, 2.2]}})
-    assert _compiled(lambda: G.check(cfg)) == []
+    assert compiled(lambda: G.check(cfg)) == []
     runs = [c.cfg for c in G.expand(cfg)]
     built = B.build(runs[0])
-    names = _compiled(lambda: built.batch([(runs[0], 0), (runs[0], 1)], size=2))
+    names = compiled(lambda: built.batch([(runs[0], 0), (runs[0], 1)], size=2))
     assert len(names) == 3 and "jit(gen)" in names, names
 
 

@@ -143,39 +143,21 @@ def test_a_minutes_budget_counts_generations_that_compile_nothing(tmp_path):
     assert table.loc["random", "episodes"] == table.loc["cma_es", "episodes"]
 
 
-def test_a_search_prepared_ahead_compiles_no_rollout_program(tmp_path):
+def test_a_search_prepared_ahead_compiles_no_rollout_program(tmp_path, compiled):
     """`search.run.prepare` compiles a search's program ahead (the adversarial curriculum does
     it in a thread beside the training's compilation): with the compilation cache on, the
     search then compiles neither the closed loop (`jit(batch)`) nor the fields' program
     (`jit(gen)`), only the small programs of its method and summary."""
-    import logging
-
-    import jax
-
-    names: list[str] = []
-
-    class Catch(logging.Handler):
-        def emit(self, record):
-            msg = record.getMessage()
-            if msg.startswith("Compiling "):
-                names.append(msg.split()[1])
-
-    log = logging.getLogger("jax")
-    handler, level = Catch(), log.level
-    log.addHandler(handler)
-    log.setLevel(logging.WARNING)
     cfg = _cfg(budget={"episodes": 4})
-    jax.clear_caches()  # as a new process: the earlier tests' programs compiled in this one
-    runtime._EXPORTED.clear()
+    runtime._EXPORTED.clear()  # as a new process: earlier tests compiled the planted search
+    res = {}
     try:
         runtime.enable_cache(tmp_path / "cache")
-        with jax.log_compiles(True):
-            assert search_run.prepare(cfg) > 0
-            ahead, names[:] = list(names), []
-            res = search_run.run(cfg, tmp_path / "out", progress=False, figures=False)
+        ahead = compiled(lambda: search_run.prepare(cfg))
+        names = compiled(lambda: res.update(search_run.run(cfg, tmp_path / "out",
+                                                           progress=False, figures=False)),
+                         clear=False)
     finally:
-        log.removeHandler(handler)
-        log.setLevel(level)
         runtime.disable_cache()
         runtime._EXPORTED.clear()
     assert {"jit(batch)", "jit(gen)"} <= set(ahead), ahead  # the closed loop, the fields
