@@ -148,12 +148,13 @@ def test_a_search_prepared_ahead_compiles_no_rollout_program(tmp_path, compiled)
     it in a thread beside the training's compilation): with the compilation cache on, the
     search then compiles neither the closed loop (`jit(batch)`) nor the fields' program
     (`jit(gen)`), only the small programs of its method and summary."""
-    cfg = _cfg(budget={"episodes": 4})
-    runtime._EXPORTED.clear()  # as a new process: earlier tests compiled the planted search
+    # a population of its own (a batch shape no other test compiles): nothing of it compiled
+    # yet, and no cache emptied for the tests after it
+    cfg = _cfg(population=6, budget={"episodes": 6})
     res = {}
     try:
         runtime.enable_cache(tmp_path / "cache")
-        ahead = compiled(lambda: search_run.prepare(cfg))
+        ahead = compiled(lambda: search_run.prepare(cfg), clear=False)
         names = compiled(lambda: res.update(search_run.run(cfg, tmp_path / "out",
                                                            progress=False, figures=False)),
                          clear=False)
@@ -162,7 +163,7 @@ def test_a_search_prepared_ahead_compiles_no_rollout_program(tmp_path, compiled)
         runtime._EXPORTED.clear()
     assert {"jit(batch)", "jit(gen)"} <= set(ahead), ahead  # the closed loop, the fields
     assert not {"jit(batch)", "jit(gen)"} & set(names), names
-    assert len(res["candidates"]) == 8  # 4 of CMA-ES, 4 of the random baseline
+    assert len(res["candidates"]) == 12  # 6 of CMA-ES, 6 of the random baseline
 
 
 # -m slow (.ci/slow): 35-45 s of CPU (the command end to end with its figures); the suite
