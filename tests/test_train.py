@@ -569,17 +569,17 @@ def test_curriculum_checks_its_search_and_fills_the_pool_of_its_preset():
 
 
 def test_a_compilation_ahead_is_reported_once_and_never_raises():
-    """The curriculum's search program compiled in a thread (`loop._Ahead`): `wait` joins it
-    and reports its time once; a failure is reported, not raised (the round compiles the
+    """The curriculum's search program compiled in a thread (`curriculum.Ahead`): `wait` joins
+    it and reports its time once; a failure is reported, not raised (the round compiles the
     program itself and fails there with its own error)."""
-    from mjxrow.train import loop as L
+    from mjxrow.train import curriculum as CU
 
     logs: list[str] = []
-    ok = L._Ahead(lambda x: 2.0 * x, 1.5)
+    ok = CU.Ahead(lambda x: 2.0 * x, 1.5)
     ok.wait(logs.append)
     ok.wait(logs.append)
     assert len(logs) == 1 and logs[0].endswith("in 3.0 s")
-    L._Ahead(lambda: 1 / 0).wait(logs.append)
+    CU.Ahead(lambda: 1 / 0).wait(logs.append)
     assert "ZeroDivisionError" in logs[1] and logs[1].endswith("its first round compiles it")
 
 

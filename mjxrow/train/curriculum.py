@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -201,6 +202,11 @@ class Curriculum:
         at `checkpoint` (any weights of the run's network); returns the seconds it took."""
         return self._search.prepare(search_config(self.cfg, checkpoint, image=self.image))
 
+    def prepare_ahead(self, checkpoint: str | Path) -> Ahead:
+        """`prepare` in a thread of its own (e.g. beside the training's compilation); the
+        returned `Ahead`'s `wait` joins it."""
+        return Ahead(self.prepare, checkpoint)
+
     def round(self, checkpoint: str | Path, folder: str | Path, iteration: int,
               log_path: str | Path | None = None) -> dict[str, Any]:
         """Search against the policy at `checkpoint`, refill the pool, append the summary to
@@ -225,6 +231,38 @@ class Curriculum:
             with Path(log_path).open("a") as f:
                 f.write(json.dumps(row) + "\n")
         return row
+
+
+class Ahead:
+    """`fn(*args)` (the search's compilation ahead of need: `Curriculum.prepare_ahead`) in a
+    thread of its own; `wait` joins it once and reports it. A failure is only reported: the
+    work it would have saved is done again where it is needed, and fails there with its own
+    error."""
+
+    def __init__(self, fn, *args):
+        self.result: Any = None
+        self.error: BaseException | None = None
+        self.thread: threading.Thread | None = threading.Thread(
+            target=self._run, args=(fn, *args), daemon=True)
+        self.thread.start()
+
+    def _run(self, fn, *args) -> None:
+        try:
+            self.result = fn(*args)
+        except Exception as e:  # noqa: BLE001 -- reported by wait(), redone where needed
+            self.error = e
+
+    def wait(self, log=print) -> None:
+        if self.thread is None:
+            return
+        self.thread.join()
+        self.thread = None
+        if self.error is not None:
+            log(f"the curriculum's search program was not compiled ahead "
+                f"({type(self.error).__name__}: {self.error}); its first round compiles it")
+        else:
+            log(f"the curriculum's search program compiled ahead, beside the training's, in "
+                f"{self.result:.1f} s")
 
 
 def plot_rounds(log_path: str | Path, png: str | Path) -> Path | None:

@@ -31,7 +31,6 @@ import dataclasses
 import json
 import math
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -138,7 +137,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     pools = cur.pools()
     # the rounds' search program compiled in a thread beside the training's: with the
     # compilation cache on, the first round then compiles nothing
-    ahead = _Ahead(cur.prepare, live) if cur.target is not None else None
+    ahead = cur.prepare_ahead(live) if cur.target is not None else None
     k_reset, key_after = jax.random.split(key)
     # compile everything once, before the clock of the budget runs (from the first tracing)
     t0 = time.perf_counter()
@@ -342,37 +341,6 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
             "steps_per_s": float(np.median([r[1] for r in steady])) if steady else math.nan,
             "memory_peak_gib": runtime.memory_peak(),
             "last": last, **({"saving": saving} if background_save else {})}
-
-
-class _Ahead:
-    """`fn(*args)` (a compilation ahead of need) in a thread of its own; `wait` joins it once
-    and reports it. A failure is only reported: the work it would have saved is done again
-    where it is needed, and fails there with its own error."""
-
-    def __init__(self, fn, *args):
-        self.result: Any = None
-        self.error: BaseException | None = None
-        self.thread: threading.Thread | None = threading.Thread(
-            target=self._run, args=(fn, *args), daemon=True)
-        self.thread.start()
-
-    def _run(self, fn, *args) -> None:
-        try:
-            self.result = fn(*args)
-        except Exception as e:  # noqa: BLE001 -- reported by wait(), redone where needed
-            self.error = e
-
-    def wait(self, log=print) -> None:
-        if self.thread is None:
-            return
-        self.thread.join()
-        self.thread = None
-        if self.error is not None:
-            log(f"the curriculum's search program was not compiled ahead "
-                f"({type(self.error).__name__}: {self.error}); its first round compiles it")
-        else:
-            log(f"the curriculum's search program compiled ahead, beside the training's, in "
-                f"{self.result:.1f} s")
 
 
 def compile_parts(times: dict, t0: float) -> dict:
