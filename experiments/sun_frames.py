@@ -49,28 +49,15 @@ def config(cfg_path: str, azimuths: list[float], sets: list[str], shadows: bool)
 
 def frames(cfg_path: str, azimuths: list[float], episode: int, sets: list[str],
            shadows: bool):
-    """(title of the run, [rgb uint8 [H, W, 3] per azimuth]) of the first frames."""
-    import jax
-    import numpy as np
-
+    """(the first run, [rgb uint8 [H, W, 3] per azimuth]): the first frames."""
     from mjxrow.rollout import build as rollout_build
     from mjxrow.search import evaluate as search_evaluate
     from mjxrow.sweep import grid as sweep_grid
 
-    cfg = config(cfg_path, azimuths, sets, shadows)
-    runs = [c.cfg for c in sweep_grid.expand(cfg)]
+    runs = [c.cfg for c in sweep_grid.expand(config(cfg_path, azimuths, sets, shadows))]
     built = rollout_build.build(runs)
     batch = built.batch([(r, episode) for r in runs], len(runs))
-    fn = search_evaluate.frame_fn(built.shape, built.run.camera, built.run.render,
-                                  built.episode.sim, None)
-    out = []
-    for i, r in enumerate(runs):
-        one = jax.tree.map(lambda x, i=i: x[i], (batch.fields, batch.lanes, batch.keys,
-                                                 batch.noise))
-        rgb, _ = fn(built.mx, *one, r.perception.conditions(),
-                    np.float32(r.perception.threshold), None)
-        out.append(np.asarray(rgb))
-    return runs[0], out
+    return runs[0], [rgb for rgb, _ in search_evaluate.first_frames(built, batch, runs)]
 
 
 def main(argv: list[str] | None = None) -> int:

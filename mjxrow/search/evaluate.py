@@ -92,24 +92,33 @@ class Evaluator:
         episodes of `batch` (`replay`): the camera at the reset pose, as the controller's
         first step sees it."""
         run = self.run
-        needs_mask = control.get(run.controller.name).needs_mask
-        learned = needs_mask and run.perception.source == "learned"
-        module = variables = None
-        if learned:
-            module, variables = perception.load_segmenter(run.checkpoint_path(), run.preset)
-        fn = frame_fn(self.cfg.shape, run.camera, run.render, self.built.episode.sim, module)
-        out = []
-        for i, r in enumerate(runs):
-            one = jax.tree.map(lambda x, i=i: x[i], (batch.fields, batch.lanes, batch.keys,
-                                                     batch.noise))
-            rgb, mask = fn(self.built.mx, *one, r.perception.conditions(),
-                           np.float32(r.perception.threshold), variables)
-            out.append((np.asarray(rgb), np.asarray(mask)))
-        return out
+        segmenter = None
+        if control.get(run.controller.name).needs_mask and run.perception.source == "learned":
+            segmenter = perception.load_segmenter(run.checkpoint_path(), run.preset)
+        return first_frames(self.built, batch, runs, segmenter)
+
+
+def first_frames(built: Any, batch: Any, runs: Sequence[RunConfig],
+                 segmenter: tuple[Any, Any] | None = None) -> list[tuple[np.ndarray,
+                                                                            np.ndarray]]:
+    """(rgb uint8 [H, W, 3], mask bool [H, W]) at the reset pose of the first len(runs)
+    episodes of `batch` (a batch of `built`, a `rollout.build.Built`), run i's sky and
+    threshold for episode i; the mask the renderer's ground truth, or with `segmenter`
+    ((module, variables) of `perception.load_segmenter`) the learned one."""
+    module, variables = segmenter or (None, None)
+    fn = _frame_fn(built.shape, built.run.camera, built.run.render, built.episode.sim, module)
+    out = []
+    for i, r in enumerate(runs):
+        one = jax.tree.map(lambda x, i=i: x[i], (batch.fields, batch.lanes, batch.keys,
+                                                 batch.noise))
+        rgb, mask = fn(built.mx, *one, r.perception.conditions(),
+                       np.float32(r.perception.threshold), variables)
+        out.append((np.asarray(rgb), np.asarray(mask)))
+    return out
 
 
 @functools.lru_cache(maxsize=4)
-def frame_fn(shape, intr, rcfg, scfg, segmenter):
+def _frame_fn(shape, intr, rcfg, scfg, segmenter):
     """jit: one world's first camera frame and mask (reset → camera → render → segment)."""
 
     def frame(mx, field, lane, key, noise, cond, threshold, variables):
