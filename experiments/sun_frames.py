@@ -1,9 +1,14 @@
 """What a policy sees as the sun turns about the rows: the first camera frame of one episode of
-`sweeps/sun.yaml` (pear, 64 x 64) at each azimuth, with the renderer's cast shadows (top row)
-and without them (bottom row), in one PNG:
+`sweeps/sun.yaml` (pear, 64 x 64) at each azimuth, with the renderer's cast shadows (top row),
+without them (middle row), and the shadowed frame's chromaticity (bottom row: what a policy
+with `env.observation=chroma` sees), in one PNG:
 
     python experiments/sun_frames.py [--config sweeps/sun.yaml] [--azimuths 35 80 125 260]
         [--episode 0] [--set KEY=VALUE ...] [--out docs/sun_frames_pear.png]
+
+It prints, per azimuth, how much the cast shadows change the frame, in RGB and in
+chromaticity: the mean absolute change of a pixel's channels over the spread (standard
+deviation) of the frame without shadows (`shadow_change`).
 
 The frames are the ones the controller's first step gets (the reset pose of episode
 `--episode` of the sweep's seed; the same field at every azimuth), drawn pixel for pixel. An
@@ -60,6 +65,20 @@ def frames(cfg_path: str, azimuths: list[float], episode: int, sets: list[str],
     return runs[0], [rgb for rgb, _ in search_evaluate.first_frames(built, batch, runs)]
 
 
+def shadow_change(shaded, lit, kind: str = "rgb") -> float:
+    """How much the cast shadows change a frame: the mean absolute change of its channels
+    (uint8 [H, W, 3] with and without shadows; `kind` "chroma": of their chromaticities, as
+    `policies.observe.chromaticity`) over the spread of the frame without them."""
+    import numpy as np
+
+    from mjxrow.policies import observe
+
+    if kind == "chroma":
+        shaded, lit = (np.asarray(observe.chromaticity(x)) for x in (shaded, lit))
+    a, b = (np.asarray(x, np.float64) for x in (shaded, lit))
+    return float(np.mean(np.abs(a - b)) / max(float(np.std(b)), 1e-9))
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     out = Path(args.out)
@@ -84,9 +103,19 @@ def main(argv: list[str] | None = None) -> int:
     for shadows in (True, False):
         run, imgs = frames(args.config, args.azimuths, args.episode, args.set, shadows)
         rows.append((shadows, imgs))
+    from mjxrow.policies import observe
+
+    print("the cast shadows' change of the frame (mean |change| / spread): azimuth, RGB, "
+          "chromaticity")
+    for az, shaded, lit in zip(args.azimuths, rows[0][1], rows[1][1], strict=True):
+        print(f"  {az:6.1f}°  {shadow_change(shaded, lit):.3f}  "
+              f"{shadow_change(shaded, lit, 'chroma'):.3f}")
+    rows.append(("chromaticity, cast shadows",
+                 [observe.chromaticity(x) for x in rows[0][1]]))
+    labels = {True: "cast shadows", False: "no cast shadows"}
     n = len(args.azimuths)
-    fig, axes = plt.subplots(2, n, figsize=(2.1 * n, 4.6), squeeze=False)
-    for r, (shadows, imgs) in enumerate(rows):
+    fig, axes = plt.subplots(3, n, figsize=(2.1 * n, 6.7), squeeze=False)
+    for r, (what, imgs) in enumerate(rows):
         for c, (az, img) in enumerate(zip(args.azimuths, imgs, strict=True)):
             ax = axes[r][c]
             ax.imshow(img, interpolation="nearest")
@@ -95,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
             if r == 0:
                 ax.set_title(f"sun at {az:g}°", fontsize=10)
             if c == 0:
-                ax.set_ylabel("cast shadows" if shadows else "no cast shadows", fontsize=10)
+                ax.set_ylabel(labels.get(what, what), fontsize=10)
     h, w = rows[0][1][0].shape[:2]
     fig.suptitle(f"{run.preset}, episode {args.episode}: the first frame ({w} × {h} px), as "
                  "the controller gets it", fontsize=10)

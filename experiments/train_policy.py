@@ -3,10 +3,10 @@ the table: one command on one GPU.
 
     python experiments/train_policy.py --out runs/policy [--budget-minutes 5]
         [--deadline-minutes 8.5] [--eval-reserve-minutes M] [--presets P ...] [--num-envs 15360]
-        [--episodes 100] [--bc-fraction 0.5] [--observation rgb] [--teacher oracle]
-        [--seed 0] [--eval-seed 0] [--iterations N] [--init CHECKPOINT] [--curriculum SEARCH.yaml]
-        [--set KEY=VALUE ...] [--no-eval] [--eval-only] [--eval-last] [--eval-sun DEG ...]
-        [--ship] [--smoke]
+        [--episodes 100] [--bc-fraction 0.5] [--observation rgb|chroma|mask|features]
+        [--teacher oracle] [--seed 0] [--eval-seed 0] [--iterations N] [--init CHECKPOINT]
+        [--curriculum SEARCH.yaml] [--set KEY=VALUE ...] [--no-eval] [--eval-only] [--eval-last]
+        [--eval-sun DEG ...] [--ship] [--smoke]
 
 Training (mjxrow.train.loop): behaviour cloning / DAgger from the teacher (`--teacher`, the
 oracle's pure pursuit by default) for the first `--bc-fraction` of the budget, then PPO, in
@@ -128,7 +128,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--bc-fraction", type=float, default=0.5,
                    help="share of the budget (or of the time a deadline leaves) for BC / "
                         "DAgger before PPO (default 0.5)")
-    p.add_argument("--observation", choices=("rgb", "mask", "features"), default="rgb")
+    p.add_argument("--observation", choices=("rgb", "chroma", "mask", "features"),
+                   default="rgb", help="what the policy sees (default rgb; chroma: the RGB "
+                        "image's chromaticity, which cast shadows change less)")
     p.add_argument("--teacher", choices=("oracle", "segzeros"), default="oracle")
     p.add_argument("--episodes", type=int, default=100, help="per preset and controller")
     p.add_argument("--controllers", nargs="+", default=["policy", "segzeros", "oracle"],

@@ -1,5 +1,6 @@
 """experiments/sun_frames.py: the first frames of a sun sweep, with and without cast shadows."""
 
+import re
 import sys
 from pathlib import Path
 
@@ -21,10 +22,15 @@ def test_the_cast_shadows_darken_the_frame_and_the_figure_is_drawn(tmp_path, cap
     _, (shaded,) = sun_frames.frames(config, [80.0], 0, TINY, True)
     assert lit.shape == shaded.shape == (16, 16, 3) and lit.dtype == np.uint8
     assert shaded.astype(float).mean() < lit.astype(float).mean() - 5.0
+    # the shadows change the frame's chromaticity (env.observation=chroma) less than its RGB
+    rgb, chroma = (sun_frames.shadow_change(shaded, lit, k) for k in ("rgb", "chroma"))
+    assert 0.0 < chroma < 0.7 * rgb, (rgb, chroma)
+    assert sun_frames.shadow_change(lit, lit) == 0.0
     sets = [a for s in TINY for a in ("--set", s)]
     png = tmp_path / "frames.png"
     assert sun_frames.main(["--azimuths", "80", *sets, "--out", str(png)]) == 0
     assert png.read_bytes()[:4] == b"\x89PNG"
+    assert re.search(r"^ +80\.0°  \d\.\d{3}  \d\.\d{3}$", capsys.readouterr().out, re.M)
     assert sun_frames.main(["--episode", "-1", "--out", str(png)]) == 2  # checked first
     foreign = tmp_path / "mine.png"
     foreign.write_bytes(b"not ours")

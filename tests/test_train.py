@@ -356,6 +356,46 @@ def test_checkpoint_roundtrip_and_mismatch(tmp_path):
         CK.load(tmp_path / "p")
 
 
+def test_a_chroma_observation_keeps_a_pixels_colour_not_its_brightness(tmp_path):
+    """`env.observation: chroma`: the image's chromaticity. A pixel darkened by any factor (a
+    cast shadow, the exposure) keeps it within 5 levels while its r + g + b stays at least 96;
+    its hue is kept (green stays greenest). The observation, its example, its checkpoint and
+    the training command's choices know the kind; an RGB checkpoint is not a chroma one."""
+    import argparse
+    import sys
+
+    from mjxrow.policies import observe as O
+
+    rgb = np.random.default_rng(0).integers(0, 256, (4000, 3)).astype(np.uint8)
+    base = np.asarray(O.chromaticity(jnp.asarray(rgb)), int)
+    assert base.dtype == int and np.all(np.abs(base.sum(-1) - 255) <= 2)
+    for k in (0.8, 0.5, 0.3):
+        dark = np.round(rgb * k).astype(np.uint8)
+        got = np.asarray(O.chromaticity(jnp.asarray(dark)), int)
+        bright = dark.astype(int).sum(-1) >= 96
+        assert bright.sum() > 500 and np.abs(got - base)[bright].max() <= 5, k
+        assert not np.array_equal(dark, rgb)
+    leaf = np.asarray(O.chromaticity(jnp.asarray([[40, 120, 30], [10, 30, 8]], jnp.uint8)))
+    assert (leaf.argmax(-1) == 1).all()
+    frame = types.SimpleNamespace(rgb=jnp.asarray(rgb[:256].reshape(16, 16, 3)),
+                                  mask=jnp.zeros((16, 16), bool))
+    spec = E.ObsSpec("chroma", 16, 16, True)
+    np.testing.assert_array_equal(O.image(spec, frame, None), O.chromaticity(frame.rgb))
+    assert not spec.needs_segmenter and E.EnvConfig(observation="chroma").observation == "chroma"
+    obs = CK.example_obs(spec)
+    assert obs["image"].shape == (16, 16, 3) and obs["image"].dtype == jnp.uint8
+    net = N.PolicyNet(TINY)
+    CK.save(tmp_path / "c", N.init(net, obs, jax.random.key(0)), spec, TINY, (0.5, 1.0))
+    assert CK.load(tmp_path / "c", {"kind": "chroma"}).spec == spec
+    with pytest.raises(ValueError, match=r"^controller.checkpoint: .* needs observation 'rgb'"):
+        CK.load(tmp_path / "c", {"kind": "rgb"})
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
+    import train_policy
+
+    action = next(a for a in train_policy.parser()._actions if "--observation" in a.option_strings)
+    assert isinstance(action, argparse.Action) and tuple(action.choices) == E.KINDS
+
+
 # Not in the suite (-m slow): 40 s of CPU compilation of the policy's closed loop; the suite
 # keeps the checkpoint's checks and its one-line errors
 @pytest.mark.slow

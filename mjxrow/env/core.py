@@ -51,7 +51,7 @@ from mjxrow.rollout.config import ControllerChoice, RunConfig
 class EnvConfig:
     """Environment settings beyond the run's (static, hashable)."""
 
-    observation: str = "rgb"  # what the policy sees: 'rgb', 'mask' or 'features' (env.observe)
+    observation: str = "rgb"  # what the policy sees: 'rgb', 'chroma', 'mask', 'features'
     proprio: bool = True  # odometry (v, ω) and the previous action in the observation
     randomize: env_randomize.Randomize = env_randomize.Randomize()  # what every reset draws
     reward: env_reward.RewardConfig = env_reward.RewardConfig()  # reward weights

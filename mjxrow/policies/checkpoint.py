@@ -206,7 +206,7 @@ def load(name: str | Path, expect: dict[str, Any] | None = None, base_dir: str |
 
 def example_obs(spec: ObsSpec, image_shape=None) -> dict:
     """A zero observation of `spec` (features: the saved image shape)."""
-    if spec.kind == "rgb":
+    if spec.kind in ("rgb", "chroma"):
         img = jnp.zeros((spec.height, spec.width, 3), jnp.uint8)
     elif spec.kind == "mask":
         img = jnp.zeros((spec.height, spec.width, 1), jnp.uint8)

@@ -4,7 +4,9 @@ trained network meets the same numbers in a sweep as in training.
 
 Observation (a dict pytree, one world; add [B] / [T, B] axes for batches):
 
-- `image`: `kind` "rgb": the camera image, uint8 [H, W, 3]; "mask": the plant mask, uint8
+- `image`: `kind` "rgb": the camera image, uint8 [H, W, 3]; "chroma": its chromaticity
+  (`chromaticity`: each pixel's colour divided by its brightness, so that a cast shadow, which
+  mostly darkens, changes it less), uint8 [H, W, 3]; "mask": the plant mask, uint8
   [H, W, 1] in {0, 1} (the segmenter's, or the renderer's ground truth when
   `perception.source` is "ground_truth"); "features": the frozen MobileNetV3 encoder's last
   feature map of the RGB image, float32 [ceil(H/16), ceil(W/16), C].
@@ -28,7 +30,7 @@ from mjxrow.control.base import wrap_angle
 from mjxrow.policies import perception
 from mjxrow.seg import model as seg_model
 
-KINDS = ("rgb", "mask", "features")
+KINDS = ("rgb", "chroma", "mask", "features")
 PROPRIO_DIM = 4  # (v / v_max, ω / ω_max, previous action v, previous action ω)
 
 
@@ -125,10 +127,22 @@ def features(seg: Segmenter, rgb: jax.Array) -> jax.Array:
     return jax.lax.stop_gradient(high[0].astype(jnp.float32))
 
 
+def chromaticity(rgb: jax.Array) -> jax.Array:
+    """uint8 [..., 3] → uint8 [..., 3]: each pixel's (r, g, b) / (r + g + b) (with 1 added to
+    each channel, so black is grey), times 255. Multiplying a pixel's colour by a factor, as a
+    shadow or the exposure does, changes it by at most 5 levels in 255 while the darkened
+    pixel's r + g + b is at least 96 (the rounding of dark pixels bounds it)."""
+    x = rgb.astype(jnp.float32) + 1.0
+    c = x / jnp.sum(x, axis=-1, keepdims=True)
+    return jnp.round(c * 255.0).astype(jnp.uint8)
+
+
 def image(spec: ObsSpec, frame, seg: Segmenter | None) -> jax.Array:
     """The image part of an observation from a rendered `render.Frame` (one world)."""
     if spec.kind == "rgb":
         return frame.rgb
+    if spec.kind == "chroma":
+        return chromaticity(frame.rgb)
     if spec.kind == "mask":
         if seg is None or seg.module is None:
             mask = frame.mask
