@@ -99,23 +99,19 @@ def main(argv: list[str] | None = None) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows = []
-    for shadows in (True, False):
-        run, imgs = frames(args.config, args.azimuths, args.episode, args.set, shadows)
-        rows.append((shadows, imgs))
     from mjxrow.policies import observe
 
+    run, shaded = frames(args.config, args.azimuths, args.episode, args.set, True)
+    _, lit = frames(args.config, args.azimuths, args.episode, args.set, False)
     print("the cast shadows' change of the frame (mean |change| / spread): azimuth, RGB, "
           "chromaticity")
-    for az, shaded, lit in zip(args.azimuths, rows[0][1], rows[1][1], strict=True):
-        print(f"  {az:6.1f}°  {shadow_change(shaded, lit):.3f}  "
-              f"{shadow_change(shaded, lit, 'chroma'):.3f}")
-    rows.append(("chromaticity, cast shadows",
-                 [observe.chromaticity(x) for x in rows[0][1]]))
-    labels = {True: "cast shadows", False: "no cast shadows"}
+    for az, s, u in zip(args.azimuths, shaded, lit, strict=True):
+        print(f"  {az:6.1f}°  {shadow_change(s, u):.3f}  {shadow_change(s, u, 'chroma'):.3f}")
+    rows = [("cast shadows", shaded), ("no cast shadows", lit),
+            ("chromaticity, cast shadows", [observe.chromaticity(x) for x in shaded])]
     n = len(args.azimuths)
-    fig, axes = plt.subplots(3, n, figsize=(2.1 * n, 6.7), squeeze=False)
-    for r, (what, imgs) in enumerate(rows):
+    fig, axes = plt.subplots(len(rows), n, figsize=(2.1 * n, 6.7), squeeze=False)
+    for r, (label, imgs) in enumerate(rows):
         for c, (az, img) in enumerate(zip(args.azimuths, imgs, strict=True)):
             ax = axes[r][c]
             ax.imshow(img, interpolation="nearest")
@@ -124,8 +120,8 @@ def main(argv: list[str] | None = None) -> int:
             if r == 0:
                 ax.set_title(f"sun at {az:g}°", fontsize=10)
             if c == 0:
-                ax.set_ylabel(labels.get(what, what), fontsize=10)
-    h, w = rows[0][1][0].shape[:2]
+                ax.set_ylabel(label, fontsize=10)
+    h, w = shaded[0].shape[:2]
     fig.suptitle(f"{run.preset}, episode {args.episode}: the first frame ({w} × {h} px), as "
                  "the controller gets it", fontsize=10)
     fig.tight_layout()

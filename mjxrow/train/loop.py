@@ -229,14 +229,17 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     search_s = save_s = 0.0
     window: collections.deque = collections.deque(maxlen=20)  # recent iterations' episodes
 
+    def shipped():
+        """The weights the run ships: the moving average where `train.average` > 0."""
+        return average if cfg.average > 0 else params
+
     def adversary_round():
         """A search against the policy the run would ship now (the weights' moving average
         where `train.average` > 0), its failures into the pool (the curriculum)."""
         nonlocal pools, search_s
         t0 = time.perf_counter()
         ahead.wait(bar.write)
-        policies_checkpoint.save(live, average if cfg.average > 0 else params, tr.spec,
-                                 cfg.net, tr.limits,
+        policies_checkpoint.save(live, shipped(), tr.spec, cfg.net, tr.limits,
                                  meta=_meta(cfg, tr, it, env_steps, elapsed))
         rnd = cur.round(live, out / "adversary", it, out / "adversary.jsonl")
         pools = cur.pools()
@@ -322,8 +325,7 @@ def train(cfg: TrainConfig, out: str | Path, progress: bool = True,
     if ahead is not None:
         ahead.wait(log)  # no thread left compiling when this returns
     meta = _meta(cfg, tr, it, env_steps, elapsed)
-    policy_dir = policies_checkpoint.save(out / "policy", average if cfg.average > 0 else params,
-                                          tr.spec, cfg.net, tr.limits,
+    policy_dir = policies_checkpoint.save(out / "policy", shipped(), tr.spec, cfg.net, tr.limits,
                                           meta={**meta, "average": cfg.average})
     last_dir = policies_checkpoint.save(out / "policy_last", params, tr.spec, cfg.net, tr.limits,
                                         meta=meta) if cfg.average > 0 else None
