@@ -42,6 +42,7 @@ from mjxrow.field import lanes as field_lanes
 from mjxrow.physics import sim
 from mjxrow.policies import observe as policies_observe
 from mjxrow.rollout import build as rollout_build
+from mjxrow.rollout import fingerprint as rollout_fingerprint
 from mjxrow.rollout import metrics as rollout_metrics
 from mjxrow.rollout import step as rollout_step
 from mjxrow.rollout.config import ControllerChoice, RunConfig
@@ -166,11 +167,11 @@ class Env:
         if not self._built_key or self.seg is not None:
             return ""
         try:
-            return "\n".join((self._built_key, rollout_build.stable_text(self.run),
-                              rollout_build.stable_text(self.cfg),
-                              rollout_build.stable_text(self.teacher),
-                              rollout_build.stable_text(self.teacher_params)))
-        except rollout_build.Foreign:
+            return "\n".join((self._built_key, rollout_fingerprint.stable_text(self.run),
+                              rollout_fingerprint.stable_text(self.cfg),
+                              rollout_fingerprint.stable_text(self.teacher),
+                              rollout_fingerprint.stable_text(self.teacher_params)))
+        except rollout_fingerprint.Foreign:
             return ""
 
     @property

@@ -134,7 +134,7 @@ def make_policy(run, shape) -> tuple[Policy, Any]:
 
 
 def program_statics(run) -> tuple:
-    """The run's static values as they fix its compiled program (`rollout.build.program_key`):
+    """The run's static values as they fix its compiled program (`rollout.fingerprint.program_key`):
     the checkpoint's observation, network and action limits in place of its path. The weights
     are traced, so checkpoints of one architecture and limits share a program wherever they
     lie, and a checkpoint replaced by one with other limits is another program."""

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import hashlib
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -29,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxrow import control, crops, runtime
+from mjxrow import control, runtime
 from mjxrow import field as mjxrow_field
 from mjxrow.field import lanes as field_lanes
 from mjxrow.field.generate import PATH_LENGTH
@@ -38,6 +37,7 @@ from mjxrow.policies import perception
 from mjxrow.rollout import episode as rollout_episode
 from mjxrow.rollout import step as rollout_step
 from mjxrow.rollout.config import RunConfig
+from mjxrow.rollout.fingerprint import program_key
 from mjxrow.rollout.metrics import Log
 
 
@@ -356,59 +356,3 @@ def _policy(reps: list[RunConfig], shape: mjxrow_field.FieldShape):
     policy = perception.perception_policy(variants[0][0], shape, first.camera, variants[0][1],
                                           module, first.render)
     return policy, perception.PARAMS_AXES, base, module
-
-
-class Foreign(Exception):
-    """Code from outside the mjxrow package (its source is not in runtime.code_version)."""
-
-
-def stable_text(x: Any) -> str:
-    """Text of a config value that is the same in every process: dataclasses and tuples field
-    by field, functions by module and name (Foreign when not mjxrow's), arrays by content."""
-    if dataclasses.is_dataclass(x) and not isinstance(x, type):
-        return f"{type(x).__qualname__}(" + ", ".join(
-            f"{f.name}={stable_text(getattr(x, f.name))}" for f in dataclasses.fields(x)) + ")"
-    if isinstance(x, (tuple, list)):
-        return f"{type(x).__qualname__}[" + ", ".join(stable_text(v) for v in x) + "]"
-    if isinstance(x, dict):
-        return "{" + ", ".join(f"{stable_text(k)}: {stable_text(v)}" for k, v in x.items()) + "}"
-    if isinstance(x, (np.ndarray, jax.Array)):
-        a = np.asarray(x)
-        return f"array{a.shape}{a.dtype}:{hashlib.sha256(a.tobytes()).hexdigest()}"
-    if isinstance(x, type) or callable(x):
-        mod = getattr(x, "__module__", "") or ""
-        if not mod.startswith("mjxrow"):
-            raise Foreign(mod)
-        return f"{mod}.{getattr(x, '__qualname__', repr(x))}"
-    return repr(x)
-
-
-def _statics(run: RunConfig) -> tuple:
-    """The run's static values as its controller says they fix the program (a learned
-    policy: its checkpoint's architecture, not its path), else `static_key()`."""
-    f = getattr(control.get(run.controller.name), "program_statics", None)
-    return run.static_key() if f is None else f(run)
-
-
-def program_key(
-    run: RunConfig | Sequence[RunConfig],
-    shape: mjxrow_field.FieldShape,
-    episode: rollout_step.EpisodeConfig,
-    model_xml: str,
-    segmenter: Any = None,
-) -> str:
-    """What fixes a group's closed-loop program, as text: the run's static values
-    (`_statics`), the field shape, the static episode config, the MJX model, the controller and
-    the crop as registered, the segmenter's architecture; for a mixed group (a list of runs, one per
-    variant) every variant's static values and controller. '' when a controller is code from
-    outside the mjxrow package (then the program is traced every run)."""
-
-    runs = [run] if isinstance(run, RunConfig) else list(run)
-    try:
-        statics = " | ".join(repr(_statics(r)) for r in runs)
-        ctrls = " | ".join(stable_text(control.get(r.controller.name)) for r in runs)
-        parts = (statics, repr(shape), repr(episode), model_xml, ctrls,
-                 stable_text(crops.get(shape.crop)), repr(segmenter))
-    except Foreign:
-        return ""
-    return "\n".join(parts)
