@@ -18,12 +18,15 @@ from collections.abc import Sequence
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from mjxrow import control, render, runtime
+from mjxrow.field import lanes as field_lanes
 from mjxrow.physics import sim
 from mjxrow.policies import perception
 from mjxrow.rollout import build as rollout_build
+from mjxrow.rollout import metrics as rollout_metrics
 from mjxrow.rollout.config import RunConfig
 from mjxrow.rollout.metrics import Log
 from mjxrow.search import objective
@@ -117,14 +120,46 @@ def first_frames(built: Any, batch: Any, runs: Sequence[RunConfig],
     return out
 
 
+def first_poses(built: Any, batch: Any, n: int) -> np.ndarray:
+    """float32 [n, 2]: (signed lateral offset [m], heading error [rad]; + left of the lane's
+    centre line, `rollout.metrics`) at the reset pose of the first n episodes of `batch` (a
+    batch of `built`), the pose their `first_frames` are seen from."""
+    fn = _pose_fn(built.episode.sim)
+    out = []
+    for i in range(n):
+        one = jax.tree.map(lambda x, i=i: x[i], (batch.fields, batch.lanes, batch.keys,
+                                                 batch.noise))
+        out.append(np.asarray(fn(built.mx, *one)))
+    return np.stack(out).astype(np.float32)
+
+
+def _reset(mx, field, lane, key, noise, scfg):
+    """One world's model and reset state, with the reset's key as `rollout.episode` splits it
+    (reset, policy)."""
+    m = sim.world_model(mx, field, lane, scfg)
+    k_reset, _ = jax.random.split(key)
+    return sim.reset(m, field, lane, k_reset, scfg, noise)
+
+
+@functools.lru_cache(maxsize=4)
+def _pose_fn(scfg):
+    """jit: one world's (lateral offset, heading error) at its reset pose."""
+
+    def offsets(mx, field, lane, key, noise):
+        p = sim.pose(_reset(mx, field, lane, key, noise, scfg))[None]
+        ln = field_lanes.lane(field, lane)
+        return jnp.stack([rollout_metrics.lateral_offset(p, ln)[0],
+                          rollout_metrics.heading_error(p, ln)[0]])
+
+    return jax.jit(offsets)
+
+
 @functools.lru_cache(maxsize=4)
 def _frame_fn(shape, intr, rcfg, scfg, segmenter):
     """jit: one world's first camera frame and mask (reset → camera → render → segment)."""
 
     def frame(mx, field, lane, key, noise, cond, threshold, variables):
-        m = sim.world_model(mx, field, lane, scfg)
-        k_reset, _ = jax.random.split(key)  # as rollout.episode: (reset, policy)
-        s0 = sim.reset(m, field, lane, k_reset, scfg, noise)
+        s0 = _reset(mx, field, lane, key, noise, scfg)
         cam_pos, cam_rot = sim.camera_pose(s0)
         f = render.render(field, shape, cam_pos, cam_rot, intr, cond, None, rcfg)
         if segmenter is None:
