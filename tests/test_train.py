@@ -907,6 +907,30 @@ def test_a_policys_program_is_named_by_its_checkpoints_architecture_not_its_path
     assert key(slower) != here and "limits (0.4, 1.0)" in key(slower)
 
 
+def test_controller_symmetric_runs_the_checkpoint_as_a_symmetric_network(saved, tmp_path):
+    """`controller.symmetric: true` runs a plain checkpoint's weights as the left-right
+    symmetric network (`net.symmetric`): the program is that of the same weights saved as a
+    symmetric network, another than the plain one's; a value other than true / false is a
+    one-line error naming the key."""
+    from mjxrow.policies import learned as L
+    from mjxrow.rollout import build as RB
+    from mjxrow.rollout.config import build_run
+
+    def run(ck, **more):
+        return build_run({"preset": "vineyard", **dict(RUN), "controller.name": "policy",
+                          "controller.checkpoint": str(ck), **more}, seed=0)
+
+    ck = CK.load(saved, {"kind": "rgb", "height": 16, "width": 16})
+    sym = CK.save(tmp_path / "sym", ck.variables, ck.spec,
+                  dataclasses.replace(TINY, symmetric=True), (0.5, 1.0))
+    mirrored = run(saved, **{"controller.symmetric": True})
+    assert L.network(mirrored.controller.params, ck).cfg.symmetric is True
+    assert L.network(run(saved).controller.params, ck) is ck.net
+    assert RB.build(mirrored).key == RB.build(run(sym)).key != RB.build(run(saved)).key
+    with pytest.raises(ValueError, match="^controller.symmetric: must be true or false"):
+        run(saved, **{"controller.symmetric": 2})
+
+
 def test_the_evaluation_reserve_follows_its_blocks():
     """train_policy.py keeps BLOCK_MINUTES of its deadline per evaluation block unless
     --eval-reserve-minutes says otherwise: the policy and its last weights on five crops are

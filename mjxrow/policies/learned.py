@@ -29,6 +29,7 @@ from flax import struct
 from mjxrow import render
 from mjxrow.control.base import Controller, Obs, Policy, register
 from mjxrow.policies import checkpoint as policies_checkpoint
+from mjxrow.policies import networks as policies_networks
 from mjxrow.policies import observe as policies_observe
 from mjxrow.policies import perception
 
@@ -40,12 +41,18 @@ class PolicyConfig:
     checkpoint: str = "shipped"  # 'shipped' (mjxrow/checkpoints/policy/) or a policy checkpoint
     # folder (absolute or relative to the working directory), written by
     # experiments/train_policy.py; its image size must be the camera's
+    symmetric: bool = False  # run the network on the observation and on its mirror image and
+    # average (ω antisymmetrically, `networks.NetConfig.symmetric`), so that it keeps no
+    # left-right bias of its own; one checkpoint, twice the network's work
 
-    STATIC: ClassVar[tuple[str, ...]] = ("checkpoint",)
+    STATIC: ClassVar[tuple[str, ...]] = ("checkpoint", "symmetric")
 
     def __post_init__(self):
         if not str(self.checkpoint).strip():
             raise ValueError("controller.checkpoint: must name a folder or 'shipped'")
+        if not isinstance(self.symmetric, bool):
+            raise ValueError(f"controller.symmetric: must be true or false, got "
+                             f"{self.symmetric!r}")
 
 
 @struct.dataclass
@@ -70,6 +77,14 @@ def load(cfg: PolicyConfig, image_hw: tuple[int, int] | None, base_dir: str = ".
     expect = () if image_hw is None else (("height", int(image_hw[0])),
                                           ("width", int(image_hw[1])))
     return _load(str(path), stamp, expect)
+
+
+def network(cfg: PolicyConfig, ck) -> policies_networks.PolicyNet:
+    """The network the controller runs: the checkpoint's, made left-right symmetric where
+    `cfg.symmetric` asks (the same variables fit either)."""
+    if not cfg.symmetric or ck.net.cfg.symmetric:
+        return ck.net
+    return policies_networks.PolicyNet(dataclasses.replace(ck.net.cfg, symmetric=True))
 
 
 def make_params(cfg: PolicyConfig, image_hw: tuple[int, int] | None = None) -> tuple:
@@ -126,8 +141,9 @@ def make_policy(run, shape) -> tuple[Policy, Any]:
 
     ck = load(run.controller.params, (run.camera.height, run.camera.width), run.base_dir)
     seg = policies_observe.segmenter_for(run, ck.spec)
-    policy = image_policy(ck.net, ck.spec, None if seg is None else seg.module, shape, run.camera,
-                          run.render, ck.limits, run.episode.control_dt)
+    policy = image_policy(network(run.controller.params, ck), ck.spec,
+                          None if seg is None else seg.module, shape, run.camera, run.render,
+                          ck.limits, run.episode.control_dt)
     variables = {"policy": ck.variables, "segmenter": None if seg is None else seg.variables}
     return policy, perception.perception_params(run.perception.conditions(),
                                                 run.perception.threshold, variables)
@@ -139,9 +155,11 @@ def program_statics(run) -> tuple:
     are traced, so checkpoints of one architecture and limits share a program wherever they
     lie, and a checkpoint replaced by one with other limits is another program."""
     ck = load(run.controller.params, None, run.base_dir)
+    net = network(run.controller.params, ck)
     return tuple(x for x in run.static_key()
-                 if not (isinstance(x, tuple) and x[0] == "controller.checkpoint")) + (
-        ("controller.checkpoint", f"{ck.spec} {ck.net.cfg} limits {ck.limits}"),)
+                 if not (isinstance(x, tuple) and x[0] in ("controller.checkpoint",
+                                                           "controller.symmetric"))) + (
+        ("controller.checkpoint", f"{ck.spec} {net.cfg} limits {ck.limits}"),)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
