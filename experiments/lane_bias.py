@@ -7,7 +7,10 @@ episodes (+ left of the lane's centre line, m), per sun azimuth of a sweep confi
 
 It prints, per azimuth: the mean offset over each episode's second half (the mean over the
 episodes, and their least and greatest), the mean offset where the episodes ended, the share
-that reached the goal, and how the episodes ended. An episode succeeds within 0.40 m of the
+that reached the goal, and how the episodes ended; then where along the path the offset
+builds up: its mean over the episodes in each of --parts equal parts of the path, by the
+distance left to the goal (the last part ends at the goal, where the row ends in Table 3's
+scenario). An episode succeeds within 0.40 m of the
 goal (`episode.goal_radius`), so a controller that drives a steady 0.3 m off the line has
 little room left. `experiments/sun_frames.py --checkpoint` measures the same policy's pull
 toward the line on single frames; this is what the closed loop makes of it.
@@ -20,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -35,6 +39,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--controller", default="policy", help="controller.name (default policy)")
     p.add_argument("--checkpoint", default="shipped",
                    help="controller.checkpoint of the policy (default shipped)")
+    p.add_argument("--parts", type=int, default=5, metavar="K",
+                   help="parts of the path the offset is shown in (default 5)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a key of the sweep YAML (repeatable)")
     return p
@@ -67,11 +73,38 @@ def offsets(log, n: int):
              int(reason[i])) for i in range(n)]
 
 
+def along(log, n: int, path_length: float, parts: int):
+    """float [n, parts]: each of the first n episodes' mean signed lateral offset where the
+    distance left to the goal (along the lane) lies in each of `parts` equal parts of
+    `path_length`, from the start's part to the goal's (NaN where it never was)."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from mjxrow.field import lanes as field_lanes
+
+    lane = jax.tree.map(lambda x: jnp.asarray(x)[..., None], log.lane)
+    s, off, _ = (np.asarray(a) for a in field_lanes.project(lane, jnp.asarray(log.pose)[..., :2]))
+    left = np.asarray(lane.s_end) - s
+    done = np.nan_to_num(1.0 - left / path_length)  # steps after the end may hold NaN poses
+    part = np.clip(np.floor(done * parts), 0, parts - 1).astype(int)
+    alive = np.asarray(log.alive)
+    out = np.full((n, parts), np.nan)
+    for i in range(n):
+        for k in range(parts):
+            m = alive[i] & (part[i] == k)
+            if m.any():
+                out[i, k] = off[i][m].mean()
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     try:
         if args.episodes < 1:
             raise ValueError(f"--episodes: must be at least 1, got {args.episodes}")
+        if args.parts < 1:
+            raise ValueError(f"--parts: must be at least 1, got {args.parts}")
         if not Path(args.config).is_file():
             raise ValueError(f"--config: {args.config}: no such file")
         cells = runs(args)
@@ -98,6 +131,15 @@ def main(argv: list[str] | None = None) -> int:
                              rollout_metrics.REASONS))) if c)
         print(f"  {az:6.1f}°  {mid.mean():+.2f} ({mid.min():+.2f} .. {mid.max():+.2f})  "
               f"{end.mean():+.2f}  {np.mean(why == rollout_metrics.GOAL):.2f}  {ends}")
+    length = float(cells[0].sim.path_length)
+    parts = along(log, n * len(cells), length, args.parts)
+    print(f"the mean offset along the path, in {args.parts} parts of {length / args.parts:.1f} m "
+          "from the start to the goal (m, + left):")
+    for k, az in enumerate(args.azimuths):
+        with warnings.catch_warnings():  # a part no episode reached: NaN
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mean = np.nanmean(parts[k * n:(k + 1) * n], axis=0)
+        print(f"  {az:6.1f}°  " + "  ".join(f"{v:+.2f}" for v in mean))
     return 0
 
 
