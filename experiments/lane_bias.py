@@ -10,10 +10,10 @@ episodes, and their least and greatest), the mean offset where the episodes ende
 that reached the goal, and how the episodes ended; then where along the path the offset
 builds up: its mean over the episodes in each of --parts equal parts of the path, by the
 distance left to the goal (the last part ends at the goal, where the row ends in Table 3's
-scenario). An episode succeeds within 0.40 m of the
-goal (`episode.goal_radius`), so a controller that drives a steady 0.3 m off the line has
-little room left. `experiments/sun_frames.py --checkpoint` measures the same policy's pull
-toward the line on single frames; this is what the closed loop makes of it.
+scenario). An episode succeeds within 0.40 m of the goal (`episode.goal_radius`), so a
+controller that drives a steady 0.3 m off the line has little room left.
+`experiments/sun_frames.py --checkpoint` measures the same policy's pull toward the line on
+single frames; this is what the closed loop makes of it.
 
 Episodes are those of the sweep's seed, 0 to --episodes − 1 (the same fields at every
 azimuth). Exit codes: 0 done, 2 bad input (the key or value named).
@@ -88,14 +88,10 @@ def along(log, n: int, path_length: float, parts: int):
     left = np.asarray(lane.s_end) - s
     done = np.nan_to_num(1.0 - left / path_length)  # steps after the end may hold NaN poses
     part = np.clip(np.floor(done * parts), 0, parts - 1).astype(int)
-    alive = np.asarray(log.alive)
-    out = np.full((n, parts), np.nan)
-    for i in range(n):
-        for k in range(parts):
-            m = alive[i] & (part[i] == k)
-            if m.any():
-                out[i, k] = off[i][m].mean()
-    return out
+    inside = np.asarray(log.alive)[:n, :, None] & (part[:n, :, None] == np.arange(parts))
+    count = inside.sum(1)
+    total = np.where(inside, off[:n, :, None], 0.0).sum(1)
+    return np.where(count > 0, total / np.maximum(count, 1), np.nan)
 
 
 def main(argv: list[str] | None = None) -> int:

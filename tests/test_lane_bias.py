@@ -16,8 +16,7 @@ TINY = ["camera.width=16", "camera.height=16", "sim.path_length=3"]
 def test_the_oracle_drives_on_the_line_and_an_offset_start_is_seen(capsys):
     """The oracle (pure pursuit on the lane's line) drives and ends its episodes on the line;
     the same episodes moved 0.25 m to the left read 0.25 m more (the sign: + left), in every part
-of the path too. Bad input
-    exits 2, naming the key or value."""
+    of the path too. Bad input exits 2, naming the key or value."""
     sets = [a for s in TINY for a in ("--set", s)]
     assert lane_bias.main(["--controller", "oracle", "--azimuths", "80", "--episodes", "3",
                            *sets, "--set", "episode.start_offset_std=0"]) == 0
