@@ -348,6 +348,11 @@ HEADLINES = [
            "shipped policy ÷ against SegZeros", "search",
            _SUN + r"the shipped policy .*distinct", "cpu", unit="×", fmt="{:.0f}",
            goal=("<=", 0.5), over=Figure("", "search", _SUN + r"SegZeros .*distinct", "cpu")),
+    Figure("failure search at an equal budget (320 episodes) on pear over the sun's azimuth, "
+           "d_RR and |ΔH|: distinct failing fields against the chroma policy (policy_chroma) ÷ "
+           "against SegZeros", "search", _SUN + r"the chroma policy .*distinct", "cpu",
+           unit="×", fmt="{:.0f}", goal=("<=", 0.5),
+           over=Figure("", "search", _SUN + r"SegZeros .*distinct", "cpu")),
     Figure("field generation", "fields", "", GPU, batch=1024),
 ]
 

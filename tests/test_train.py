@@ -396,6 +396,34 @@ def test_a_chroma_observation_keeps_a_pixels_colour_not_its_brightness(tmp_path)
     assert isinstance(action, argparse.Action) and tuple(action.choices) == E.KINDS
 
 
+def test_the_packaged_policies_load_and_steer_a_frame_each_way():
+    """Every policy folder packaged in mjxrow/checkpoints/ loads with the observation it was
+    trained on (policy_chroma: the image's chromaticity; the others RGB), at 64 x 64 px, and
+    gives finite actions on a frame and its mirror image whose turns differ."""
+    from mjxrow.policies import observe as O
+
+    root = CK.SHIPPED.parent
+    kinds = {p.name: CK.read_spec(p)[0].kind for p in sorted(root.iterdir())
+             if (p / CK.SPEC_FILE).is_file()}
+    assert kinds["policy"] == "rgb" and kinds["policy_chroma"] == "chroma", kinds
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, (64, 64, 3)).astype(np.uint8)
+    rgb[:, :20] //= 4  # a dark band on the left, as a row of trees
+    for name, kind in kinds.items():
+        ck = CK.load(root / name, {"kind": kind, "height": 64, "width": 64})
+        lim = jnp.asarray(ck.limits, jnp.float32)
+        turns = []
+        for x in (rgb, rgb[:, ::-1]):
+            frame = types.SimpleNamespace(rgb=jnp.asarray(np.ascontiguousarray(x)),
+                                          mask=jnp.zeros((64, 64), bool))
+            obs = O.observe(ck.spec, frame, None, lim * jnp.array([1.0, 0.0]),
+                            jnp.array([1.0, 0.0]), lim)
+            mean, _, _ = ck.net.apply(ck.variables, obs)
+            assert mean.shape == (2,) and np.isfinite(np.asarray(mean)).all(), name
+            turns.append(float(mean[1]))
+        assert turns[0] != turns[1], name
+
+
 # Not in the suite (-m slow): 40 s of CPU compilation of the policy's closed loop; the suite
 # keeps the checkpoint's checks and its one-line errors
 @pytest.mark.slow
