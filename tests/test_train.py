@@ -480,6 +480,14 @@ def test_training_sets_route_to_their_configs():
     with pytest.raises(ValueError, match="^env.observation: 'depth' is not one of"):
         TC.apply_sets(CFG, ["env.observation=depth"])
     assert Path(CK.SHIPPED).name == "policy"
+    # the keys of one dataclass are set together, then checked: a torso of another depth
+    deep = TC.apply_sets(CFG, ["net.channels=[4,8,8]", "net.kernels=[5,3,3]",
+                               "net.strides=[2,2,2]"])[0].net
+    assert (deep.channels, deep.kernels, deep.strides) == ((4, 8, 8), (5, 3, 3), (2, 2, 2))
+    with pytest.raises(ValueError, match=r"^net: channels, kernels and strides need equal"):
+        TC.apply_sets(CFG, ["net.channels=[4,8,8]", "net.kernels=[5,3,3]"])
+    with pytest.raises(ValueError, match="^net.hidden.x: hidden has no sub-keys"):
+        TC.apply_sets(CFG, ["net.hidden.x=1"])
 
 
 def test_replay_keeps_one_rollout_of_samples_and_writes_a_share_of_each_new_one():

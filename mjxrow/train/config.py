@@ -2,7 +2,9 @@
 `env.reward.`), `net.`, `ppo.` and `bc.` set fields of the training dataclasses (same names);
 every other key is a run key (`camera.width`, `sim.path_length`, `field.d_rr`, ...) handed to
 `rollout.config.build_run` for the environments and the evaluation. Values are YAML
-(`[16, 32]`, `true`, `null`); an unknown key is a one-line error naming it."""
+(`[16, 32]`, `true`, `null`); an unknown key is a one-line error naming it. The keys of one
+dataclass are set together and then checked (`--set net.channels=[16,32,32] --set
+net.kernels=[5,3,3] --set net.strides=[2,2,2]`: a torso of another depth)."""
 
 from __future__ import annotations
 
@@ -30,24 +32,37 @@ def _value(text: str, key: str) -> Any:
     return value
 
 
-def _replace(obj: Any, path: list[str], value: Any, dotted: str) -> Any:
-    names = {f.name: f for f in dataclasses.fields(obj)}
-    head = path[0]
-    if head not in names or head == "run":
+def _check_key(obj: Any, name: str, dotted: str) -> None:
+    names = [f.name for f in dataclasses.fields(obj)]
+    if name not in names or name == "run":
         raise ValueError(f"{dotted}: unknown key (known: "
                          f"{', '.join(n for n in names if n != 'run')})")
-    if len(path) > 1:
-        sub = getattr(obj, head)
+
+
+def _replace(obj: Any, path: list[str], leaves: dict[str, tuple[Any, str]]) -> Any:
+    """`obj` with the fields `leaves` ({name: (value, dotted key)}) of its dataclass at `path`
+    set in one replace, so that fields checked together (a network's channels, kernels and
+    strides) can change together."""
+    first = next(iter(leaves.values()))[1]
+    if path:
+        _check_key(obj, path[0], first)
+        sub = getattr(obj, path[0])
         if not dataclasses.is_dataclass(sub):
-            raise ValueError(f"{dotted}: {head} has no sub-keys")
-        value = _replace(sub, path[1:], value, dotted)
-    elif isinstance(value, list):
-        value = tuple(tuple(v) if isinstance(v, list) else v for v in value)
+            raise ValueError(f"{first}: {path[0]} has no sub-keys")
+        changes, keys = {path[0]: _replace(sub, path[1:], leaves)}, first
+    else:
+        changes = {}
+        for name, (value, dotted) in leaves.items():
+            _check_key(obj, name, dotted)
+            if isinstance(value, list):
+                value = tuple(tuple(v) if isinstance(v, list) else v for v in value)
+            changes[name] = value
+        keys = ", ".join(d for _, d in leaves.values())
     try:
-        return dataclasses.replace(obj, **{head: value})
+        return dataclasses.replace(obj, **changes)
     except (TypeError, ValueError) as e:
         msg = str(e)
-        raise ValueError(msg if msg.startswith(dotted.split(".")[0]) else f"{dotted}: {msg}") \
+        raise ValueError(msg if msg.startswith(first.split(".")[0]) else f"{keys}: {msg}") \
             from None
 
 
@@ -55,6 +70,7 @@ def apply_sets(cfg: TrainConfig, sets: list[str] | tuple[str, ...]
                ) -> tuple[TrainConfig, dict[str, Any]]:
     """(cfg with the training keys of `sets` applied, {run key: value} of the others)."""
     run: dict[str, Any] = {}
+    groups: dict[tuple[str, ...], dict[str, tuple[Any, str]]] = {}
     for item in sets:
         key, sep, text = item.partition("=")
         key = key.strip()
@@ -67,8 +83,8 @@ def apply_sets(cfg: TrainConfig, sets: list[str] | tuple[str, ...]
             continue
         if not rest:
             raise ValueError(f"{key}: expected {section}.<field>")
-        if section == "train":
-            cfg = _replace(cfg, rest.split("."), value, key)
-        else:
-            cfg = _replace(cfg, [section, *rest.split(".")], value, key)
+        path = rest.split(".") if section == "train" else [section, *rest.split(".")]
+        groups.setdefault(tuple(path[:-1]), {})[path[-1]] = (value, key)
+    for path, leaves in groups.items():  # the keys of one dataclass set together
+        cfg = _replace(cfg, list(path), leaves)
     return cfg, run
