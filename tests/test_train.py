@@ -332,6 +332,69 @@ def test_a_symmetric_network_gives_the_mirrored_world_the_mirrored_action(tmp_pa
         programs.Trainer(features)
 
 
+def test_an_auxiliary_head_learns_the_lane_error_and_leaves_the_action_alone(tmp_path):
+    """`net.aux`: a head on the torso's features that BC trains to predict the lane error
+    (offset, heading; `bc.aux_cost`). Its loss falls on a fixed batch whose lane error is a
+    function of the image; it does not change the network's action, value or parameter names
+    of the other heads; a symmetric network's prediction changes sign in the mirror, as
+    `bc.mirrored` changes the label's; the head survives a checkpoint."""
+    aux = dataclasses.replace(TINY, aux=True)
+    net, plain = N.PolicyNet(aux), N.PolicyNet(TINY)
+    obs, teacher = _fixed_batch()
+    n = teacher.shape[0]
+    bright = obs["image"].astype(jnp.float32).mean((1, 2, 3)) / 127.5 - 1.0
+    lane_error = jnp.stack([0.4 * bright, -0.1 * bright], -1)
+    params = N.init(net, jax.tree.map(lambda x: x[0], obs), jax.random.key(0))
+    assert set(params) == {"params"} and "lane_error_head" in params["params"]
+    rest = {"params": {k: v for k, v in params["params"].items() if k != "lane_error_head"}}
+    for a, b in zip(net.apply(params, obs), plain.apply(rest, obs), strict=True):
+        np.testing.assert_array_equal(a, b)
+    data = {"obs": obs, "teacher": teacher, "target": jnp.zeros(n), "lane_error": lane_error}
+    loss = BC.loss(net, value_cost=0.0, aux_cost=1.0)
+    before = loss(params, data)[1]
+    tx = P.optimizer(3e-3, 1.0)
+    new, _, _ = P.sgd(params, tx.init(params), data, jax.random.key(1), loss, tx, epochs=40,
+                      minibatches=2)
+    after = loss(new, data)[1]
+    assert float(after["lane_error_loss"]) < 0.3 * float(before["lane_error_loss"]), (
+        before, after)
+    assert "lane_error_loss" not in BC.loss(plain, 0.0, 1.0)(rest, data)[1]
+    # mirrored samples: the label changes sign with the image
+    flagged = BC.mirrored({**data, "mirror": jnp.arange(n) % 2 == 0})
+    np.testing.assert_allclose(flagged["lane_error"][0], -lane_error[0])
+    np.testing.assert_allclose(flagged["lane_error"][1], lane_error[1])
+    sym = N.PolicyNet(dataclasses.replace(aux, symmetric=True))
+    p_sym = jax.tree.map(lambda x: x * 30.0 if x.ndim == 2 and x.shape[-1] <= 2 else x, new)
+    mirror = {"image": obs["image"][:, :, ::-1],
+              "proprio": obs["proprio"] * jnp.array([1., -1., 1., -1.])}
+    pred = N.lane_error_prediction(sym, p_sym, obs)[1]
+    pred_m = N.lane_error_prediction(sym, p_sym, mirror)[1]
+    assert float(jnp.max(jnp.abs(pred))) > 1e-3
+    np.testing.assert_allclose(pred_m, -pred, atol=1e-5)
+    spec = E.ObsSpec("rgb", 16, 16, True)
+    CK.save(tmp_path / "a", new, spec, aux, (0.5, 1.0))
+    ck = CK.load(tmp_path / "a")
+    assert ck.net.cfg.aux is True
+    np.testing.assert_array_equal(N.lane_error_prediction(ck.net, ck.variables, obs)[1],
+                                  N.lane_error_prediction(net, new, obs)[1])
+    with pytest.raises(ValueError, match="^net.aux: must be true or false"):
+        TC.apply_sets(CFG, ["net.aux=2"])
+
+
+def test_the_lane_error_is_the_offset_and_heading_from_the_lane_line():
+    """`env.core.lane_error`: a pose 0.3 m left of a straight lane's line, turned 0.1 rad
+    toward the left, is (+0.3, +0.1); right of it and turned right, the negatives; the heading
+    wraps (2π + 0.1 is 0.1)."""
+    from mjxrow.env import core as env_core
+    from mjxrow.field import lanes as field_lanes
+
+    lane = field_lanes.straight_lane(jnp.float32(0.0), jnp.float32(20.0))
+    for pose, want in (([5.0, 0.3, 0.1], [0.3, 0.1]), ([5.0, -0.3, -0.1], [-0.3, -0.1]),
+                       ([5.0, 0.0, 2 * np.pi + 0.1], [0.0, 0.1])):
+        got = env_core.lane_error(lane, jnp.asarray(pose, jnp.float32))
+        np.testing.assert_allclose(got, want, atol=1e-5)
+
+
 def test_checkpoint_roundtrip_and_mismatch(tmp_path):
     spec = E.ObsSpec("rgb", 16, 16, True)
     net = N.PolicyNet(TINY)

@@ -35,6 +35,7 @@ from flax import struct
 
 from mjxrow import control, render
 from mjxrow import field as mjxrow_field
+from mjxrow.control import base as control_base
 from mjxrow.control.oracle import OracleConfig
 from mjxrow.env import randomize as env_randomize
 from mjxrow.env import reward as env_reward
@@ -63,12 +64,22 @@ class EnvConfig:
                              f"{', '.join(policies_observe.KINDS)}")
 
 
+def lane_error(lane: field_lanes.Lane, pose: jax.Array) -> jax.Array:
+    """float32 [2]: the lateral offset of `pose` (x, y, yaw) from the lane's centre line [m, +
+    left] and its heading error to the line's direction [rad] (what a policy's auxiliary head
+    learns to see: `networks.NetConfig.aux`)."""
+    _, offset, direction = field_lanes.project(lane, pose[:2])
+    return jnp.stack([offset, control_base.wrap_angle(pose[2] - direction)]).astype(jnp.float32)
+
+
 @struct.dataclass
 class State:
     """One world's environment state (Playground's `mjx_env.State`): `data` the simulation
     and episode bookkeeping, `obs` the observation dict, `reward` float32 [], `done` float32 []
     (1.0 at the step that ended the episode), `metrics` dict of float32 [], `info` dict
-    (teacher_action float32 [2], truncation float32 [], and what wrappers add)."""
+    (teacher_action float32 [2], lane_error float32 [2]: the lateral offset from the lane's
+    centre line [m, + left] and the heading error [rad] where the observation was taken,
+    truncation float32 [], and what wrappers add)."""
 
     data: Any
     obs: dict
@@ -305,7 +316,8 @@ class Env:
         obs = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), self._obs_shapes)
         return State(data=d, obs=obs, reward=zero, done=zero,
                      metrics=self._metrics(parts, d.log, zero),
-                     info={"teacher_action": jnp.zeros(2), "truncation": zero})
+                     info={"teacher_action": jnp.zeros(2), "lane_error": jnp.zeros(2),
+                           "truncation": zero})
 
     def expired(self, state: State) -> State:
         """`state` (one world or a batch) with its episode clock at the time limit: the next
@@ -323,7 +335,8 @@ class Env:
             self.spec, frame, self.seg, d.vel, d.prev_action, self.limits
         )
         return state.replace(data=d.replace(teacher=tstate), obs=obs,
-                             info={**state.info, "teacher_action": teacher})
+                             info={**state.info, "teacher_action": teacher,
+                                   "lane_error": lane_error(d.lane_line, sim.pose(d.sim))})
 
     def advance(self, state: State, action: jax.Array) -> State:
         """The physics, events and reward of one control step (obs left as it was: call

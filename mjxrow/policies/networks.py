@@ -15,6 +15,12 @@ proprioception: `observe.PROPRIO_MIRROR`) and averages, ω's mean antisymmetrica
 the mirrored world gets the mirrored action and the same value. A world that looks the same in
 a mirror (a straight lane, seen from its centre) then gets ω = 0 exactly: no left-right bias
 is left for training to remove.
+
+With `aux` the network also has an auxiliary head on the same features: it predicts where the
+robot stands in its lane, the lateral offset and the heading error (`env.core.lane_error`, in
+units of `LANE_ERROR_SCALE`), which behaviour cloning learns beside the action
+(`bc.aux_cost`), so that the torso keeps what the offset looks like. The head is sown into
+the `intermediates` collection (`lane_error_head`); acting ignores it.
 """
 
 from __future__ import annotations
@@ -41,6 +47,7 @@ class NetConfig:
     init_log_std: float = -1.0  # initial log std of the Gaussian policy (normalised actions)
     symmetric: bool = False  # left-right equivariant: the torso sees the observation and its
     # mirror image, ω's mean is their antisymmetric average (twice the torso's work)
+    aux: bool = False  # an auxiliary head predicting the lane offset and heading error (doc)
 
     def __post_init__(self):
         object.__setattr__(self, "channels", tuple(int(c) for c in self.channels))
@@ -51,8 +58,10 @@ class NetConfig:
                              f"{self.channels}, {self.kernels}, {self.strides}")
         if int(self.hidden) < 1:
             raise ValueError(f"net.hidden: must be at least 1, got {self.hidden}")
-        if not isinstance(self.symmetric, bool):
-            raise ValueError(f"net.symmetric: must be true or false, got {self.symmetric!r}")
+        for name in ("symmetric", "aux"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"net.{name}: must be true or false, got "
+                                 f"{getattr(self, name)!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v)
@@ -66,6 +75,9 @@ class NetConfig:
             raise ValueError(f"network: unknown keys {unknown}")
         return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
 
+
+# the auxiliary head's units: the lateral offset per 0.5 m, the heading error per 0.25 rad
+LANE_ERROR_SCALE = (0.5, 0.25)
 
 TINY = NetConfig(channels=(4, 8), kernels=(4, 3), strides=(2, 2), hidden=16)
 
@@ -97,6 +109,10 @@ class PolicyNet(nn.Module):
         mean = nn.Dense(2, kernel_init=nn.initializers.variance_scaling(
             0.01, "fan_in", "truncated_normal"))(x)
         value = nn.Dense(1)(x)[:, 0]
+        if self.cfg.aux:  # both the offset and the heading error change sign in a mirror
+            aux = nn.Dense(2, name="lane_error_head")(x)
+            aux = 0.5 * (aux[:n] - aux[n:]) if self.cfg.symmetric else aux
+            self.sow("intermediates", "lane_error", aux.reshape(batch + (2,)))
         if self.cfg.symmetric:  # the mirror's action mirrored back, averaged
             mean = 0.5 * (mean[:n] + mean[n:] * jnp.asarray(observe.ACTION_MIRROR))
             value = 0.5 * (value[:n] + value[n:])
@@ -106,7 +122,16 @@ class PolicyNet(nn.Module):
 
 def init(net: PolicyNet, obs_example: dict[str, jax.Array], key: jax.Array) -> dict:
     """The network's variables for observations shaped like `obs_example` (one world)."""
-    return net.init(key, jax.tree.map(lambda x: x[None], obs_example))
+    variables = net.init(key, jax.tree.map(lambda x: x[None], obs_example))
+    return {k: v for k, v in variables.items() if k != "intermediates"}
+
+
+def lane_error_prediction(net: PolicyNet, variables: Any, obs: dict[str, jax.Array]
+                          ) -> tuple[tuple[jax.Array, jax.Array, jax.Array], jax.Array]:
+    """(the network's outputs, its auxiliary head's lane error [..., 2] in units of
+    `LANE_ERROR_SCALE`) on `obs`; the network needs `aux`."""
+    out, state = net.apply(variables, obs, mutable=["intermediates"])
+    return out, state["intermediates"]["lane_error"][0]
 
 
 def log_prob(mean: jax.Array, log_std: jax.Array, action: jax.Array) -> jax.Array:

@@ -43,6 +43,7 @@ class BCConfig:
     noise_std: float = 0.2  # std of the noise on the acting action (normalised units)
     value_cost: float = 0.5  # weight of the value loss
     max_grad_norm: float = 1.0  # global gradient-norm clip
+    aux_cost: float = 1.0  # weight of the auxiliary head's loss (a network with `net.aux`)
     replay: int = 0  # earlier rollouts the updates also see, 1/replay of each (0: the current
     # rollout alone; a buffer of one rollout's samples, ~6 GB of 64 × 64 images at 15,360 worlds)
     lr_end: float = 1.0  # the step size at the end of the phase, a fraction of learning_rate
@@ -55,7 +56,7 @@ class BCConfig:
         for name in ("learning_rate", "max_grad_norm"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"bc.{name}: must be positive, got {getattr(self, name)}")
-        for name in ("noise_std", "value_cost"):
+        for name in ("noise_std", "value_cost", "aux_cost"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"bc.{name}: must be non-negative, got {getattr(self, name)}")
         if not isinstance(self.mirror, bool):
@@ -81,7 +82,8 @@ class BCConfig:
         return float(1.0 - (1.0 - self.lr_end) * min(1.0, max(0.0, progress)))
 
 
-REPLAYED = ("obs", "teacher", "target")  # what the buffer keeps of a training batch
+REPLAYED = ("obs", "teacher", "target", "lane_error")  # what the buffer keeps of a training
+# batch (those of them the batch has)
 
 
 def replay_buffer(batch: dict) -> dict:
@@ -89,7 +91,7 @@ def replay_buffer(batch: dict) -> dict:
     shapes): zeros of the `REPLAYED` entries, `pos` 0 (the next slot to write), `filled`
     False (the first `replay_mix` writes the whole of its rollout)."""
     zeros = lambda x: jnp.zeros(x.shape, x.dtype)  # noqa: E731
-    return {**{k: jax.tree.map(zeros, batch[k]) for k in REPLAYED},
+    return {**{k: jax.tree.map(zeros, batch[k]) for k in REPLAYED if k in batch},
             "pos": jnp.int32(0), "filled": jnp.bool_(False)}
 
 
@@ -100,10 +102,11 @@ def replay_mix(buffer: dict, batch: dict, key: jax.Array, spans: int) -> tuple[d
     buffer (`filled` False) first takes the whole batch, shuffled."""
     n = jax.tree.leaves(batch["teacher"])[0].shape[0]
     k = max(1, n // spans)
-    cur = {name: batch[name] for name in REPLAYED}
+    names = [name for name in REPLAYED if name in buffer]
+    cur = {name: batch[name] for name in names}
     k_fill, k_pick = jax.random.split(key)
     old = jax.lax.cond(buffer["filled"],
-                       lambda: {name: buffer[name] for name in REPLAYED},
+                       lambda: {name: buffer[name] for name in names},
                        lambda: jax.tree.map(lambda x: x[jax.random.permutation(k_fill, n)], cur))
     data = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), cur, old)
     pick = jax.random.permutation(k_pick, n)[:k]
@@ -140,7 +143,10 @@ def mirrored(b: dict) -> dict:
     if "proprio" in obs:
         obs["proprio"] = obs["proprio"] * signs(policies_observe.PROPRIO_MIRROR)
     teacher = b["teacher"] * signs(policies_observe.ACTION_MIRROR)
-    return {**b, "obs": obs, "teacher": teacher}
+    out = {**b, "obs": obs, "teacher": teacher}
+    if "lane_error" in b:  # the offset and the heading error change sign
+        out["lane_error"] = b["lane_error"] * signs((-1.0, -1.0))
+    return out
 
 
 def teacher_error(mean: jnp.ndarray, teacher: jnp.ndarray) -> jnp.ndarray:
@@ -149,18 +155,35 @@ def teacher_error(mean: jnp.ndarray, teacher: jnp.ndarray) -> jnp.ndarray:
     return jnp.mean(jnp.sum((mean - teacher) ** 2, -1))
 
 
-def loss(net: policies_networks.PolicyNet, value_cost: float):
+def lane_error_loss(pred: jnp.ndarray, lane_error: jnp.ndarray) -> jnp.ndarray:
+    """The auxiliary head's loss: the mean over samples of the squared error of its prediction
+    (units of `networks.LANE_ERROR_SCALE`) to the lane error (offset [m], heading [rad])."""
+    target = lane_error / jnp.asarray(policies_networks.LANE_ERROR_SCALE, lane_error.dtype)
+    return jnp.mean(jnp.sum((pred - target) ** 2, -1))
+
+
+def loss(net: policies_networks.PolicyNet, value_cost: float, aux_cost: float = 0.0):
     """`(params, batch) -> (loss, metrics)`: MSE of the mean action to the teacher's plus
-    `value_cost` · the value head's squared error to the λ-return targets, on the batch
-    `mirrored` where it flags samples."""
+    `value_cost` · the value head's squared error to the λ-return targets, plus with the
+    network's `aux` head `aux_cost` · its `lane_error_loss`, on the batch `mirrored` where it
+    flags samples."""
 
     def fn(params, b):
         b = mirrored(b)
-        mean, _, value = net.apply(params, b["obs"])
+        if net.cfg.aux:
+            (mean, _, value), pred = policies_networks.lane_error_prediction(net, params,
+                                                                             b["obs"])
+            a_loss = lane_error_loss(pred, b["lane_error"])
+        else:
+            mean, _, value = net.apply(params, b["obs"])
+            a_loss = jnp.float32(0.0)
         bc = teacher_error(mean, b["teacher"])
         v_loss = 0.5 * jnp.mean((b["target"] - value) ** 2)
-        total = bc + value_cost * v_loss
-        return total, {"loss": total, "bc_loss": bc, "value_loss": v_loss,
-                       "omega_error": jnp.mean(jnp.abs(mean[:, 1] - b["teacher"][:, 1]))}
+        total = bc + value_cost * v_loss + aux_cost * a_loss
+        metrics = {"loss": total, "bc_loss": bc, "value_loss": v_loss,
+                   "omega_error": jnp.mean(jnp.abs(mean[:, 1] - b["teacher"][:, 1]))}
+        if net.cfg.aux:
+            metrics["lane_error_loss"] = a_loss
+        return total, metrics
 
     return fn

@@ -117,9 +117,12 @@ def loss(net: policies_networks.PolicyNet, cfg: PPOConfig):
 def batch(traj: Transition, advantage: jax.Array, target: jax.Array) -> dict:
     """The flat training batch [T·B, ...] of a rollout."""
     flat = lambda x: x.reshape((-1,) + x.shape[2:])  # noqa: E731
-    return {"obs": jax.tree.map(flat, traj.obs), "action": flat(traj.action),
-            "log_prob": flat(traj.log_prob), "teacher": flat(traj.teacher),
-            "advantage": flat(advantage), "target": flat(target)}
+    out = {"obs": jax.tree.map(flat, traj.obs), "action": flat(traj.action),
+           "log_prob": flat(traj.log_prob), "teacher": flat(traj.teacher),
+           "advantage": flat(advantage), "target": flat(target)}
+    if traj.lane_error is not None:
+        out["lane_error"] = flat(traj.lane_error)
+    return out
 
 
 def sgd(params: Any, opt_state: Any, data: dict, key: jax.Array,

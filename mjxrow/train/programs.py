@@ -247,7 +247,8 @@ class Trainer:
         return train_bc.replay_buffer({
             "obs": jax.tree.map(shape, self.obs_example),
             "teacher": jax.ShapeDtypeStruct((n, 2), jnp.float32),
-            "target": jax.ShapeDtypeStruct((n,), jnp.float32)})
+            "target": jax.ShapeDtypeStruct((n,), jnp.float32),
+            "lane_error": jax.ShapeDtypeStruct((n, 2), jnp.float32)})
 
     def _update(self, phase, params, opt_state, traj, boot, key, replay=None, lr_scale=None):
         """One phase's update on a rollout: (params, opt_state, metrics), and for BC also its
@@ -270,7 +271,7 @@ class Trainer:
                 opt_state,
                 data,
                 key,
-                train_bc.loss(self.net, b.value_cost),
+                train_bc.loss(self.net, b.value_cost, b.aux_cost),
                 self.bc_tx,
                 b.epochs,
                 b.minibatches,

@@ -53,6 +53,8 @@ class Transition:
     done: jax.Array  # float32 [], the step ended the episode
     truncation: jax.Array  # float32 [], ... by a time limit (bootstrap through it)
     teacher: jax.Array  # float32 [2], the teacher's action on obs (labels of BC / DAgger)
+    lane_error: jax.Array | None = None  # float32 [2], the offset [m] and heading error [rad]
+    # where obs was taken (the labels of an auxiliary head: `networks.NetConfig.aux`)
 
 
 def _stats(state, sums: dict) -> dict:
@@ -91,7 +93,8 @@ def advance(net: policies_networks.PolicyNet, env, params: Any, state, key: jax.
     nxt = env.step_advance(state, a)
     tr = Transition(obs=state.obs, action=a, log_prob=policies_networks.log_prob(mean, log_std, a),
                     value=value, reward=nxt.reward, done=nxt.done,
-                    truncation=nxt.info["truncation"], teacher=teacher)
+                    truncation=nxt.info["truncation"], teacher=teacher,
+                    lane_error=state.info.get("lane_error"))
     return nxt, tr, _stats(nxt, sums)
 
 
@@ -169,7 +172,7 @@ def advance_structure(state) -> Any:
     back as leaves."""
     x = jnp.zeros(())
     tr = Transition(obs=state.obs, action=x, log_prob=x, value=x, reward=x, done=x,
-                    truncation=x, teacher=x)
+                    truncation=x, teacher=x, lane_error=x if "lane_error" in state.info else None)
     return jax.tree.structure((state, tr, sums0(state)))
 
 
