@@ -560,6 +560,7 @@ def test_replay_keeps_one_rollout_of_samples_and_writes_a_share_of_each_new_one(
     n, spans = 8, 4
     batch = lambda v: {"obs": {"image": jnp.full((n, 2, 2, 3), v, jnp.uint8)},  # noqa: E731
                        "teacher": jnp.full((n, 2), v, jnp.float32),
+                       "lane_error": jnp.full((n, 2), -v, jnp.float32),
                        "target": jnp.arange(n, dtype=jnp.float32) + 100 * v, "action": None}
     buf = BC.replay_buffer(batch(0))
     assert not bool(buf["filled"]) and buf["teacher"].shape == (n, 2)
