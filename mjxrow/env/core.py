@@ -35,7 +35,6 @@ from flax import struct
 
 from mjxrow import control, render
 from mjxrow import field as mjxrow_field
-from mjxrow.control import base as control_base
 from mjxrow.control.oracle import OracleConfig
 from mjxrow.env import randomize as env_randomize
 from mjxrow.env import reward as env_reward
@@ -66,10 +65,12 @@ class EnvConfig:
 
 def lane_error(lane: field_lanes.Lane, pose: jax.Array) -> jax.Array:
     """float32 [2]: the lateral offset of `pose` (x, y, yaw) from the lane's centre line [m, +
-    left] and its heading error to the line's direction [rad] (what a policy's auxiliary head
-    learns to see: `networks.NetConfig.aux`)."""
-    _, offset, direction = field_lanes.project(lane, pose[:2])
-    return jnp.stack([offset, control_base.wrap_angle(pose[2] - direction)]).astype(jnp.float32)
+    left] and its heading error to the line's direction [rad], as the metrics define them
+    (`rollout.metrics.lateral_offset`, `heading_error`): what a policy's auxiliary head learns
+    to see (`networks.NetConfig.aux`)."""
+    p = pose[None]  # one step
+    return jnp.concatenate([rollout_metrics.lateral_offset(p, lane),
+                            rollout_metrics.heading_error(p, lane)]).astype(jnp.float32)
 
 
 @struct.dataclass

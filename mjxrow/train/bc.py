@@ -173,17 +173,14 @@ def loss(net: policies_networks.PolicyNet, value_cost: float, aux_cost: float = 
         if net.cfg.aux:
             (mean, _, value), pred = policies_networks.lane_error_prediction(net, params,
                                                                              b["obs"])
-            a_loss = lane_error_loss(pred, b["lane_error"])
+            aux = {"lane_error_loss": lane_error_loss(pred, b["lane_error"])}
         else:
-            mean, _, value = net.apply(params, b["obs"])
-            a_loss = jnp.float32(0.0)
+            (mean, _, value), aux = net.apply(params, b["obs"]), {}
         bc = teacher_error(mean, b["teacher"])
         v_loss = 0.5 * jnp.mean((b["target"] - value) ** 2)
-        total = bc + value_cost * v_loss + aux_cost * a_loss
-        metrics = {"loss": total, "bc_loss": bc, "value_loss": v_loss,
-                   "omega_error": jnp.mean(jnp.abs(mean[:, 1] - b["teacher"][:, 1]))}
-        if net.cfg.aux:
-            metrics["lane_error_loss"] = a_loss
-        return total, metrics
+        total = bc + value_cost * v_loss + aux_cost * sum(aux.values())
+        return total, {"loss": total, "bc_loss": bc, "value_loss": v_loss,
+                       "omega_error": jnp.mean(jnp.abs(mean[:, 1] - b["teacher"][:, 1])),
+                       **aux}
 
     return fn
