@@ -754,6 +754,15 @@ def test_init_starts_from_a_checkpoint_of_the_same_network(saved):
     with pytest.raises(ValueError, match="^train.init: .* holds network"):
         Trainer(dataclasses.replace(CFG, init=str(saved), net=other)).init_params(
             jax.random.key(0))
+    # the same network with the auxiliary head: the checkpoint's weights, the head fresh
+    aux = Trainer(dataclasses.replace(CFG, init=str(saved),
+                                      net=dataclasses.replace(CFG.net, aux=True)))
+    with_head = aux.init_params(jax.random.key(7))
+    head = with_head["params"].pop("lane_error_head")
+    assert head["kernel"].shape[-1] == 2 and np.any(np.asarray(head["kernel"]) != 0)
+    for a, b in zip(jax.tree.leaves(with_head), jax.tree.leaves(CK.load(saved).variables),
+                    strict=True):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_each_preset_success_is_logged_and_drawn(tmp_path):

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import traverse_util
 
 from mjxrow import env as mjxrow_env
 from mjxrow import runtime
@@ -225,16 +226,21 @@ class Trainer:
 
     def init_params(self, key: jax.Array) -> Any:
         """A fresh network, or `cfg.init`'s weights (ValueError naming train.init when its
-        observation or network is not this run's)."""
+        observation or network is not this run's). A checkpoint without the auxiliary head
+        starts a run with `net.aux` too: its weights, the head fresh."""
         params = self.fresh_params(key)
         if not self.cfg.init:
             return params
         ck = policies_checkpoint.load(self.cfg.init, dataclasses.asdict(self.spec),
                                       key="train.init")
-        if ck.net.cfg != self.cfg.net:
+        if dataclasses.replace(ck.net.cfg, aux=self.cfg.net.aux) != self.cfg.net or (
+                ck.net.cfg.aux and not self.cfg.net.aux):
             raise ValueError(f"train.init: {ck.path} holds network {ck.net.cfg}; this run "
                              f"trains {self.cfg.net}")
-        return jax.tree.map(lambda ref, x: jnp.asarray(x, ref.dtype), params, ck.variables)
+        fresh = traverse_util.flatten_dict(params)
+        stored = traverse_util.flatten_dict(ck.variables)
+        return traverse_util.unflatten_dict({
+            k: jnp.asarray(stored.get(k, ref), ref.dtype) for k, ref in fresh.items()})
 
     def replay_buffer(self):
         """BC's empty replay buffer for this run's rollouts (`train.bc.replay_buffer`), or None
