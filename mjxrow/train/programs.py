@@ -233,8 +233,7 @@ class Trainer:
             return params
         ck = policies_checkpoint.load(self.cfg.init, dataclasses.asdict(self.spec),
                                       key="train.init")
-        if dataclasses.replace(ck.net.cfg, aux=self.cfg.net.aux) != self.cfg.net or (
-                ck.net.cfg.aux and not self.cfg.net.aux):
+        if ck.net.cfg not in (self.cfg.net, dataclasses.replace(self.cfg.net, aux=False)):
             raise ValueError(f"train.init: {ck.path} holds network {ck.net.cfg}; this run "
                              f"trains {self.cfg.net}")
         fresh = traverse_util.flatten_dict(params)
